@@ -1,0 +1,25 @@
+"""The ``msarm`` command: one Typer application with a sub-command per job.
+
+Each sub-command lives in its own module of this package and registers itself on ``app``;
+heavy imports happen inside the commands so that ``msarm --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import typer
+
+from msarm.cli.bench import bench_app
+
+app = typer.Typer(
+    name="msarm",
+    help="Control, simulate and diagnose cable-driven robots with sheathed cables.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+app.add_typer(bench_app, name="bench")
+
+
+def main() -> None:
+    """Entry point of the ``msarm`` console script."""
+    app()
