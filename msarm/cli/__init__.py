@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import typer
 
+from msarm.cli.arm import arm_command
 from msarm.cli.bench import bench_app
 
 app = typer.Typer(
@@ -17,6 +18,7 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+app.command("arm")(arm_command)
 app.add_typer(bench_app, name="bench")
 
 

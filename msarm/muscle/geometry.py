@@ -1,0 +1,245 @@
+"""Muscle geometry: cable lengths l(q), the muscle Jacobian J_c(q) and cable wrap angles.
+
+Conventions (used throughout msarm):
+
+- ``l(q)`` [m], shape ``(m,)``: the length of each cable's path as MuJoCo's spatial tendon
+  computes it, from the motor's exit in the chest through the sheath waypoints to the
+  insertion (wrapping included).
+- ``J_c(q) = dl/dq``, shape ``(m, n)``: the muscle Jacobian of paper 003 eq. 2-3, so that the
+  cable velocities are ``ldot = J_c qdot`` (eq. 3).
+- Cable tension ``f >= 0`` pulls. The joint torque of cable forces is ``tau = -J_c^T f``: a
+  cable that shortens as a joint turns (``dl/dq < 0``) pulls that joint forwards. (Paper 003
+  eq. 2 writes ``tau = J_c f`` with the paper's own sign of ``dl``; the virtual work of a
+  pulling cable, ``tau . dq = -f . dl``, fixes the sign used here.)
+- Wrap angle ``Theta(q)`` [rad], shape ``(m,)``: the total angle through which each cable's
+  path turns, the sum of the turning angles at its waypoints (and around wrapping geoms),
+  which is what the capstan friction ``exp(-mu Theta)`` of a sheath depends on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from itertools import product
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linprog
+
+from msarm.errors import InputError
+
+if TYPE_CHECKING:
+    from msarm.model import RobotData, RobotModel
+
+__all__ = [
+    "CableGeometry",
+    "cable_geometry",
+    "joint_grid",
+    "path_points",
+    "positive_spanning_margin",
+    "wrap_angles",
+]
+
+#: The MuJoCo wrap object id that marks a pulley (a split of the path into branches).
+_PULLEY = -2
+
+
+@dataclass(frozen=True)
+class CableGeometry:
+    """Cable geometry at one state.
+
+    Attributes:
+        q: Joint coordinates [rad], shape ``(n,)``.
+        lengths: Cable path lengths l(q) [m], shape ``(m,)``.
+        velocities: Cable velocities ``J_c qdot`` [m/s], shape ``(m,)``.
+        jacobian: Muscle Jacobian ``J_c = dl/dq`` [m/rad], shape ``(m, n)``.
+        wrap_angles: Total turning angle of each cable's path [rad], shape ``(m,)``.
+    """
+
+    q: NDArray[np.float64]
+    lengths: NDArray[np.float64]
+    velocities: NDArray[np.float64]
+    jacobian: NDArray[np.float64]
+    wrap_angles: NDArray[np.float64]
+
+    @property
+    def moment_arms(self) -> NDArray[np.float64]:
+        """Joint torque per newton of each cable, ``-J_c`` [m], shape ``(m, n)``."""
+        return -self.jacobian
+
+    def joint_torque(self, forces: ArrayLike) -> NDArray[np.float64]:
+        """Joint torque ``tau = -J_c^T f`` [N m] of cable forces ``f`` [N], shape ``(m,)``."""
+        return -self.jacobian.T @ np.asarray(forces, dtype=float)
+
+
+def _checked_vector(value: ArrayLike | None, size: int, name: str) -> NDArray[np.float64]:
+    if value is None:
+        return np.zeros(size)
+    array = np.asarray(value, dtype=float)
+    if array.shape != (size,):
+        raise InputError(f"{name} must have shape ({size},), got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise InputError(f"{name} must be finite, got {array}")
+    return array
+
+
+def cable_geometry(
+    model: RobotModel, data: RobotData, q: ArrayLike, qdot: ArrayLike | None = None
+) -> CableGeometry:
+    """Compute l(q), J_c(q), the cable velocities and the wrap angles with MuJoCo.
+
+    Runs MuJoCo's kinematics, ``mj_comPos`` and ``mj_tendon`` on ``data`` (it overwrites the
+    position and velocity there).
+
+    Args:
+        model: The robot.
+        data: A work space of ``model``.
+        q: Joint coordinates [rad], shape ``(n,)``.
+        qdot: Joint velocities [rad/s], shape ``(n,)``; zero if omitted.
+
+    Returns:
+        The cable geometry at ``(q, qdot)``.
+    """
+    n = model.n_joints
+    q = _checked_vector(q, n, "q")
+    qdot = _checked_vector(qdot, n, "qdot")
+    m_model, m_data = model.mj_model, data.mj
+    m_data.qpos[:] = q
+    m_data.qvel[:] = qdot
+    mujoco.mj_kinematics(m_model, m_data)
+    mujoco.mj_comPos(m_model, m_data)
+    mujoco.mj_tendon(m_model, m_data)
+    jacobian = np.zeros((m_model.ntendon, m_model.nv))
+    mujoco.mju_sparse2dense(
+        jacobian, m_data.ten_J, m_model.ten_J_rownnz, m_model.ten_J_rowadr, m_model.ten_J_colind
+    )
+    return CableGeometry(
+        q=q.copy(),
+        lengths=m_data.ten_length.copy(),
+        velocities=jacobian @ qdot,
+        jacobian=jacobian,
+        wrap_angles=wrap_angles(m_model, m_data),
+    )
+
+
+def path_points(m_model: mujoco.MjModel, m_data: mujoco.MjData, cable: int) -> list[NDArray]:
+    """Return the branches of a cable's current path as arrays of points [m].
+
+    The path is what ``mj_tendon`` last computed: site positions and the tangent points on
+    wrapping geoms, split into separate branches at pulleys.
+
+    Args:
+        m_model: MuJoCo model.
+        m_data: MuJoCo data after ``mj_tendon``.
+        cable: Tendon index.
+
+    Returns:
+        A list of arrays of shape ``(k, 3)``, one per branch.
+    """
+    start, count = int(m_data.ten_wrapadr[cable]), int(m_data.ten_wrapnum[cable])
+    points = m_data.wrap_xpos.reshape(-1, 3)[start : start + count]
+    objects = m_data.wrap_obj.reshape(-1)[start : start + count]
+    branches, current = [], []
+    for point, obj in zip(points, objects, strict=True):
+        if obj == _PULLEY:
+            if current:
+                branches.append(np.array(current))
+            current = []
+            continue
+        current.append(point.copy())
+    if current:
+        branches.append(np.array(current))
+    return branches
+
+
+def _turning_angle(points: NDArray[np.float64]) -> float:
+    segments = np.diff(points, axis=0)
+    norms = np.linalg.norm(segments, axis=1)
+    segments = segments[norms > 1e-12] / norms[norms > 1e-12, None]
+    if len(segments) < 2:
+        return 0.0
+    cosines = np.clip(np.einsum("ij,ij->i", segments[:-1], segments[1:]), -1.0, 1.0)
+    return float(np.arccos(cosines).sum())
+
+
+def wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> NDArray[np.float64]:
+    """Total turning angle of every cable's path [rad], shape ``(m,)``.
+
+    The sum over the interior points of each path of the angle between the incoming and the
+    outgoing segment. Around a wrapping geom the path holds the two tangent points, joined
+    here by their chord: the two turns at the tangent points add up to the arc angle exactly
+    for a circular arc (a cylinder wrapped square to its axis) and approximately otherwise.
+
+    Args:
+        m_model: MuJoCo model.
+        m_data: MuJoCo data after ``mj_tendon``.
+    """
+    return np.array(
+        [
+            sum(_turning_angle(branch) for branch in path_points(m_model, m_data, cable))
+            for cable in range(m_model.ntendon)
+        ]
+    )
+
+
+def joint_grid(
+    lower: ArrayLike, upper: ArrayLike, points_per_joint: int | ArrayLike
+) -> Iterator[NDArray[np.float64]]:
+    """Yield the postures of a regular grid over the joint range, limits included.
+
+    Args:
+        lower: Lower joint limits, shape ``(n,)``.
+        upper: Upper joint limits, shape ``(n,)``.
+        points_per_joint: Grid points along each joint (one number or one per joint).
+
+    Yields:
+        Postures of shape ``(n,)``, ``prod(points_per_joint)`` of them.
+    """
+    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    counts = np.broadcast_to(np.asarray(points_per_joint, dtype=int), lower.shape)
+    if np.any(counts < 1) or np.any(lower > upper):
+        raise InputError(f"invalid grid: lower={lower}, upper={upper}, points={counts}")
+    axes = [np.linspace(lo, hi, c) for lo, hi, c in zip(lower, upper, counts, strict=True)]
+    for posture in product(*axes):
+        yield np.array(posture)
+
+
+def positive_spanning_margin(jacobian: ArrayLike) -> float:
+    """How well non-negative cable forces span every joint-torque direction.
+
+    Solves the linear programme ``max t`` subject to ``J_c^T f = 0``, ``sum f = 1``,
+    ``f_i >= t``. The torques ``-J_c^T f`` with ``f >= 0`` cover all of R^n exactly when
+    ``J_c`` has full column rank and a strictly positive ``f`` balances (``t > 0``): then any
+    torque can be produced while every cable stays taut. Returns ``t`` (the smallest share of
+    the cable forces in the most even balancing force set), or ``-inf`` when no balancing
+    non-negative force set exists; zero or less means some direction cannot be produced.
+
+    Args:
+        jacobian: Muscle Jacobian ``J_c``, shape ``(m, n)``.
+    """
+    jacobian = np.asarray(jacobian, dtype=float)
+    if jacobian.ndim != 2 or not np.all(np.isfinite(jacobian)):
+        raise InputError(f"jacobian must be a finite (m, n) matrix, got shape {jacobian.shape}")
+    m, n = jacobian.shape
+    if np.linalg.matrix_rank(jacobian) < n:
+        return -np.inf
+    cost = np.zeros(m + 1)
+    cost[-1] = -1.0
+    a_eq = np.zeros((n + 1, m + 1))
+    a_eq[:n, :m] = jacobian.T
+    a_eq[n, :m] = 1.0
+    b_eq = np.zeros(n + 1)
+    b_eq[n] = 1.0
+    a_ub = np.hstack([-np.eye(m), np.ones((m, 1))])
+    result = linprog(
+        cost,
+        A_ub=a_ub,
+        b_ub=np.zeros(m),
+        A_eq=a_eq,
+        b_eq=b_eq,
+        bounds=[(0, None)] * m + [(None, None)],
+        method="highs",
+    )
+    return float(result.x[-1]) if result.status == 0 else -np.inf

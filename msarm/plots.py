@@ -1,0 +1,125 @@
+"""Plots of a robot model and its muscles, written as PNG files (headless, Agg backend)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from msarm.model import RobotModel  # noqa: E402
+from msarm.muscle import curves  # noqa: E402
+from msarm.muscle.geometry import positive_spanning_margin  # noqa: E402
+
+__all__ = ["plot_controllability", "plot_hill_curves", "plot_moment_arms"]
+
+
+def _save(fig: plt.Figure, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)
+    return path
+
+
+def plot_moment_arms(
+    model: RobotModel, path: str | Path, home: np.ndarray | None = None, points: int = 61
+) -> Path:
+    """Moment arms ``-J_c`` [cm] of every cable over each joint's range (others at ``home``).
+
+    Args:
+        model: The robot.
+        path: PNG file to write.
+        home: Posture at which the other joints are held [rad], shape ``(n,)``; zero if None.
+        points: Samples over each joint's range.
+
+    Returns:
+        The path written.
+    """
+    home = np.zeros(model.n_joints) if home is None else np.asarray(home, dtype=float)
+    columns = 2
+    rows = int(np.ceil(model.n_joints / columns))
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(11, 3.8 * rows), squeeze=False, layout="constrained"
+    )
+    for k, name in enumerate(model.joint_names):
+        ax = axes.flat[k]
+        angles = np.linspace(model.joint_lower[k], model.joint_upper[k], points)
+        arms = []
+        for angle in angles:
+            q = home.copy()
+            q[k] = angle
+            arms.append(model.geometry(q).moment_arms[:, k])
+        arms = 100 * np.array(arms)
+        for i, cable in enumerate(model.cable_names):
+            if np.abs(arms[:, i]).max() > 1e-9:
+                ax.plot(np.degrees(angles), arms[:, i], label=cable)
+        ax.axhline(0, color="0.6", lw=0.8)
+        ax.set_title(name)
+        ax.set_xlabel("joint angle [deg]")
+        ax.set_ylabel("moment arm -dl/dq [cm]")
+        ax.legend(fontsize=7, ncol=2)
+    for ax in axes.flat[model.n_joints :]:
+        ax.set_visible(False)
+    fig.suptitle(f"{model.name}: moment arms (positive: pulling turns the joint positively)")
+    return _save(fig, path)
+
+
+def plot_hill_curves(path: str | Path) -> Path:
+    """The De Groote et al. (2016) curves: active and passive force-length, force-velocity."""
+    fig, (ax_l, ax_v) = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    length = np.linspace(0.4, 1.7, 300)
+    ax_l.plot(length, curves.active_force_length(length), label="active f_l")
+    ax_l.plot(length, curves.passive_force_length(length), label="passive f_PE")
+    ax_l.plot(
+        length,
+        curves.active_force_length(length) + curves.passive_force_length(length),
+        "--",
+        label="total at a = 1",
+    )
+    ax_l.set_xlabel("normalised fibre length l_M / l_M0")
+    ax_l.set_ylabel("normalised force")
+    ax_l.set_ylim(0, 1.6)
+    ax_l.legend()
+    velocity = np.linspace(-1.0, 1.0, 300)
+    ax_v.plot(velocity, curves.force_velocity(velocity))
+    ax_v.axvline(0, color="0.6", lw=0.8)
+    ax_v.set_xlabel("normalised fibre velocity v_M / v_max (negative: shortening)")
+    ax_v.set_ylabel("f_v")
+    fig.suptitle("Hill-type muscle curves (De Groote et al. 2016)")
+    return _save(fig, path)
+
+
+def plot_controllability(
+    model: RobotModel,
+    path: str | Path,
+    joints: tuple[int, int] = (0, 1),
+    home: np.ndarray | None = None,
+    points: int = 25,
+) -> Path:
+    """Map of the positive-spanning margin over two joints (others held at ``home``).
+
+    Positive everywhere means non-negative cable forces can produce any joint torque there.
+    """
+    home = np.zeros(model.n_joints) if home is None else np.asarray(home, dtype=float)
+    a, b = joints
+    xs = np.linspace(model.joint_lower[a], model.joint_upper[a], points)
+    ys = np.linspace(model.joint_lower[b], model.joint_upper[b], points)
+    margin = np.empty((points, points))
+    for i, y in enumerate(ys):
+        for j, x in enumerate(xs):
+            q = home.copy()
+            q[a], q[b] = x, y
+            margin[i, j] = positive_spanning_margin(model.geometry(q).jacobian)
+    fig, ax = plt.subplots(figsize=(6, 5), layout="constrained")
+    mesh = ax.pcolormesh(np.degrees(xs), np.degrees(ys), margin, shading="auto", cmap="viridis")
+    fig.colorbar(mesh, ax=ax, label="positive-spanning margin (> 0: controllable)")
+    ax.set_xlabel(f"{model.joint_names[a]} [deg]")
+    ax.set_ylabel(f"{model.joint_names[b]} [deg]")
+    ax.set_title(f"min {margin.min():.3f}")
+    return _save(fig, path)

@@ -1,0 +1,147 @@
+"""msarm.model: one file, two engines that agree; clear errors on bad model files."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pinocchio
+import pytest
+
+from msarm.errors import ModelError
+from msarm.model import ARM_MODEL_PATH, load_arm, load_robot
+
+
+def test_arm_has_the_joints_and_muscles_of_paper_003(arm):
+    assert arm.joint_names == (
+        "shoulder_abduction",
+        "shoulder_flexion",
+        "shoulder_rotation",
+        "elbow",
+    )
+    assert arm.n_cables == 9
+    assert arm.muscles is not None and arm.muscles.names == arm.cable_names
+    assert len(arm.sha256) == 64
+    # The Table I targets of paper 003 lie inside the joint range.
+    table1 = np.array(
+        [
+            [0, 0.4363, -0.5236, -1.2217],
+            [0, 0.3491, -0.6109, -0.9599],
+            [0, 0.5236, -0.4363, -0.8727],
+            [-0.0873, 0.3491, -0.4363, -0.6109],
+        ]
+    )
+    assert np.all(table1 >= arm.joint_lower) and np.all(table1 <= arm.joint_upper)
+
+
+def test_mass_matrix_and_bias_forces_agree_on_100_random_states(arm):
+    rng = np.random.default_rng(20261121)
+    m_model, pin_model = arm.mj_model, arm.pin_model
+    m_data, pin_data = mujoco.MjData(m_model), pin_model.createData()
+    mass_mj = np.zeros((m_model.nv, m_model.nv))
+    worst_mass = worst_bias = 0.0
+    for _ in range(100):
+        q = rng.uniform(arm.joint_lower, arm.joint_upper)
+        v = rng.normal(scale=2.0, size=m_model.nv)
+        m_data.qpos[:] = q
+        m_data.qvel[:] = v
+        mujoco.mj_forward(m_model, m_data)
+        mujoco.mj_fullM(m_model, m_data, mass_mj)
+        q_pin = arm.to_pinocchio(q)
+        mass_pin = pinocchio.crba(pin_model, pin_data, q_pin)
+        mass_pin = np.triu(mass_pin) + np.triu(mass_pin, 1).T
+        bias_pin = pinocchio.rnea(pin_model, pin_data, q_pin, v[arm.pin_q_index], np.zeros(4))
+        worst_mass = max(worst_mass, np.abs(mass_mj - mass_pin).max())
+        worst_bias = max(worst_bias, np.abs(m_data.qfrc_bias - bias_pin).max())
+    assert worst_mass < 1e-9
+    assert worst_bias < 1e-9
+
+
+def test_hand_site_agrees_between_engines(arm):
+    q = np.array([0.3, 0.5, -0.4, -1.0])
+    m_data = mujoco.MjData(arm.mj_model)
+    m_data.qpos[:] = q
+    mujoco.mj_kinematics(arm.mj_model, m_data)
+    pin_data = arm.pin_model.createData()
+    pinocchio.framesForwardKinematics(arm.pin_model, pin_data, arm.to_pinocchio(q))
+    frame = arm.pin_model.getFrameId("hand_center")
+    np.testing.assert_allclose(
+        pin_data.oMf[frame].translation, m_data.site("hand_center").xpos, atol=1e-12
+    )
+
+
+def _variant(tmp_path: Path, old: str, new: str, count: int = 1) -> Path:
+    text = ARM_MODEL_PATH.read_text()
+    assert old in text
+    path = tmp_path / "variant.xml"
+    path.write_text(text.replace(old, new, count))
+    return path
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(ModelError, match="not found.*nowhere.xml"):
+        load_robot(tmp_path / "nowhere.xml")
+
+
+def test_malformed_file_is_refused(tmp_path):
+    path = tmp_path / "broken.xml"
+    path.write_text("<mujoco><worldbody><body></mujoco>")
+    with pytest.raises(ModelError, match="MuJoCo cannot load"):
+        load_robot(path)
+
+
+def test_model_without_tendons_is_refused(tmp_path):
+    text = re.sub(r"<tendon>.*</tendon>", "", ARM_MODEL_PATH.read_text(), flags=re.S)
+    path = tmp_path / "no_tendons.xml"
+    path.write_text(text)
+    with pytest.raises(ModelError, match="no tendons"):
+        load_robot(path)
+
+
+def test_several_root_bodies_are_refused(tmp_path):
+    path = _variant(
+        tmp_path,
+        "  </worldbody>",
+        '    <body name="table" pos="1 0 0"><geom type="box" size="0.1 0.1 0.1"/></body>\n'
+        "  </worldbody>",
+    )
+    with pytest.raises(ModelError, match="2 root bodies.*torso, table"):
+        load_robot(path)
+
+
+def test_root_body_offset_that_pinocchio_drops_is_caught(tmp_path):
+    path = _variant(tmp_path, '<body name="torso" pos="0 0 0">', '<body name="torso" pos="0 0 1">')
+    with pytest.raises(ModelError, match="body 'torso' is at"):
+        load_robot(path)
+
+
+def test_unsupported_joint_type_is_named(tmp_path):
+    path = _variant(
+        tmp_path,
+        '<joint name="elbow" type="hinge" axis="0 1 0" range="-2.3 0.05"/>',
+        '<joint name="elbow" type="ball"/>',
+    )
+    with pytest.raises(ModelError, match="joint 'elbow'.*BALL"):
+        load_robot(path)
+
+
+def test_missing_hill_parameters_are_named(tmp_path):
+    text = re.sub(r'\s*<numeric name="hill/biceps" data="[^"]*"/>', "", ARM_MODEL_PATH.read_text())
+    path = tmp_path / "no_biceps.xml"
+    path.write_text(text)
+    with pytest.raises(ModelError, match="hill/biceps"):
+        load_arm(path)
+
+
+def test_malformed_hill_parameters_are_named(tmp_path):
+    text = re.sub(
+        r'<numeric name="hill/triceps" data="[^"]*"/>',
+        '<numeric name="hill/triceps" data="300 0.1"/>',
+        ARM_MODEL_PATH.read_text(),
+    )
+    path = tmp_path / "short_triceps.xml"
+    path.write_text(text)
+    with pytest.raises(ModelError, match="hill/triceps.*2 values"):
+        load_arm(path)
