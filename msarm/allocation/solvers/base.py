@@ -1,0 +1,222 @@
+"""The interface every allocation solver implements, and the bookkeeping they share.
+
+A solver implements ``_solve`` for one validated tick; ``Allocator.solve`` adds validation,
+the reference force, the bounded least-squares fallback, the residual, the feasibility flag,
+the active set and timing, identically for all solvers.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from time import perf_counter
+from typing import ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from msarm.allocation.fallback import bounded_least_squares
+from msarm.allocation.problem import (
+    FALLBACK,
+    INFEASIBLE,
+    AllocationResult,
+    AllocationSpec,
+    BatchAllocationResult,
+    active_set,
+    check_bound_order,
+    check_tick,
+    validate_batch,
+)
+from msarm.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["Allocator", "MethodOutput"]
+
+MethodOutput = tuple[FloatArray | None, str, int, NDArray[np.int8] | None]
+"""What ``_solve`` returns: ``(f or None, status, iterations, active set or None)``.
+
+``f = None`` means the method found no force meeting the constraints; the caller then runs
+the bounded least-squares fallback. An active set of ``None`` is computed from f.
+"""
+
+
+class Allocator(ABC):
+    """Turns ``M f = b`` with force bounds into forces f, for one robot, every tick.
+
+    Build once (``make_allocator``), then call ``solve`` each tick with the new ``M``, ``b``
+    and bounds. See ``msarm.allocation.problem`` for the problem.
+
+    Args:
+        spec: Sizes, weights, reference force and tolerance.
+    """
+
+    name: ClassVar[str] = "base"
+    exact: ClassVar[bool] = True
+    """Whether the solver returns the QP optimum (the closed forms do not, in general)."""
+
+    def __init__(self, spec: AllocationSpec) -> None:
+        self.spec = spec
+        self._weights = spec.weights
+        self._tol = spec.tol
+        self._exact: Allocator | None = None
+
+    @property
+    def n_actuators(self) -> int:
+        """m, the number of actuators (length of f)."""
+        return self.spec.n_actuators
+
+    @property
+    def n_dof(self) -> int:
+        """n, the number of rows of M."""
+        return self.spec.n_dof
+
+    def __repr__(self) -> str:
+        s = self.spec
+        return (
+            f"{type(self).__name__}(n_actuators={s.n_actuators}, n_dof={s.n_dof}, "
+            f"f_ref={s.f_ref_mode!r}, tol={s.tol:g})"
+        )
+
+    @abstractmethod
+    def _solve(
+        self, M: FloatArray, b: FloatArray, f_min: FloatArray, f_max: FloatArray, f_ref: FloatArray
+    ) -> MethodOutput:
+        """Solve one validated tick; see ``MethodOutput``."""
+
+    def _fallback(
+        self, M: FloatArray, b: FloatArray, f_min: FloatArray, f_max: FloatArray, f_ref: FloatArray
+    ) -> tuple[FloatArray, int]:
+        """Forces when the method found none: ``(f, iterations)``, f within the bounds.
+
+        First the exact QP (DAQP): the problem may be feasible though the method failed, and
+        then the answer is the optimum. If DAQP finds no solution, the bounded least squares
+        of ``msarm.allocation.fallback``.
+        """
+        if self._exact is None:
+            from msarm.allocation.solvers.daqp_solver import DaqpAllocator
+
+            self._exact = DaqpAllocator(self.spec)
+        f, _, iterations, _ = self._exact._solve(M, b, f_min, f_max, f_ref)
+        if f is not None:
+            return f, iterations
+        f, extra = bounded_least_squares(M, b, f_min, f_max, self._weights, f_ref)
+        return f, iterations + extra
+
+    def _reference(
+        self, f_min: FloatArray, f_max: FloatArray, f_ref: ArrayLike | None
+    ) -> FloatArray:
+        if f_ref is None:
+            return self.spec.reference(f_min, f_max)
+        ref = np.asarray(f_ref, dtype=np.float64)
+        if ref.shape != f_min.shape[-1:] and ref.shape != f_min.shape:
+            raise InputError(
+                f"f_ref must have shape ({self.n_actuators},) [N] or match the bounds, got "
+                f"{ref.shape}"
+            )
+        if not np.isfinite(ref).all():
+            raise InputError("f_ref must be finite [N]")
+        return ref
+
+    def solve(
+        self,
+        M: ArrayLike,
+        b: ArrayLike,
+        f_min: ArrayLike,
+        f_max: ArrayLike,
+        *,
+        f_ref: ArrayLike | None = None,
+    ) -> AllocationResult:
+        """Allocate forces for one tick.
+
+        Never raises for an infeasible problem: it then returns the bounded f closest to
+        ``M f = b`` with ``feasible=False`` and its residual.
+
+        Args:
+            M: Shape (n, m): ``-J_c^T`` for the arm, ``A^T`` for a cable robot.
+            b: Shape (n,): joint torques [N m] for the arm, ``-w`` for a cable robot.
+            f_min: Lower force bounds [N], shape (m,) or scalar, finite.
+            f_max: Upper force bounds [N], shape (m,) or scalar, finite, >= f_min.
+            f_ref: Overrides the spec's reference force for this tick [N], shape (m,).
+
+        Returns:
+            The forces and how they were found.
+
+        Raises:
+            InputError: On wrong shapes, NaN or infinite values, or f_min > f_max.
+        """
+        t0 = perf_counter()
+        M, b, f_min, f_max, bb = check_tick(self.spec, M, b, f_min, f_max)
+        ref = self._reference(f_min, f_max, f_ref)
+        f, status, iterations, active = self._solve(M, b, f_min, f_max, ref)
+        tol = self._tol
+        bnorm = math.sqrt(bb)
+        if f is not None:
+            r = M @ f - b
+            residual = math.sqrt(r @ r)
+            if residual > tol * (1.0 + bnorm):
+                f = None  # a method that claims success but misses M f = b: do not trust it
+        if f is None:
+            check_bound_order(f_min, f_max)
+            f, extra = self._fallback(M, b, f_min, f_max, ref)
+            iterations += extra
+            r = M @ f - b
+            residual = math.sqrt(r @ r)
+            status = FALLBACK if residual <= tol * (1.0 + bnorm) else INFEASIBLE
+            active = None
+        if active is None:
+            active = active_set(f, f_min, f_max, tol)
+        return AllocationResult(
+            f=f,
+            feasible=status != INFEASIBLE,
+            status=status,
+            residual=residual,
+            active=active,
+            iterations=iterations,
+            solve_time=perf_counter() - t0,
+            solver=self.name,
+        )
+
+    def solve_batch(
+        self,
+        M: ArrayLike,
+        b: ArrayLike,
+        f_min: ArrayLike,
+        f_max: ArrayLike,
+        *,
+        f_ref: ArrayLike | None = None,
+    ) -> BatchAllocationResult:
+        """Allocate forces for N problems (this default loops over ``solve``).
+
+        Args:
+            M: Shape (N, n, m).
+            b: Shape (N, n).
+            f_min: Lower bounds [N], shape (m,), (N, m) or scalar.
+            f_max: Upper bounds [N], shape (m,), (N, m) or scalar.
+            f_ref: Reference forces [N], shape (m,) or (N, m), overriding the spec's.
+
+        Returns:
+            The N answers as arrays.
+
+        Raises:
+            InputError: On wrong shapes, NaN or infinite values, or f_min > f_max.
+        """
+        t0 = perf_counter()
+        M, b, lo, hi = validate_batch(self.spec, M, b, f_min, f_max)
+        count, m = M.shape[0], self.n_actuators
+        refs = None
+        if f_ref is not None:
+            refs = np.broadcast_to(self._reference(lo, hi, f_ref), (count, m))
+        f = np.empty((count, m))
+        feasible = np.empty(count, dtype=bool)
+        status = np.empty(count, dtype="<U11")
+        residual = np.empty(count)
+        active = np.empty((count, m), dtype=np.int8)
+        iterations = np.empty(count, dtype=np.int64)
+        for i in range(count):
+            res = self.solve(M[i], b[i], lo[i], hi[i], f_ref=None if refs is None else refs[i])
+            f[i], feasible[i], status[i] = res.f, res.feasible, res.status
+            residual[i], active[i], iterations[i] = res.residual, res.active, res.iterations
+        return BatchAllocationResult(
+            f, feasible, status, residual, active, iterations, perf_counter() - t0, self.name
+        )
