@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio
 
+from msarm.allocation import make_allocator
 from msarm.cli.arm import show_arm
 from msarm.model import load_arm
 
@@ -28,15 +29,22 @@ def main() -> None:
     print(f"model {arm.path} (sha256 {arm.sha256[:12]}…)")
     show_arm(arm, args.out)
 
-    # The nominal model: gravity torque and the cable forces that hold a Table I posture.
+    # The nominal model and the allocation core: the muscle forces that hold a Table I
+    # posture against gravity, within each muscle's capacity, minimising squared activations.
     q = np.array([0.0, 0.4363, -0.5236, -1.2217])  # paper 003, Table I, target 1
     gravity = pinocchio.computeGeneralizedGravity(arm.pin_model, arm.pin_model.createData(), q)
     geometry = arm.geometry(q)
-    forces, *_ = np.linalg.lstsq(-geometry.jacobian.T, gravity, rcond=None)
+    f_min, f_max = arm.muscles.force_capacity(geometry.lengths, np.zeros(arm.n_cables))
+    allocator = make_allocator(
+        arm.n_cables, arm.n_joints, "fast", weights=1.0 / arm.muscles.max_isometric_force
+    )
+    result = allocator.solve(-geometry.jacobian.T, gravity, np.maximum(f_min, 5.0), f_max)
+    activation, _ = arm.muscles.activation_for_force(result.f, geometry.lengths, np.zeros(9))
     print(f"\nTable I target 1, q = {q} rad")
     print(f"  gravity torque (Pinocchio) [N m]: {np.round(gravity, 3)}")
-    print("  minimum-norm cable forces for it [N] (may be negative: the allocation core")
-    print(f"  of the next layer keeps them within the muscles' capacity): {np.round(forces, 1)}")
+    print(f"  muscle forces holding it [N] ({result.status}, residual {result.residual:.1e}):")
+    for name, force, act in zip(arm.cable_names, result.f, activation, strict=True):
+        print(f"    {name:18s} {force:7.1f} N   activation {act:.3f}")
 
 
 if __name__ == "__main__":
