@@ -123,3 +123,77 @@ def plot_controllability(
     ax.set_ylabel(f"{model.joint_names[b]} [deg]")
     ax.set_title(f"min {margin.min():.3f}")
     return _save(fig, path)
+
+
+def plot_joint_tracking(
+    columns: dict[str, np.ndarray],
+    joint_names: tuple[str, ...],
+    path: str | Path,
+    title: str = "",
+    others: dict[str, dict[str, np.ndarray]] | None = None,
+) -> Path:
+    """Joint angles against their reference over time (as paper 003 Fig. 4 and 7).
+
+    Args:
+        columns: Log columns (``t``, ``q.<joint>``, ``q_ref.<joint>``).
+        joint_names: Joints to draw, one panel each.
+        path: PNG file to write.
+        title: Figure title.
+        others: More runs to overlay, by label (e.g. ``{"with feedforward": columns}``).
+    """
+    n = len(joint_names)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.2 * n), sharex=True, layout="constrained")
+    axes = np.atleast_1d(axes)
+    t = columns["t"]
+    for ax, name in zip(axes, joint_names, strict=True):
+        ax.plot(t, np.degrees(columns[f"q_ref.{name}"]), "k--", lw=1.2, label="reference")
+        ax.plot(t, np.degrees(columns[f"q.{name}"]), lw=1.2, label="measured")
+        for label, other in (others or {}).items():
+            ax.plot(other["t"], np.degrees(other[f"q.{name}"]), lw=1.2, label=label)
+        ax.set_ylabel(f"{name}\n[deg]")
+    axes[0].legend(fontsize=8, ncol=3)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title or "joint angles")
+    return _save(fig, path)
+
+
+def plot_cable_tensions(
+    columns: dict[str, np.ndarray],
+    cable_names: tuple[str, ...],
+    path: str | Path,
+    lower: float | None = None,
+    upper: np.ndarray | None = None,
+    title: str = "",
+) -> Path:
+    """Motor-side cable tensions (load cells) and their commands over time, bounds drawn.
+
+    Args:
+        columns: Log columns (``t``, ``tension_motor.<cable>``, ``tension_cmd.<cable>``).
+        cable_names: Cables to draw, one panel each.
+        path: PNG file to write.
+        lower: Lower tension bound [N] drawn as a line, or None.
+        upper: Upper bound per cable [N], shape ``(m,)``, or None.
+        title: Figure title.
+    """
+    m = len(cable_names)
+    columns_per_row = 3
+    rows = int(np.ceil(m / columns_per_row))
+    fig, axes = plt.subplots(
+        rows, columns_per_row, figsize=(12, 2.4 * rows), sharex=True, layout="constrained"
+    )
+    t = columns["t"]
+    for i, (ax, name) in enumerate(zip(axes.flat, cable_names, strict=False)):
+        ax.plot(t, columns[f"tension_cmd.{name}"], "k--", lw=1.0, label="command")
+        ax.plot(t, columns[f"tension_motor.{name}"], lw=1.0, label="load cell")
+        if lower is not None:
+            ax.axhline(lower, color="tab:red", lw=0.8, ls=":")
+        if upper is not None:
+            ax.axhline(upper[i], color="tab:red", lw=0.8, ls=":")
+            ax.set_ylim(top=min(ax.get_ylim()[1], 1.1 * upper[i]))
+        ax.set_title(name, fontsize=9)
+        ax.set_ylabel("N")
+    for ax in axes.flat[m:]:
+        ax.set_visible(False)
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle(title or "cable tensions (motor side)")
+    return _save(fig, path)

@@ -86,7 +86,11 @@ def _checked_vector(value: ArrayLike | None, size: int, name: str) -> NDArray[np
 
 
 def cable_geometry(
-    model: RobotModel, data: RobotData, q: ArrayLike, qdot: ArrayLike | None = None
+    model: RobotModel,
+    data: RobotData,
+    q: ArrayLike,
+    qdot: ArrayLike | None = None,
+    with_wrap_angles: bool = True,
 ) -> CableGeometry:
     """Compute l(q), J_c(q), the cable velocities and the wrap angles with MuJoCo.
 
@@ -98,6 +102,7 @@ def cable_geometry(
         data: A work space of ``model``.
         q: Joint coordinates [rad], shape ``(n,)``.
         qdot: Joint velocities [rad/s], shape ``(n,)``; zero if omitted.
+        with_wrap_angles: Compute the wrap angles (NaN if False: a controller needs none).
 
     Returns:
         The cable geometry at ``(q, qdot)``.
@@ -120,7 +125,9 @@ def cable_geometry(
         lengths=m_data.ten_length.copy(),
         velocities=jacobian @ qdot,
         jacobian=jacobian,
-        wrap_angles=wrap_angles(m_model, m_data),
+        wrap_angles=(
+            wrap_angles(m_model, m_data) if with_wrap_angles else np.full(m_model.ntendon, np.nan)
+        ),
     )
 
 
@@ -154,16 +161,6 @@ def path_points(m_model: mujoco.MjModel, m_data: mujoco.MjData, cable: int) -> l
     return branches
 
 
-def _turning_angle(points: NDArray[np.float64]) -> float:
-    segments = np.diff(points, axis=0)
-    norms = np.linalg.norm(segments, axis=1)
-    segments = segments[norms > 1e-12] / norms[norms > 1e-12, None]
-    if len(segments) < 2:
-        return 0.0
-    cosines = np.clip(np.einsum("ij,ij->i", segments[:-1], segments[1:]), -1.0, 1.0)
-    return float(np.arccos(cosines).sum())
-
-
 def wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> NDArray[np.float64]:
     """Total turning angle of every cable's path [rad], shape ``(m,)``.
 
@@ -171,17 +168,25 @@ def wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> NDArray[np.fl
     outgoing segment. Around a wrapping geom the path holds the two tangent points, joined
     here by their chord: the two turns at the tangent points add up to the arc angle exactly
     for a circular arc (a cylinder wrapped square to its axis) and approximately otherwise.
+    Pulleys split a path into branches; no turn is counted across a pulley.
 
     Args:
         m_model: MuJoCo model.
         m_data: MuJoCo data after ``mj_tendon``.
     """
-    return np.array(
-        [
-            sum(_turning_angle(branch) for branch in path_points(m_model, m_data, cable))
-            for cable in range(m_model.ntendon)
-        ]
-    )
+    count = int(m_data.ten_wrapadr[-1] + m_data.ten_wrapnum[-1])
+    points = m_data.wrap_xpos.reshape(-1, 3)[:count]
+    objects = m_data.wrap_obj.reshape(-1)[:count]
+    owner = np.repeat(np.arange(m_model.ntendon), m_data.ten_wrapnum)
+    segments = np.diff(points, axis=0)
+    # a segment joins two points of the same branch: same tendon, neither end a pulley
+    valid = (owner[1:] == owner[:-1]) & (objects[1:] != _PULLEY) & (objects[:-1] != _PULLEY)
+    norms = np.linalg.norm(segments, axis=1)
+    valid &= norms > 1e-12
+    unit = segments / np.where(valid, norms, 1.0)[:, None]
+    cosines = np.clip(np.einsum("ij,ij->i", unit[:-1], unit[1:]), -1.0, 1.0)
+    turns = np.where(valid[:-1] & valid[1:], np.arccos(cosines), 0.0)
+    return np.bincount(owner[1:-1], weights=turns, minlength=m_model.ntendon)
 
 
 def joint_grid(

@@ -1,0 +1,145 @@
+"""A compiled fast path of :class:`msarm.muscle.hill.HillMuscles` for control loops.
+
+:class:`FastHill` computes, in one compiled call per tick, each muscle's tendon force at full
+activation minus its passive force (``active``) and its passive force (``passive``), from
+which capacity, inverse and forward model are one line of arithmetic each:
+
+- ``force_capacity = (passive, passive + active)``;
+- ``force(a) = a * active + passive``;
+- ``activation_for_force(F) = clip((F - passive) / active, 0, 1)``.
+
+It skips the per-call validation of :class:`HillMuscles` (its inputs come from the
+controller's own geometry) except what would make the numbers meaningless: an MTU length at
+or below the tendon slack length raises :class:`msarm.errors.InputError`. The fibre velocity
+is limited below at the maximum shortening velocity (callers limit the MTU velocity first;
+see ``max_shortening_speed``). A test keeps it equal to :class:`HillMuscles` to round-off.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.errors import InputError
+from msarm.muscle.curves import (
+    ACTIVE_FORCE_LENGTH_COEFFICIENTS,
+    FORCE_VELOCITY_D1,
+    FORCE_VELOCITY_D2,
+    FORCE_VELOCITY_D3,
+    FORCE_VELOCITY_D4,
+    PASSIVE_E0,
+    PASSIVE_KPE,
+)
+from msarm.muscle.hill import HillMuscles
+
+__all__ = ["FastHill"]
+
+FloatArray = NDArray[np.float64]
+
+
+@numba.njit(cache=True)
+def _hill_parts(
+    lengths,
+    velocities,
+    f_max,
+    l_opt,
+    l_slack,
+    thickness,
+    v_max,
+    coefficients,
+    curve,
+    active,
+    passive,
+):
+    """Write active and passive tendon-force parts [N]; return the first bad index or -1."""
+    d1, d2, d3, d4, kpe, e0 = curve[0], curve[1], curve[2], curve[3], curve[4], curve[5]
+    for i in range(lengths.shape[0]):
+        along = lengths[i] - l_slack[i]
+        if not along > 0.0:
+            return i
+        fiber = math.hypot(along, thickness[i])
+        l_norm = fiber / l_opt[i]
+        cos_alpha = along / fiber
+        v_norm = velocities[i] * cos_alpha / (v_max[i] * l_opt[i])
+        if v_norm < -1.0:
+            v_norm = -1.0
+        f_l = 0.0
+        for k in range(coefficients.shape[0]):
+            width = coefficients[k, 2] + coefficients[k, 3] * l_norm
+            if width != 0.0:
+                f_l += coefficients[k, 0] * math.exp(
+                    -0.5 * (l_norm - coefficients[k, 1]) ** 2 / width**2
+                )
+        stretch = l_norm - 1.0
+        f_pe = math.expm1(kpe * stretch / e0) / math.expm1(kpe) if stretch > 0.0 else 0.0
+        f_v = d1 * math.asinh(d2 * v_norm + d3) + d4
+        scale = f_max[i] * cos_alpha
+        active[i] = scale * f_l * f_v
+        passive[i] = scale * f_pe
+    return -1
+
+
+class FastHill:
+    """Compiled active/passive force parts of a set of Hill muscles (see module docstring).
+
+    Args:
+        muscles: The muscles whose parameters to use.
+    """
+
+    def __init__(self, muscles: HillMuscles) -> None:
+        self.muscles = muscles
+        self._f_max = np.array(muscles.max_isometric_force, dtype=float)
+        self._l_opt = np.array(muscles.optimal_fiber_length, dtype=float)
+        self._l_slack = np.array(muscles.tendon_slack_length, dtype=float)
+        self._v_max = np.array(muscles.max_contraction_velocity, dtype=float)
+        self._thickness = self._l_opt * np.sin(np.array(muscles.pennation_at_optimal, dtype=float))
+        self._coefficients = np.array(ACTIVE_FORCE_LENGTH_COEFFICIENTS, dtype=float)
+        self._curve = np.array(
+            [
+                FORCE_VELOCITY_D1,
+                FORCE_VELOCITY_D2,
+                FORCE_VELOCITY_D3,
+                FORCE_VELOCITY_D4,
+                PASSIVE_KPE,
+                PASSIVE_E0,
+            ],
+            dtype=float,
+        )
+        self.active = np.zeros(len(muscles))
+        self.passive = np.zeros(len(muscles))
+
+    @property
+    def max_shortening_speed(self) -> FloatArray:
+        """MTU shortening speed at which the fibre reaches ``v_max`` at optimal length [m/s]."""
+        return self._v_max * self._l_opt / np.cos(self.muscles.pennation_at_optimal)
+
+    def parts(
+        self, mtu_length: FloatArray, mtu_velocity: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Compute ``(active, passive)`` [N], each ``(m,)`` (arrays reused between calls).
+
+        Raises:
+            InputError: An MTU length is not longer than its tendon slack length.
+        """
+        bad = _hill_parts(
+            mtu_length,
+            mtu_velocity,
+            self._f_max,
+            self._l_opt,
+            self._l_slack,
+            self._thickness,
+            self._v_max,
+            self._coefficients,
+            self._curve,
+            self.active,
+            self.passive,
+        )
+        if bad >= 0:
+            raise InputError(
+                f"mtu_length[{bad}] (muscle {self.muscles.names[bad]!r}) = {mtu_length[bad]!r} m "
+                f"is not longer than its tendon slack length {self._l_slack[bad]!r} m"
+            )
+        return self.active, self.passive

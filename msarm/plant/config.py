@@ -1,0 +1,236 @@
+"""Parameters of the arm plant: winches, cables and the effects that make it a "real robot".
+
+Every block is a frozen dataclass; ``msarm.io.config.load_config(path, PlantConfig)`` reads
+one from YAML (unknown or missing keys are refused with the key named). Two presets:
+:data:`DEFAULT_PLANT` ("the real robot": sheath friction, winch friction, elastic cables,
+joint friction and sensor noise on) and :data:`IDEAL_PLANT` (no effect at all: the nominal
+model with perfect tension sources).
+
+Sources of the default values (plausible values for a robot of this size, not measurements):
+
+- winch: drum radius 3 mm and peak torque F_max * r, as the model file's header sizes the
+  motors; rotor inertia 3e-5 kg m^2 reflected at the drum (a 60 W flat brushless motor,
+  ~1.2e-6 kg m^2, through a 5:1 gearbox);
+- cable: 1 mm Dyneema (UHMWPE) rope, EA of about 1.5e4 N, over ~0.7 m: 2e4 N/m;
+- sheath friction: a Bowden sheath against a polymer cable, mu = 0.12 per radian of wrap.
+  With the arm's 2.4-3.9 rad of wrap this transmits exp(-mu Theta) = 62-75 % of the force
+  when pulling, inside the 60-85 % reported for Bowden cables over about half a metre
+  (Schiele et al., IEEE BioRob 2006; Jeong and Cho, IJPEM 2016);
+- winch friction: Coulomb 0.02 N m and viscous 2e-4 N m s/rad, about 1-2 % of the peak torque,
+  the shape of paper 000 eq. 5 (Coulomb + viscous);
+- joint friction: 0.15 N m Coulomb and 0.05 N m s/rad viscous at every joint (plain bearings);
+- sensor noise: encoder 1e-4 rad (14-bit), load cell 0.3 N, motor torque (current) 0.005 N m.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+__all__ = [
+    "DEFAULT_PLANT",
+    "IDEAL_PLANT",
+    "CoggingConfig",
+    "DelayConfig",
+    "EffectsConfig",
+    "ElasticityConfig",
+    "JointFrictionConfig",
+    "PlantConfig",
+    "SensorNoiseConfig",
+    "SheathFrictionConfig",
+    "WinchConfig",
+    "WinchFrictionConfig",
+    "ideal_config",
+]
+
+
+@dataclass(frozen=True)
+class WinchConfig:
+    """The winch of every cable and its drive (the motor's own tension loop).
+
+    Attributes:
+        drum_radius: Winch drum radius r [m].
+        rotor_inertia: Rotor and drum inertia about the drum axis [kg m^2].
+        torque_limit_factor: Peak motor torque as a multiple of ``F_max * r`` [-].
+        drive_gain: Proportional gain of the drive's tension loop on the load cell [-]: the
+            motor torque is ``r (T_cmd + drive_gain (T_cmd - T_load_cell))``.
+    """
+
+    drum_radius: float = 0.003
+    rotor_inertia: float = 3e-5
+    torque_limit_factor: float = 1.0
+    drive_gain: float = 4.0
+
+
+@dataclass(frozen=True)
+class ElasticityConfig:
+    """Elastic cables that go slack (one-sided springs); off: rigid cables.
+
+    Attributes:
+        enabled: On: winch dynamics and elastic, slackening cables (and sheath friction with
+            stiction). Off: the cable is rigid and the winch quasi-static, the tension is what
+            the drive renders.
+        stiffness: Cable stiffness k [N/m] (end to end).
+    """
+
+    enabled: bool = True
+    stiffness: float = 2.0e4
+
+
+@dataclass(frozen=True)
+class SheathFrictionConfig:
+    """Capstan friction of the cable in its sheath (:class:`msarm.plant.effects.SheathFriction`).
+
+    Attributes:
+        enabled: Switch.
+        mu: Friction coefficient per radian of wrap [-/rad].
+        smoothing_velocity: Cable speed over which sgn(v) is smoothed (tanh) [m/s].
+    """
+
+    enabled: bool = True
+    mu: float = 0.12
+    smoothing_velocity: float = 0.002
+
+
+@dataclass(frozen=True)
+class WinchFrictionConfig:
+    """Coulomb + viscous friction of winch and motor (paper 000 eq. 5 shape).
+
+    Attributes:
+        enabled: Switch.
+        coulomb: Coulomb friction torque [N m].
+        viscous: Viscous coefficient [N m s/rad].
+        smoothing_speed: Winch speed over which sgn is smoothed (tanh) [rad/s].
+    """
+
+    enabled: bool = True
+    coulomb: float = 0.02
+    viscous: float = 2e-4
+    smoothing_speed: float = 0.5
+
+
+@dataclass(frozen=True)
+class JointFrictionConfig:
+    """Coulomb + viscous joint friction (MuJoCo's dry friction constraint and damping).
+
+    Attributes:
+        enabled: Switch.
+        coulomb: Coulomb friction torque of every joint [N m].
+        viscous: Viscous coefficient of every joint [N m s/rad].
+    """
+
+    enabled: bool = True
+    coulomb: float = 0.15
+    viscous: float = 0.05
+
+
+@dataclass(frozen=True)
+class CoggingConfig:
+    """Motor cogging torque, periodic in the motor angle (paper 001 eq. 2-3).
+
+    Attributes:
+        enabled: Switch.
+        amplitude: Cogging torque amplitude [N m].
+        periods_per_revolution: Cogging periods per motor revolution (pole/slot pattern).
+        phase: Phase [rad].
+    """
+
+    enabled: bool = False
+    amplitude: float = 0.01
+    periods_per_revolution: int = 24
+    phase: float = 0.0
+
+
+@dataclass(frozen=True)
+class SensorNoiseConfig:
+    """Gaussian sensor noise and constant bias.
+
+    Attributes:
+        enabled: Switch.
+        joint_noise: Joint encoder noise std [rad].
+        motor_angle_noise: Motor encoder noise std [rad].
+        tension_noise: Load cell noise std [N].
+        tension_bias: Load cell bias [N].
+        torque_noise: Motor torque (current) noise std [N m].
+    """
+
+    enabled: bool = True
+    joint_noise: float = 1e-4
+    motor_angle_noise: float = 1e-4
+    tension_noise: float = 0.3
+    tension_bias: float = 0.0
+    torque_noise: float = 0.005
+
+
+@dataclass(frozen=True)
+class DelayConfig:
+    """A delay on sensing and on actuation, in control periods.
+
+    Attributes:
+        enabled: Switch.
+        sensing_periods: Readings reach the controller this many control periods late.
+        actuation_periods: Commands reach the drives this many control periods late.
+    """
+
+    enabled: bool = False
+    sensing_periods: int = 1
+    actuation_periods: int = 0
+
+
+@dataclass(frozen=True)
+class EffectsConfig:
+    """Switches and parameters of the built-in effects."""
+
+    sheath_friction: SheathFrictionConfig = field(default_factory=SheathFrictionConfig)
+    winch_friction: WinchFrictionConfig = field(default_factory=WinchFrictionConfig)
+    elasticity: ElasticityConfig = field(default_factory=ElasticityConfig)
+    joint_friction: JointFrictionConfig = field(default_factory=JointFrictionConfig)
+    cogging: CoggingConfig = field(default_factory=CoggingConfig)
+    sensor_noise: SensorNoiseConfig = field(default_factory=SensorNoiseConfig)
+    delay: DelayConfig = field(default_factory=DelayConfig)
+
+    def enabled(self) -> list[str]:
+        """Names of the effects switched on."""
+        return [name for name in EFFECT_NAMES if getattr(self, name).enabled]
+
+
+#: Names of the built-in effects, in the order the plant applies them.
+EFFECT_NAMES = (
+    "sheath_friction",
+    "winch_friction",
+    "elasticity",
+    "joint_friction",
+    "cogging",
+    "sensor_noise",
+    "delay",
+)
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """The arm plant.
+
+    Attributes:
+        name: Name of the plant (logged).
+        timestep: Plant (MuJoCo) time step [s]; 1 ms or finer.
+        winch: Winches and drives.
+        effects: The effects and their switches.
+    """
+
+    name: str = "default"
+    timestep: float = 0.001
+    winch: WinchConfig = field(default_factory=WinchConfig)
+    effects: EffectsConfig = field(default_factory=EffectsConfig)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.timestep <= 0.001:
+            raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
+
+
+def ideal_config(name: str = "ideal") -> PlantConfig:
+    """A plant with every effect off: rigid cables, perfect tension sources, no noise."""
+    off = {name_: replace(getattr(EffectsConfig(), name_), enabled=False) for name_ in EFFECT_NAMES}
+    return PlantConfig(name=name, effects=EffectsConfig(**off))
+
+
+DEFAULT_PLANT = PlantConfig()
+IDEAL_PLANT = ideal_config()

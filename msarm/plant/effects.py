@@ -1,0 +1,293 @@
+"""Effects: what makes the simulated arm differ from its nominal model.
+
+An effect is a small class with named parameters and a documented equation. The built-in
+effects of the cables and winches (sheath friction, winch friction, cogging, elasticity) run
+inside the compiled step of :mod:`msarm.plant.cable_kernel`; the others, and every effect a
+user adds, work through hooks that the plant calls. An effect overrides only the hooks it
+needs (the plant looks up, once, which hooks each effect overrides, so unused hooks cost
+nothing per step):
+
+- ``configure(plant)``: once, when the plant is built (may edit the plant's private
+  ``mj_model``, e.g. joint friction);
+- ``reset(rng)``: at every plant reset, with the plant's seeded generator;
+- ``transmission(state) -> (m,)``: factor from motor-side to insertion-side tension,
+  ``T_insertion = factor * T_motor`` (several multiply);
+- ``winch_torque(state) -> ((m,), (m,))``: torque added on each winch [N m] and its
+  derivative with respect to the winch speed [N m s/rad] (the plant integrates the winch
+  implicitly, so steep friction laws stay stable);
+- ``sense(readings, rng) -> readings``: change what the sensors report (noise, bias, delay);
+- ``actuate(command) -> command``: change the tension command on its way to the drives;
+- ``parameters() -> dict``: the ground truth written to the sidecar file.
+
+Winch angle ``theta`` is positive when the winch reels cable in; the cable slides through
+its sheath towards the motor at ``v_in = r * omega``. Users add their own effect by
+subclassing :class:`Effect` and passing an instance to ``ArmPlant(..., extra_effects=[...])``
+(see ``examples/custom_effect.py``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass, replace
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.plant.config import (
+    CoggingConfig,
+    DelayConfig,
+    EffectsConfig,
+    JointFrictionConfig,
+    SensorNoiseConfig,
+    SheathFrictionConfig,
+    WinchFrictionConfig,
+)
+
+if TYPE_CHECKING:
+    from msarm.plant.arm_plant import ArmPlant
+
+__all__ = [
+    "CableState",
+    "Cogging",
+    "Delay",
+    "Effect",
+    "JointFriction",
+    "SensorNoise",
+    "SensorReadings",
+    "SheathFriction",
+    "WinchFriction",
+    "build_effects",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class CableState:
+    """The state the effects see at a plant step (views; do not modify).
+
+    Attributes:
+        q: Joint angles [rad], shape ``(n,)``.
+        qdot: Joint velocities [rad/s], shape ``(n,)``.
+        lengths: Cable path lengths l(q) [m], shape ``(m,)``.
+        wrap_angles: Cable wrap angles Theta(q) [rad], shape ``(m,)``.
+        winch_angle: Winch angles theta (reel-in positive) [rad], shape ``(m,)``.
+        winch_speed: Winch speeds omega [rad/s], shape ``(m,)``.
+        tension_motor: Motor-side tensions of the last step [N], shape ``(m,)``.
+        drum_radius: Winch drum radius r [m].
+    """
+
+    q: FloatArray
+    qdot: FloatArray
+    lengths: FloatArray
+    wrap_angles: FloatArray
+    winch_angle: FloatArray
+    winch_speed: FloatArray
+    tension_motor: FloatArray
+    drum_radius: float
+
+
+@dataclass(frozen=True)
+class SensorReadings:
+    """What the robot's sensors report (the only thing a controller may read).
+
+    Attributes:
+        t: Time [s].
+        q: Joint encoders [rad], shape ``(n,)``.
+        motor_angle: Motor (winch) encoders, reel-in positive [rad], shape ``(m,)``.
+        motor_torque: Motor torque from the current [N m], shape ``(m,)``.
+        tension_motor: Load cell on each cable at the motor side [N], shape ``(m,)``.
+    """
+
+    t: float
+    q: FloatArray
+    motor_angle: FloatArray
+    motor_torque: FloatArray
+    tension_motor: FloatArray
+
+
+class Effect:
+    """Base class of the effects; override the hooks you need (see the module docstring)."""
+
+    name: ClassVar[str] = "effect"
+
+    def configure(self, plant: ArmPlant) -> None:
+        """Prepare for ``plant`` (called once)."""
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Reset internal state (called at every plant reset)."""
+
+    def transmission(self, state: CableState) -> FloatArray:
+        """Factor ``T_insertion / T_motor`` of each cable, shape ``(m,)``."""
+        raise NotImplementedError
+
+    def winch_torque(self, state: CableState) -> tuple[FloatArray, FloatArray]:
+        """Torque on each winch [N m] and its derivative wrt the winch speed, each ``(m,)``."""
+        raise NotImplementedError
+
+    def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:
+        """Return the readings as this effect changes them."""
+        raise NotImplementedError
+
+    def actuate(self, command: FloatArray) -> FloatArray:
+        """Return the tension command [N] as it reaches the drives, shape ``(m,)``."""
+        raise NotImplementedError
+
+    def parameters(self) -> dict:
+        """The effect's parameters (ground truth for the sidecar file)."""
+        return {}
+
+
+class SheathFriction(Effect):
+    """Capstan friction of each cable in its sheath, posture dependent, with stiction.
+
+    The cable carries ``T_m`` on the motor side and ``T_i`` at the insertion. While the cable
+    slides through its sheath the two obey the capstan law
+
+    ``T_i = T_m * exp(-mu * Theta(q) * sgn(v_in))``
+
+    with ``Theta(q)`` the total wrap angle of the cable's path [rad] and ``v_in`` the speed at
+    which the cable slides towards the motor: pulled in, the insertion sees less than the motor
+    side pulls; paid out, more. While it sticks, ``T_i`` stays anywhere in
+    ``[T_m e^(-mu Theta), T_m e^(mu Theta)]`` (hysteresis). With elastic cables this is exact
+    (a two-segment cable with a quasi-static sliding node); with rigid cables the sign is
+    smoothed, ``tanh(v_in / v_s)``. Runs in :mod:`msarm.plant.cable_kernel`.
+    """
+
+    name = "sheath_friction"
+
+    def __init__(self, config: SheathFrictionConfig) -> None:
+        self.config = config
+
+    def parameters(self) -> dict:  # noqa: D102
+        return asdict(self.config)
+
+
+class WinchFriction(Effect):
+    """Coulomb + viscous friction in winch and motor (the shape of paper 000 eq. 5).
+
+    ``tau_f = -tau_c * tanh(omega / omega_s) - b * omega`` on the winch speed ``omega``.
+    Runs in :mod:`msarm.plant.cable_kernel`.
+    """
+
+    name = "winch_friction"
+
+    def __init__(self, config: WinchFrictionConfig) -> None:
+        self.config = config
+
+    def parameters(self) -> dict:  # noqa: D102
+        return asdict(self.config)
+
+
+class Cogging(Effect):
+    """Motor cogging torque, periodic in the motor angle (paper 001 eq. 2-3, one harmonic).
+
+    ``tau_cog = A * sin(N * theta + phi)``. Runs in :mod:`msarm.plant.cable_kernel`.
+    """
+
+    name = "cogging"
+
+    def __init__(self, config: CoggingConfig) -> None:
+        self.config = config
+
+    def parameters(self) -> dict:  # noqa: D102
+        return asdict(self.config)
+
+
+class JointFriction(Effect):
+    """Coulomb + viscous friction at every joint.
+
+    ``tau_f = -tau_c sgn(qdot) - b qdot``, rendered by MuJoCo's dry-friction constraint
+    (``dof_frictionloss``, true stiction) and joint damping (``dof_damping``).
+    """
+
+    name = "joint_friction"
+
+    def __init__(self, config: JointFrictionConfig) -> None:
+        self.config = config
+
+    def configure(self, plant: ArmPlant) -> None:  # noqa: D102
+        plant.mj_model.dof_frictionloss[:] = self.config.coulomb
+        plant.mj_model.dof_damping[:] = self.config.viscous
+
+    def parameters(self) -> dict:  # noqa: D102
+        return asdict(self.config)
+
+
+class SensorNoise(Effect):
+    """Gaussian noise (std per channel) and a constant load-cell bias on every reading."""
+
+    name = "sensor_noise"
+
+    def __init__(self, config: SensorNoiseConfig) -> None:
+        self.config = config
+
+    def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:  # noqa: D102
+        c = self.config
+        return replace(
+            readings,
+            q=readings.q + c.joint_noise * rng.standard_normal(readings.q.shape),
+            motor_angle=readings.motor_angle
+            + c.motor_angle_noise * rng.standard_normal(readings.motor_angle.shape),
+            motor_torque=readings.motor_torque
+            + c.torque_noise * rng.standard_normal(readings.motor_torque.shape),
+            tension_motor=readings.tension_motor
+            + c.tension_bias
+            + c.tension_noise * rng.standard_normal(readings.tension_motor.shape),
+        )
+
+    def parameters(self) -> dict:  # noqa: D102
+        return asdict(self.config)
+
+
+class Delay(Effect):
+    """Readings and commands arrive a whole number of control periods late.
+
+    ``y_controller(k) = y(k - d_s)`` and ``u_drive(k) = u_controller(k - d_a)``; before enough
+    history exists the oldest value is repeated.
+    """
+
+    name = "delay"
+
+    def __init__(self, config: DelayConfig) -> None:
+        self.config = config
+        self._readings: deque[SensorReadings] = deque(maxlen=config.sensing_periods + 1)
+        self._commands: deque[FloatArray] = deque(maxlen=config.actuation_periods + 1)
+
+    def reset(self, rng: np.random.Generator) -> None:  # noqa: D102
+        self._readings.clear()
+        self._commands.clear()
+
+    def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:  # noqa: D102
+        self._readings.append(readings)
+        return self._readings[0]
+
+    def actuate(self, command: FloatArray) -> FloatArray:  # noqa: D102
+        self._commands.append(np.array(command, dtype=float))
+        return self._commands[0]
+
+    def parameters(self) -> dict:  # noqa: D102
+        return asdict(self.config)
+
+
+_BUILT_IN = {
+    "sheath_friction": SheathFriction,
+    "winch_friction": WinchFriction,
+    "cogging": Cogging,
+    "joint_friction": JointFriction,
+    "sensor_noise": SensorNoise,
+    "delay": Delay,
+}
+
+
+def build_effects(config: EffectsConfig) -> list[Effect]:
+    """Instantiate the built-in effects that ``config`` switches on.
+
+    Elasticity is not among them: it is the plant's cable model itself.
+    """
+    return [
+        cls(getattr(config, name))
+        for name, cls in _BUILT_IN.items()
+        if getattr(config, name).enabled
+    ]

@@ -1,0 +1,39 @@
+"""The compiled Hill fast path equals the validated reference (HillMuscles)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from msarm.errors import InputError
+from msarm.muscle.fast import FastHill
+
+
+def test_fast_parts_equal_reference_over_random_states(arm):
+    muscles = arm.muscles
+    fast = FastHill(muscles)
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        q = rng.uniform(arm.joint_lower, arm.joint_upper)
+        qdot = rng.normal(scale=1.0, size=arm.n_joints)
+        geometry = arm.geometry(q, qdot)
+        speed = np.maximum(geometry.velocities, -0.9 * fast.max_shortening_speed)
+        f_min, f_max = muscles.force_capacity(geometry.lengths, speed)
+        active, passive = fast.parts(geometry.lengths, speed)
+        np.testing.assert_allclose(passive, f_min, rtol=1e-12, atol=1e-10)
+        np.testing.assert_allclose(passive + active, f_max, rtol=1e-12, atol=1e-10)
+        activation = rng.uniform(0, 1, arm.n_cables)
+        np.testing.assert_allclose(
+            activation * active + passive,
+            muscles.force(activation, geometry.lengths, speed),
+            rtol=1e-12,
+            atol=1e-10,
+        )
+
+
+def test_fast_path_refuses_a_length_below_slack(arm):
+    fast = FastHill(arm.muscles)
+    lengths = np.array(arm.muscles.tendon_slack_length) + 0.1
+    lengths[3] = arm.muscles.tendon_slack_length[3]
+    with pytest.raises(InputError, match="pectoralis_major"):
+        fast.parts(lengths, np.zeros(arm.n_cables))

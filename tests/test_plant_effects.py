@@ -1,0 +1,245 @@
+"""Each plant effect, switched on alone, changes what it should and nothing else."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from msarm.errors import InputError
+from msarm.plant import IDEAL_PLANT, ArmPlant, Effect, PlantConfig
+from msarm.plant.config import (
+    CoggingConfig,
+    DelayConfig,
+    ElasticityConfig,
+    JointFrictionConfig,
+    SensorNoiseConfig,
+    SheathFrictionConfig,
+    WinchFrictionConfig,
+)
+
+POSTURE = np.array([0.2, 0.4, -0.3, -0.9])
+# a joint velocity that shortens some cables and lengthens others
+MOTION = np.array([0.6, -0.5, 0.4, -0.8])
+
+
+def only(**effects) -> PlantConfig:
+    """The ideal plant with the given effects switched on."""
+    return replace(IDEAL_PLANT, name="test", effects=replace(IDEAL_PLANT.effects, **effects))
+
+
+def moving_plant(arm, config: PlantConfig, tension: float = 30.0, steps: int = 3) -> ArmPlant:
+    plant = ArmPlant(arm, config, seed=1)
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, tension), qdot=MOTION)
+    plant.step(steps)
+    return plant
+
+
+def cable_speeds(arm, plant: ArmPlant) -> np.ndarray:
+    return plant.mj_data.ten_velocity.copy()
+
+
+def test_ideal_plant_renders_the_command_exactly(arm):
+    plant = moving_plant(arm, IDEAL_PLANT)
+    truth = plant.ground_truth()
+    np.testing.assert_allclose(truth["tension_motor"], 30.0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(truth["tension_insertion"], 30.0, rtol=0, atol=1e-12)
+    readings = plant.sense()
+    np.testing.assert_array_equal(readings.q, truth["q"])
+    np.testing.assert_array_equal(readings.tension_motor, truth["tension_motor"])
+
+
+def test_sheath_friction_alone_rigid_cable(arm):
+    """Pulled in: insertion < motor side; paid out: insertion > motor side."""
+    plant = moving_plant(arm, only(sheath_friction=SheathFrictionConfig(enabled=True)))
+    truth = plant.ground_truth()
+    speed = cable_speeds(arm, plant)
+    pulled_in, paid_out = speed < -0.01, speed > 0.01
+    assert pulled_in.any() and paid_out.any()
+    assert np.all(truth["tension_insertion"][pulled_in] < truth["tension_motor"][pulled_in])
+    assert np.all(truth["tension_insertion"][paid_out] > truth["tension_motor"][paid_out])
+    # the capstan bound: at most a factor exp(mu Theta) either way
+    ratio = truth["tension_insertion"] / truth["tension_motor"]
+    bound = np.exp(0.12 * truth["wrap_angle"])
+    assert np.all(ratio <= bound + 1e-12) and np.all(ratio >= 1 / bound - 1e-12)
+    # nothing else: the motor side still renders the command
+    np.testing.assert_allclose(truth["tension_motor"], 30.0, atol=1e-12)
+
+
+def _one_cable(mu: float, wrap: float = 3.0, tension: float = 30.0):
+    """A single elastic cable on a fixed path: the kernel alone, with its state arrays."""
+    from msarm.plant.cable_kernel import PARAMS
+
+    values = dict.fromkeys(PARAMS, 0.0)
+    values.update(
+        timestep=1e-3,
+        drum_radius=0.003,
+        rotor_inertia=3e-5,
+        drive_gain=4.0,
+        stiffness=2e4,
+        mu=mu,
+        smoothing_velocity=0.002,
+        smoothing_speed=0.5,
+        elastic=1.0,
+    )
+    arrays = {
+        "params": np.array([values[name] for name in PARAMS]),
+        "lengths": np.array([0.7]),
+        "velocities": np.zeros(1),
+        "wrap": np.array([wrap]),
+        "command": np.array([tension]),
+        "torque_limit": np.array([1.5]),
+        "length_ref": np.array([0.7]),
+        "stretch_motor0": np.array([tension / 4e4]),
+        "stretch_insertion0": np.array([tension / 4e4]),
+        "user_torque": np.zeros(1),
+        "user_slope": np.zeros(1),
+        "user_factor": np.ones(1),
+        "theta": np.zeros(1),
+        "omega": np.zeros(1),
+        "slide": np.zeros(1),
+        "tension_motor": np.array([tension]),
+        "tension_insertion": np.array([tension]),
+        "motor_torque": np.zeros(1),
+        "jac_data": np.array([0.02]),
+        "jac_rownnz": np.array([1], dtype=np.int32),
+        "jac_rowadr": np.array([0], dtype=np.int32),
+        "jac_colind": np.array([0], dtype=np.int32),
+        "qfrc": np.zeros(1),
+    }
+    return arrays
+
+
+def _settle(arrays, command: float, ramp: int = 4000, hold: int = 2000):
+    """Ramp the command slowly (quasi-static: no overshoot of the drive), then hold it."""
+    from msarm.plant.cable_kernel import step_cables
+
+    start = float(arrays["command"][0])
+    for k in range(ramp + hold):
+        arrays["command"][:] = start + (command - start) * min(1.0, (k + 1) / ramp)
+        step_cables(*arrays.values())
+    return float(arrays["tension_motor"][0]), float(arrays["tension_insertion"][0])
+
+
+def test_sheath_friction_with_elastic_cable_sticks_and_slips():
+    """On a fixed path the capstan node sticks inside the band and slides at its edges."""
+    beta = np.exp(0.12 * 3.0)
+    cable = _one_cable(mu=0.12)
+    motor, insertion = _settle(cable, 36.0)  # inside the band: the node sticks
+    assert motor == pytest.approx(36.0, abs=1e-6)
+    assert insertion == pytest.approx(30.0, abs=1e-9)
+    motor, insertion = _settle(cable, 50.0)  # beyond: the node slides, T_m = beta T_i
+    assert motor == pytest.approx(50.0, abs=1e-6)
+    assert insertion == pytest.approx(50.0 / beta, rel=1e-3)
+    held = insertion
+    motor, insertion = _settle(cable, 30.0)  # back inside: the insertion holds (hysteresis)
+    assert motor == pytest.approx(30.0, abs=1e-6)
+    assert insertion == pytest.approx(held, rel=1e-9)
+    assert insertion > motor
+    motor, insertion = _settle(cable, 10.0)  # below the band: slides the other way
+    assert insertion == pytest.approx(10.0 * beta, rel=1e-2)
+
+
+def test_without_sheath_friction_the_elastic_cable_is_one_spring():
+    cable = _one_cable(mu=0.0)
+    motor, insertion = _settle(cable, 45.0)
+    assert motor == pytest.approx(45.0, abs=1e-6)
+    assert insertion == pytest.approx(motor, rel=1e-12)
+    # joint force: -J^T T_i
+    assert cable["qfrc"][0] == pytest.approx(-0.02 * insertion, rel=1e-12)
+
+
+def test_winch_friction_alone_rigid_cable(arm):
+    """Reeling in, the motor-side tension falls short of the command; paying out, exceeds it."""
+    plant = moving_plant(arm, only(winch_friction=WinchFrictionConfig(enabled=True)))
+    truth = plant.ground_truth()
+    speed = cable_speeds(arm, plant)
+    reeling_in, paying_out = speed < -0.01, speed > 0.01
+    assert np.all(truth["tension_motor"][reeling_in] < 30.0)
+    assert np.all(truth["tension_motor"][paying_out] > 30.0)
+    np.testing.assert_array_equal(truth["tension_insertion"], truth["tension_motor"])
+
+
+def test_elasticity_alone_slack_cable_carries_zero_tension(arm):
+    config = only(elasticity=ElasticityConfig(enabled=True))
+    plant = ArmPlant(arm, config, seed=1)
+    # no tension and motion: cables whose path shortens go slack
+    plant.reset(POSTURE, tensions=np.zeros(arm.n_cables), qdot=MOTION)
+    plant.command(np.zeros(arm.n_cables))
+    plant.step(5)
+    truth = plant.ground_truth()
+    slack = truth["stretch"] < 0
+    assert slack.any()
+    np.testing.assert_array_equal(truth["tension_motor"][slack], 0.0)
+    np.testing.assert_array_equal(truth["tension_insertion"][slack], 0.0)
+
+
+def test_elasticity_alone_taut_cable_is_a_spring(arm):
+    config = only(elasticity=ElasticityConfig(enabled=True, stiffness=2.0e4))
+    plant = ArmPlant(arm, config, seed=1)
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 25.0))
+    truth = plant.ground_truth()
+    np.testing.assert_allclose(truth["stretch"], 25.0 / 2.0e4, rtol=1e-12)
+    np.testing.assert_allclose(truth["tension_insertion"], 25.0, rtol=1e-12)
+
+
+def test_joint_friction_alone_sets_the_joints_friction_only(arm):
+    config = only(joint_friction=JointFrictionConfig(enabled=True, coulomb=0.2, viscous=0.07))
+    plant = moving_plant(arm, config)
+    np.testing.assert_allclose(plant.mj_model.dof_frictionloss, 0.2)
+    np.testing.assert_allclose(plant.mj_model.dof_damping, 0.07)
+    np.testing.assert_allclose(plant.ground_truth()["tension_insertion"], 30.0, atol=1e-12)
+    # the shared nominal model is untouched
+    assert np.all(arm.mj_model.dof_frictionloss == 0) and np.all(arm.mj_model.dof_damping == 0)
+
+
+def test_cogging_alone_is_periodic_in_the_motor_angle(arm):
+    cogging = CoggingConfig(enabled=True, amplitude=0.01, periods_per_revolution=24)
+    plant = moving_plant(arm, only(cogging=cogging))
+    truth = plant.ground_truth()
+    gain = plant.config.winch.drive_gain
+    expected = 30.0 + 0.01 * np.sin(24 * truth["winch_angle"]) / (0.003 * (1 + gain))
+    np.testing.assert_allclose(truth["tension_motor"], expected, rtol=1e-9)
+
+
+def test_sensor_noise_alone_changes_readings_not_the_robot(arm):
+    config = only(sensor_noise=SensorNoiseConfig(enabled=True, tension_noise=0.5, tension_bias=2.0))
+    plant = ArmPlant(arm, config, seed=5)
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 30.0))
+    errors = np.array([plant.sense().tension_motor - 30.0 for _ in range(400)])
+    assert abs(errors.mean() - 2.0) < 0.1
+    assert abs(errors.std() - 0.5) < 0.05
+    np.testing.assert_allclose(plant.ground_truth()["tension_motor"], 30.0)
+
+
+def test_delay_alone_returns_old_readings(arm):
+    plant = ArmPlant(arm, only(delay=DelayConfig(enabled=True, sensing_periods=2)), seed=1)
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 30.0), qdot=MOTION)
+    times = []
+    for _ in range(5):
+        times.append(plant.sense().t)
+        plant.step(4)
+    np.testing.assert_allclose(times, [0.0, 0.0, 0.0, 0.004, 0.008])
+
+
+def test_user_effect_through_the_documented_interface(arm):
+    class HalfTransmission(Effect):
+        name = "half"
+
+        def transmission(self, state):
+            return np.full(state.lengths.shape, 0.5)
+
+    plant = ArmPlant(arm, IDEAL_PLANT, seed=0, extra_effects=[HalfTransmission()])
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 30.0))
+    plant.step(1)
+    np.testing.assert_allclose(plant.ground_truth()["tension_insertion"], 15.0)
+    assert "half" in plant.effect_parameters()
+
+
+def test_bad_reset_is_refused(arm):
+    plant = ArmPlant(arm, IDEAL_PLANT)
+    with pytest.raises(InputError, match="q must have shape"):
+        plant.reset(np.zeros(3))
+    with pytest.raises(InputError, match="tensions must be >= 0"):
+        plant.reset(POSTURE, tensions=-np.ones(arm.n_cables))
