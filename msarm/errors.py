@@ -11,3 +11,11 @@ class ModelError(MsarmError):
 
 class InputError(MsarmError, ValueError):
     """An argument has the wrong shape, a NaN, or a value outside its valid range."""
+
+
+class ConfigError(MsarmError, ValueError):
+    """A config file or mapping has an unknown, missing or mistyped key (named, with its file)."""
+
+
+class LogError(MsarmError, ValueError):
+    """A run log or its sidecar is missing or breaks the log schema (file and column named)."""

@@ -172,7 +172,8 @@ def plot_cable_tensions(
         cable_names: Cables to draw, one panel each.
         path: PNG file to write.
         lower: Lower tension bound [N] drawn as a line, or None.
-        upper: Upper bound per cable [N], shape ``(m,)``, or None.
+        upper: Upper bound per cable [N], shape ``(m,)``, or None (drawn where in view; the
+            axis is scaled to the data).
         title: Figure title.
     """
     m = len(cable_names)
@@ -185,11 +186,16 @@ def plot_cable_tensions(
     for i, (ax, name) in enumerate(zip(axes.flat, cable_names, strict=False)):
         ax.plot(t, columns[f"tension_cmd.{name}"], "k--", lw=1.0, label="command")
         ax.plot(t, columns[f"tension_motor.{name}"], lw=1.0, label="load cell")
+        top = 1.25 * max(
+            float(np.max(columns[f"tension_motor.{name}"])),
+            float(np.max(columns[f"tension_cmd.{name}"])),
+            2.0 * (lower or 1.0),
+        )
         if lower is not None:
             ax.axhline(lower, color="tab:red", lw=0.8, ls=":")
-        if upper is not None:
+        if upper is not None and upper[i] < top:
             ax.axhline(upper[i], color="tab:red", lw=0.8, ls=":")
-            ax.set_ylim(top=min(ax.get_ylim()[1], 1.1 * upper[i]))
+        ax.set_ylim(0.0, top)
         ax.set_title(name, fontsize=9)
         ax.set_ylabel("N")
     for ax in axes.flat[m:]:

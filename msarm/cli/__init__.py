@@ -10,6 +10,7 @@ import typer
 
 from msarm.cli.arm import arm_command
 from msarm.cli.bench import bench_app
+from msarm.cli.track import track_command
 
 app = typer.Typer(
     name="msarm",
@@ -19,6 +20,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.command("arm")(arm_command)
+app.command("track")(track_command)
 app.add_typer(bench_app, name="bench")
 
 

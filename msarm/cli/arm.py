@@ -8,6 +8,7 @@ from typing import Annotated
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from msarm.model import RobotModel
@@ -17,7 +18,7 @@ def joints_table(model: RobotModel) -> Table:
     """A table of the joints: name, axis, range."""
     table = Table(title=f"{model.name}: joints (order of every joint-space array)")
     for column in ("#", "joint", "type", "axis (parent frame)", "range [deg]"):
-        table.add_column(column)
+        table.add_column(escape(column))
     for k, name in enumerate(model.joint_names):
         joint = model.mj_model.joint(name)
         table.add_row(
@@ -34,7 +35,7 @@ def hill_table(model: RobotModel) -> Table:
     """A table of the cable muscles' Hill parameters."""
     table = Table(title="cable muscles: Hill parameters")
     for column in ("cable", "F_max [N]", "l_M0 [cm]", "l_Ts [cm]", "v_max [l_M0/s]", "pennation"):
-        table.add_column(column, justify="left" if column == "cable" else "right")
+        table.add_column(escape(column), justify="left" if column == "cable" else "right")
     muscles = model.muscles
     for i, name in enumerate(model.cable_names):
         if muscles is None:
@@ -54,9 +55,9 @@ def hill_table(model: RobotModel) -> Table:
 def geometry_table(model: RobotModel, q: np.ndarray) -> Table:
     """A table of the cables at posture ``q``: length, wrap angle, moment arms."""
     geometry = model.geometry(q)
-    table = Table(title=f"cables at q = {np.round(q, 3).tolist()} rad; moment arms r [cm]")
+    table = Table(title=escape(f"cables at q = {np.round(q, 3).tolist()} rad; moment arms r [cm]"))
     for column in ("cable", "length [cm]", "wrap [deg]"):
-        table.add_column(column, justify="left" if column == "cable" else "right")
+        table.add_column(escape(column), justify="left" if column == "cable" else "right")
     for k in range(model.n_joints):
         table.add_column(f"r{k}", justify="right")
     for i, name in enumerate(model.cable_names):

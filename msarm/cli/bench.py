@@ -77,3 +77,39 @@ def allocation(
     )
     for robot, entry in report["robots"].items():
         console.print(f"{robot}: problems from {entry['source']}, f_ref {entry['f_ref']}")
+
+
+@bench_app.command("sim")
+def sim(
+    task: str = typer.Option("table1-1", "--task", help="Task to run (see msarm track --list)."),
+    plant: str = typer.Option("default", "--plant", help="default, ideal or a plant YAML file."),
+    repeats: int = typer.Option(3, "--repeats", min=1, help="Runs of each; the best counts."),
+    json_output: bool = typer.Option(False, "--json", help="Print the report as JSON."),
+) -> None:
+    """Closed-loop real-time factor of a task and its ratio to bare MuJoCo stepping."""
+    import json
+
+    from rich.markup import escape
+    from rich.table import Table
+
+    from msarm.cli.common import console, resolve_plant
+    from msarm.model import load_arm
+    from msarm.tasks.bench import TARGET_REAL_TIME_FACTOR, run_sim_benchmark
+
+    result = run_sim_benchmark(load_arm(), resolve_plant(plant), task, repeats)
+    if json_output:
+        typer.echo(json.dumps(result.as_dict(), indent=2))
+        return
+    table = Table(
+        title=f"Simulation speed: {result.task} ({result.simulated_s:.0f} s simulated)"
+        f", plant {result.plant}, best of {repeats}"
+    )
+    for name in ("what", "wall [s]", "x real time", "x bare MuJoCo"):
+        table.add_column(escape(name), justify="left" if name == "what" else "right")
+    for what, wall, factor, ratio in result.rows():
+        table.add_row(what, f"{wall:.3f}", f"{factor:.1f}", f"{ratio:.1f}")
+    out = console()
+    out.print(table)
+    out.print(f"controller: {result.controller_tick_us:.1f} µs per tick")
+    met = "met" if result.closed_loop_real_time_factor >= TARGET_REAL_TIME_FACTOR else "NOT met"
+    out.print(f"target: closed loop >= {TARGET_REAL_TIME_FACTOR:.0f}x real time: {met}")

@@ -50,6 +50,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CableState",
     "Cogging",
+    "EFFECT_DESCRIPTIONS",
     "Delay",
     "Effect",
     "JointFriction",
@@ -270,6 +271,17 @@ class Delay(Effect):
     def parameters(self) -> dict:  # noqa: D102
         return asdict(self.config)
 
+
+#: One line per built-in effect: its equation, for ``msarm track --list``.
+EFFECT_DESCRIPTIONS = {
+    "sheath_friction": "T_insertion = T_motor exp(-mu Theta(q) sgn(v)); sticks in between",
+    "winch_friction": "tau_f = -tau_c tanh(omega/omega_s) - b omega on each winch",
+    "elasticity": "T = k max(l(q) - L, 0): elastic cables that go slack",
+    "joint_friction": "tau_f = -tau_c sgn(qdot) - b qdot at each joint (MuJoCo dry friction)",
+    "cogging": "tau_cog = A sin(N theta + phi) on each motor",
+    "sensor_noise": "reading = truth + bias + N(0, sigma^2) on every sensor",
+    "delay": "readings / commands late by whole control periods",
+}
 
 _BUILT_IN = {
     "sheath_friction": SheathFriction,

@@ -1,0 +1,148 @@
+"""``msarm track``: run a tracking task on a plant, print its metrics, write log and plots."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from msarm.cli.common import PLANTS, console, resolve_plant
+
+ListOption = Annotated[
+    bool, typer.Option("--list", help="List the tasks, plants and effects, and exit.")
+]
+
+
+def list_choices() -> None:
+    """Print the tasks, plants and effects a user can choose from."""
+    from msarm.plant.config import DEFAULT_PLANT, EFFECT_NAMES
+    from msarm.plant.effects import EFFECT_DESCRIPTIONS
+    from msarm.tasks.registry import list_tasks
+
+    out = console()
+    tasks = Table(title="tasks (--task)")
+    tasks.add_column("name")
+    tasks.add_column("what")
+    for name, text in list_tasks().items():
+        tasks.add_row(name, text)
+    out.print(tasks)
+    plants = Table(title="plants (--plant): a preset or a YAML file of msarm.plant.PlantConfig")
+    plants.add_column("name")
+    plants.add_column("effects on")
+    for name, config in PLANTS.items():
+        plants.add_row(name, ", ".join(config.effects.enabled()) or "none")
+    out.print(plants)
+    effects = Table(title="effects (switches in a plant YAML under effects.<name>.enabled)")
+    for column in ("effect", "default plant", "equation"):
+        effects.add_column(column)
+    for name in EFFECT_NAMES:
+        on = getattr(DEFAULT_PLANT.effects, name).enabled
+        effects.add_row(name, "on" if on else "off", EFFECT_DESCRIPTIONS[name])
+    out.print(effects)
+
+
+def metrics_table(title: str, rows: dict[str, object], joint_names, cable_names) -> Table:
+    """A table of one or more runs' metrics side by side (``rows``: label -> metrics)."""
+    table = Table(title=title)
+    table.add_column("metric")
+    for label in rows:
+        table.add_column(label, justify="right")
+
+    def add(name: str, values) -> None:
+        table.add_row(escape(name), *values)
+
+    metrics = list(rows.values())
+    add("final error [mm]", [f"{m.final_error_mm:.2f}" for m in metrics])
+    add("final error [% displacement]", [f"{m.final_error_percent:.2f}" for m in metrics])
+    for k, joint in enumerate(joint_names):
+        add(f"RMSE {joint} [mrad]", [f"{1000 * m.joint_rmse[k]:.1f}" for m in metrics])
+    add(
+        "cable length error [% travel]",
+        [
+            f"{min(m.cable_length_error_percent):.2f}-{max(m.cable_length_error_percent):.2f}"
+            for m in metrics
+        ],
+    )
+    add("slack events (all cables)", [str(sum(m.slack_events)) for m in metrics])
+    add(
+        "time outside bounds [s] (sum)",
+        [f"{sum(m.time_outside_bounds):.2f}" for m in metrics],
+    )
+    add("completed", ["yes" if m.completed else "DIVERGED" for m in metrics])
+    return table
+
+
+def track_command(
+    task: Annotated[
+        str, typer.Option(help="Task name: table1-1 ... table1-4, random-<seed>.")
+    ] = "table1-1",
+    plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
+    seed: Annotated[int, typer.Option(help="Seed of the plant's sensor noise.")] = 0,
+    controller: Annotated[
+        Path | None, typer.Option(help="YAML file of controller gains (ArmControllerConfig).")
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Output folder (default runs/track-<task>-<plant>).")
+    ] = None,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+    list_: ListOption = False,
+) -> None:
+    """Run a tracking task on a plant; print its metrics; write log, sidecar, config, plots."""
+    if list_:
+        list_choices()
+        return
+    from rich.progress import Progress
+
+    from msarm.control import ArmControllerConfig
+    from msarm.io.config import load_config
+    from msarm.model import load_arm
+    from msarm.tasks.registry import get_task
+    from msarm.tasks.track import TrackSettings, track
+
+    arm = load_arm()
+    task_obj = get_task(task, arm)
+    plant_config = resolve_plant(plant)
+    gains = (
+        ArmControllerConfig()
+        if controller is None
+        else load_config(controller, ArmControllerConfig)
+    )
+    feedforward = None
+    settings = TrackSettings(task_obj.name, seed, plant_config, gains)
+    out_dir = out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}"
+    with Progress(transient=True, disable=json_output) as bar:
+        job = bar.add_task(f"{task_obj.name} on {plant_config.name}", total=1.0)
+        result = track(
+            arm,
+            task_obj,
+            settings,
+            out_dir,
+            feedforward=feedforward,
+            progress=lambda done: bar.update(job, completed=done),
+        )
+    payload = {"task": task_obj.name, "plant": plant_config.name, **result.metrics.as_dict()}
+    payload["files"] = {kind: str(path) for kind, path in result.files.items()}
+    if result.run.error is not None:
+        payload["diverged"] = str(result.run.error)
+    if json_output:
+        typer.echo(json.dumps(payload, indent=2))
+    else:
+        out_console = console()
+        out_console.print(
+            metrics_table(
+                f"{task_obj.name} on the {plant_config.name} plant (seed {seed})",
+                {plant_config.name: result.metrics},
+                arm.joint_names,
+                arm.cable_names,
+            )
+        )
+        for kind, path in result.files.items():
+            out_console.print(f"{kind}: {path}")
+        if result.run.error is not None:
+            out_console.print(f"[red]{result.run.error}[/red] (partial log kept)")
+    if result.run.error is not None:
+        raise typer.Exit(code=1)

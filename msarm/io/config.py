@@ -1,0 +1,340 @@
+"""YAML configs read into frozen dataclasses, and the resolved config written back.
+
+A config class is a (frozen) dataclass whose field types are among:
+
+- ``float`` (a YAML int is accepted and converted), ``int``, ``bool``, ``str``, ``pathlib.Path``;
+- ``tuple[X, ...]`` and ``tuple[X, Y]`` of those (a YAML list), ``list[X]``;
+- nested dataclasses (a YAML mapping), ``dict[str, X]`` (a mapping of any keys to ``X``);
+- ``X | None`` / ``Optional[X]`` (YAML ``null``), ``Literal[...]``, and ``Any`` (kept as is).
+
+Every key of the YAML mapping must name a field; a field without a default must be given. Every
+mistake raises :class:`msarm.errors.ConfigError` naming the source (file path, or
+``<mapping>``), the dotted key path (``effects.sheath_friction.mu``) and what was expected:
+the valid keys for an unknown one, the type for a mistyped one. A ``ValueError`` or
+``TypeError`` raised by a dataclass's ``__post_init__`` is reported the same way, with the key
+path of that dataclass.
+
+YAML floats: PyYAML follows YAML 1.1, where ``1e-4`` (no dot) is a string. The loader used here
+also reads such exponent notation as a float (YAML 1.2 behaviour), so ``mu: 8e-2`` works.
+
+:func:`write_config` writes the resolved config (every field, defaults included) next to a
+result; :func:`load_config` of that file gives back an equal object.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import os
+import re
+import tempfile
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import yaml
+
+from msarm.errors import ConfigError
+
+__all__ = ["config_to_dict", "dump_config", "load_config", "write_config"]
+
+T = TypeVar("T")
+
+#: Label of a config given as a mapping rather than a file.
+_MAPPING_SOURCE = "<mapping>"
+
+
+class _Loader(yaml.SafeLoader):
+    """Safe YAML loader that also reads ``1e-4`` (exponent without a dot) as a float."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.VERBOSE,
+    ),
+    list("-+0123456789."),
+)
+
+
+class _Dumper(yaml.SafeDumper):
+    """Safe YAML dumper: block-style mappings, flow-style (one line) lists of scalars."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    flow = all(not isinstance(v, list | dict) for v in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_Dumper.add_representer(list, _represent_list)
+
+
+def load_config(source: str | Path | Mapping[str, Any], cls: type[T]) -> T:
+    """Build a config dataclass from a YAML file or an already parsed mapping.
+
+    Args:
+        source: Path of a YAML file (``str`` or ``Path``), or a mapping (as parsed from YAML).
+            An empty file gives the defaults.
+        cls: The dataclass to build (nested dataclasses are built from nested mappings).
+
+    Returns:
+        An instance of ``cls``; fields missing from ``source`` take their defaults.
+
+    Raises:
+        ConfigError: The file is missing or not valid YAML, or a key is unknown, missing or
+            has a value of the wrong type (the file and the dotted key path are named).
+        TypeError: ``cls`` is not a dataclass, or has a field type this loader does not
+            support (a programming error, not a config error).
+    """
+    if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+        raise TypeError(f"load_config needs a dataclass type, got {cls!r}")
+    if isinstance(source, Mapping):
+        data: Any = source
+        label = _MAPPING_SOURCE
+    elif isinstance(source, str | Path):
+        path = Path(source)
+        label = str(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ConfigError(f"{label}: config file not found") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{label}: cannot read the config file: {exc}") from None
+        try:
+            data = yaml.load(text, Loader=_Loader)  # a SafeLoader subclass: safe
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{label}: not valid YAML: {exc}") from None
+        if data is None:
+            data = {}
+    else:
+        raise TypeError(f"config source must be a path or a mapping, got {type(source).__name__}")
+    return _build_dataclass(data, cls, label, "")
+
+
+def config_to_dict(obj: Any) -> dict[str, Any]:
+    """The plain-data form of a config: what :func:`write_config` writes.
+
+    Dataclasses become dicts (every ``init`` field, in declaration order), tuples and numpy
+    arrays become lists, paths become strings, numpy scalars become Python numbers.
+
+    Args:
+        obj: A dataclass instance or a mapping.
+
+    Returns:
+        A dict of plain Python values (safe for YAML and JSON).
+
+    Raises:
+        TypeError: ``obj`` is neither a dataclass instance nor a mapping, or holds a value
+            that has no plain-data form.
+    """
+    if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)) and not isinstance(
+        obj, Mapping
+    ):
+        raise TypeError(f"config_to_dict needs a dataclass instance or a mapping, got {obj!r}")
+    return _to_plain(obj, "")
+
+
+def dump_config(obj: Any) -> str:
+    """The YAML text of a config (see :func:`config_to_dict`), keys in declaration order."""
+    return yaml.dump(config_to_dict(obj), Dumper=_Dumper, sort_keys=False, default_flow_style=False)
+
+
+def write_config(obj: Any, path: str | Path) -> Path:
+    """Write a config as YAML, atomically (a temporary file in the same folder, then rename).
+
+    Args:
+        obj: A config dataclass instance (or a mapping).
+        path: Destination file; its folder is created if missing.
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    _atomic_write_bytes(path, dump_config(obj).encode("utf-8"))
+    return path
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and os.replace."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# --- building -------------------------------------------------------------------------------
+
+
+def _where(label: str, key: str) -> str:
+    return f"{label}: key '{key}'" if key else f"{label}: top level"
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def _type_name(tp: Any) -> str:
+    if tp is type(None):
+        return "null"
+    if isinstance(tp, type) and not typing.get_args(tp):
+        return tp.__name__
+    return str(tp).replace("typing.", "")
+
+
+def _build_dataclass(data: Any, cls: type[T], label: str, key: str) -> T:
+    if not isinstance(data, Mapping):
+        raise ConfigError(
+            f"{_where(label, key)}: expected a mapping for {cls.__name__}, "
+            f"got {type(data).__name__} {data!r}"
+        )
+    try:
+        hints = typing.get_type_hints(cls)
+    except NameError as exc:  # pragma: no cover - a broken config class
+        raise TypeError(f"cannot resolve the field types of {cls.__name__}: {exc}") from exc
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
+    valid = ", ".join(fields) or "(none)"
+    for name in data:
+        if not isinstance(name, str) or name not in fields:
+            hint = ""
+            if isinstance(name, str):
+                close = difflib.get_close_matches(name, fields, n=1)
+                if close:
+                    hint = f" (did you mean '{close[0]}'?)"
+            raise ConfigError(
+                f"{label}: unknown key '{_join(key, str(name))}'{hint}; "
+                f"valid keys{' of ' + key if key else ''}: {valid}"
+            )
+    kwargs: dict[str, Any] = {}
+    for name, f in fields.items():
+        sub = _join(key, name)
+        if name in data:
+            kwargs[name] = _convert(data[name], hints[name], label, sub)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ConfigError(
+                f"{label}: missing key '{sub}' ({_type_name(hints[name])}, no default)"
+            )
+    try:
+        return cls(**kwargs)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{_where(label, key)}: invalid {cls.__name__}: {exc}") from exc
+
+
+def _convert(value: Any, tp: Any, label: str, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+
+    def wrong(expected: str) -> ConfigError:
+        return ConfigError(
+            f"{label}: key '{key}' expects {expected}, got {type(value).__name__} {value!r}"
+        )
+
+    if tp is Any:
+        return value
+    if origin is typing.Union or origin is types.UnionType:
+        if value is None:
+            if type(None) in args:
+                return None
+            raise wrong(_type_name(tp))
+        members = [a for a in args if a is not type(None)]
+        errors = []
+        for member in members:
+            try:
+                return _convert(value, member, label, key)
+            except ConfigError as exc:
+                errors.append(exc)
+        if len(errors) == 1:
+            raise errors[0]
+        raise wrong(_type_name(tp))
+    if origin is typing.Literal:
+        if any(type(value) is type(a) and value == a for a in args):
+            return value
+        raise wrong("one of " + ", ".join(repr(a) for a in args))
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return _build_dataclass(value, tp, label, key)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise wrong("a number (float)")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise wrong("an integer")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise wrong("a boolean (true or false)")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise wrong("a string")
+        return value
+    if tp is Path:
+        if not isinstance(value, str | Path):
+            raise wrong("a path (string)")
+        return Path(value)
+    if origin is tuple or origin is list:
+        if not isinstance(value, list | tuple):
+            raise wrong(f"a list ({_type_name(tp)})")
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis) and args:
+            if len(value) != len(args):
+                raise wrong(f"a list of {len(args)} items ({_type_name(tp)})")
+            items = [
+                _convert(v, a, label, f"{key}[{i}]")
+                for i, (v, a) in enumerate(zip(value, args, strict=True))
+            ]
+        else:
+            item_tp = args[0] if args else Any
+            items = [_convert(v, item_tp, label, f"{key}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict or origin is Mapping or tp is dict:
+        if not isinstance(value, Mapping):
+            raise wrong(f"a mapping ({_type_name(tp)})")
+        key_tp, value_tp = args if args else (Any, Any)
+        out = {}
+        for k, v in value.items():
+            if key_tp is str and not isinstance(k, str):
+                raise ConfigError(
+                    f"{label}: key '{key}' expects string keys, got {type(k).__name__} {k!r}"
+                )
+            out[k] = _convert(v, value_tp, label, _join(key, str(k)))
+        return out
+    raise TypeError(f"{label}: key '{key}': unsupported config field type {tp!r}")
+
+
+# --- plain data -----------------------------------------------------------------------------
+
+
+def _to_plain(obj: Any, key: str) -> Any:
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {
+            f.name: _to_plain(getattr(obj, f.name), _join(key, f.name))
+            for f in dataclasses.fields(obj)
+            if f.init
+        }
+    if isinstance(obj, Mapping):
+        return {k: _to_plain(v, _join(key, str(k))) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_to_plain(v, f"{key}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.ndarray):
+        return _to_plain(obj.tolist(), key)
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if obj is None or isinstance(obj, bool | int | float | str):
+        return obj
+    raise TypeError(f"config value '{key}' of type {type(obj).__name__} has no plain-data form")

@@ -1,0 +1,714 @@
+"""Run logs: the Parquet interchange format, and the sim-only ground-truth sidecar.
+
+Log schema, version 1
+---------------------
+One Parquet file per run, one row per sample.
+
+Columns (every one ``double``, i.e. float64, without nulls, NaN or infinities):
+
+- ``t`` -- time [s], strictly increasing (msarm writes it first; readers accept it anywhere).
+- Channels named ``<quantity>.<name>``: ``quantity`` is an identifier (letters, digits and
+  ``_``, not starting with a digit), ``name`` is the joint or cable name from the robot's model
+  file (anything non-empty after the first dot), e.g. ``q.elbow``, ``tension_motor.biceps``.
+  The channels of one quantity are in the model file's joint or cable order. Column names are
+  unique.
+
+File key-value metadata (Parquet footer), each value a JSON text, every key prefixed
+``msarm.``:
+
+================================  ========================================================
+key                               value
+================================  ========================================================
+``msarm.schema_version``          ``1`` (integer)
+``msarm.robot_model``             robot model name (string), e.g. ``"msarm_arm"``
+``msarm.model_sha256``            SHA-256 of the model's MJCF file (hex string)
+``msarm.sample_rate_hz``          nominal sample rate [Hz] (number > 0)
+``msarm.units``                   object: quantity -> unit (``{"q": "rad", ...}``); every
+                                  quantity of the columns has one (SI: ``rad``, ``N``, ``m``)
+``msarm.controller_config``       object: the controller's resolved config (may be ``{}``)
+``msarm.extra``                   object: anything else (task name, seed, ...; may be ``{}``)
+================================  ========================================================
+
+Other metadata keys (those of pandas or Arrow, say) are ignored; unknown ``msarm.`` keys are
+refused. A log from another robot is valid when it follows this schema; ``read_log`` checks
+all of it and names the file, the column or key, and what was expected.
+
+Ground-truth sidecar
+--------------------
+What only a simulation knows -- the plant's effects and their parameters, and hidden signals
+such as the tension at the insertion -- goes to ``<stem>.truth.parquet`` next to the log
+``<stem>.parquet`` (:func:`sidecar_path`), never into the log, so that a diagnosis reading the
+log cannot read what it must find. Its columns follow the same rules (``t`` and
+``<quantity>.<name>``, float64); its metadata keys are prefixed ``msarm_truth.``:
+``schema_version`` (1), ``ground_truth`` (object: the plant's effects and their parameters) and
+``units``. :func:`read_log` never opens the sidecar and refuses a sidecar given as a log.
+
+Writes are atomic (a temporary file in the same folder, then ``os.replace``); a write then read
+gives back the same columns bit for bit and the same metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from numpy.typing import ArrayLike, NDArray
+
+from msarm.errors import InputError, LogError
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "SIDECAR_SCHEMA_VERSION",
+    "STANDARD_UNITS",
+    "LogMetadata",
+    "RunLog",
+    "TruthSidecar",
+    "read_log",
+    "read_sidecar",
+    "sidecar_path",
+    "split_channel",
+    "write_log",
+    "write_sidecar",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Version of the log schema this module writes and reads.
+SCHEMA_VERSION = 1
+#: Version of the ground-truth sidecar schema.
+SIDECAR_SCHEMA_VERSION = 1
+#: Prefix of the log's metadata keys.
+_PREFIX = "msarm."
+#: Prefix of the sidecar's metadata keys.
+_TRUTH_PREFIX = "msarm_truth."
+#: Suffix of a sidecar file name (replaces the log's ``.parquet``).
+_SIDECAR_SUFFIX = ".truth.parquet"
+#: Name of the time column.
+TIME = "t"
+_QUANTITY_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+#: Units of the quantities msarm logs (SI), for :attr:`LogMetadata.units`.
+STANDARD_UNITS: Mapping[str, str] = {
+    "q": "rad",
+    "qd": "rad/s",
+    "qdd": "rad/s^2",
+    "q_ref": "rad",
+    "qd_ref": "rad/s",
+    "qdd_ref": "rad/s^2",
+    "tau": "N m",
+    "tau_ff": "N m",
+    "tension_cmd": "N",
+    "tension_motor": "N",
+    "motor_angle": "rad",
+    "motor_torque": "N m",
+    "cable_length": "m",
+    "activation": "1",
+    "excitation": "1",
+}
+
+
+class _HasNameAndHash(Protocol):
+    @property
+    def name(self) -> str: ...  # noqa: D102
+
+    @property
+    def sha256(self) -> str: ...  # noqa: D102
+
+
+def split_channel(column: str) -> tuple[str, str]:
+    """Split a channel column name ``<quantity>.<name>`` at its first dot.
+
+    Args:
+        column: Column name, e.g. ``"tension_motor.biceps"``.
+
+    Returns:
+        ``(quantity, name)``, e.g. ``("tension_motor", "biceps")``.
+
+    Raises:
+        InputError: The name has no dot, an empty part, or a quantity that is no identifier.
+    """
+    quantity, dot, name = column.partition(".")
+    if not dot or not name or not _QUANTITY_RE.match(quantity):
+        raise InputError(
+            f"channel column {column!r} is not named '<quantity>.<name>' (quantity: letters, "
+            "digits and '_', not starting with a digit; name: non-empty)"
+        )
+    return quantity, name
+
+
+def _json_roundtrip(value: Any, what: str) -> Any:
+    """``value`` as it comes back from JSON (tuples become lists); refuses non-JSON values."""
+    try:
+        return json.loads(json.dumps(value))
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{what} must be JSON-serialisable: {exc}") from None
+
+
+@dataclass(frozen=True)
+class LogMetadata:
+    """What a log says about its run (the ``msarm.*`` key-value metadata of the file).
+
+    Mappings are stored as they come back from JSON (tuples become lists), so that a
+    written and read log compares equal.
+
+    Attributes:
+        robot_model: Name of the robot model.
+        model_sha256: SHA-256 of the robot's MJCF file (hex).
+        sample_rate_hz: Nominal sample rate [Hz], > 0.
+        units: Unit of every quantity of the log's channels (quantity -> unit string).
+        controller_config: The controller's resolved config (plain data, see
+            :func:`msarm.io.config.config_to_dict`).
+        extra: Anything else worth keeping with the run (plain JSON data).
+        schema_version: Log schema version (only :data:`SCHEMA_VERSION` exists).
+    """
+
+    robot_model: str
+    model_sha256: str
+    sample_rate_hz: float
+    units: Mapping[str, str] = field(default_factory=dict)
+    controller_config: Mapping[str, Any] = field(default_factory=dict)
+    extra: Mapping[str, Any] = field(default_factory=dict)
+    schema_version: int = SCHEMA_VERSION
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.robot_model, str) or not self.robot_model:
+            raise InputError(f"robot_model must be a non-empty string, got {self.robot_model!r}")
+        if not isinstance(self.model_sha256, str):
+            raise InputError(f"model_sha256 must be a string, got {self.model_sha256!r}")
+        rate = self.sample_rate_hz
+        if isinstance(rate, bool) or not isinstance(rate, int | float | np.floating):
+            raise InputError(f"sample_rate_hz must be a number, got {rate!r}")
+        if not (math.isfinite(rate) and rate > 0):
+            raise InputError(f"sample_rate_hz must be finite and > 0 [Hz], got {rate!r}")
+        object.__setattr__(self, "sample_rate_hz", float(rate))
+        if not isinstance(self.units, Mapping) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in self.units.items()
+        ):
+            raise InputError(f"units must map quantity names to unit strings, got {self.units!r}")
+        object.__setattr__(self, "units", dict(self.units))
+        for name in ("controller_config", "extra"):
+            value = getattr(self, name)
+            if not isinstance(value, Mapping):
+                raise InputError(f"{name} must be a mapping, got {type(value).__name__}")
+            object.__setattr__(self, name, _json_roundtrip(dict(value), name))
+        if self.schema_version != SCHEMA_VERSION:
+            raise InputError(
+                f"schema_version must be {SCHEMA_VERSION}, got {self.schema_version!r}"
+            )
+
+    @classmethod
+    def for_model(
+        cls,
+        model: _HasNameAndHash,
+        sample_rate_hz: float,
+        units: Mapping[str, str] | None = None,
+        controller_config: Mapping[str, Any] | None = None,
+        extra: Mapping[str, Any] | None = None,
+    ) -> LogMetadata:
+        """Metadata of a run of ``model`` (a :class:`msarm.model.RobotModel`).
+
+        Args:
+            model: Anything with ``.name`` and ``.sha256``.
+            sample_rate_hz: Nominal sample rate [Hz].
+            units: Units of the logged quantities; default :data:`STANDARD_UNITS`.
+            controller_config: The controller's resolved config (plain data).
+            extra: Anything else.
+
+        Returns:
+            The metadata.
+        """
+        return cls(
+            robot_model=model.name,
+            model_sha256=model.sha256,
+            sample_rate_hz=sample_rate_hz,
+            units=dict(STANDARD_UNITS if units is None else units),
+            controller_config=dict(controller_config or {}),
+            extra=dict(extra or {}),
+        )
+
+    def to_kv(self) -> dict[str, str]:
+        """The Parquet key-value metadata: ``msarm.<field>`` -> JSON text."""
+        return {
+            _PREFIX + "schema_version": json.dumps(self.schema_version),
+            _PREFIX + "robot_model": json.dumps(self.robot_model),
+            _PREFIX + "model_sha256": json.dumps(self.model_sha256),
+            _PREFIX + "sample_rate_hz": json.dumps(self.sample_rate_hz),
+            _PREFIX + "units": json.dumps(self.units),
+            _PREFIX + "controller_config": json.dumps(self.controller_config),
+            _PREFIX + "extra": json.dumps(self.extra),
+        }
+
+
+class _Channels:
+    """Column access shared by :class:`RunLog` and :class:`TruthSidecar`."""
+
+    columns: Mapping[str, FloatArray]
+
+    @property
+    def t(self) -> FloatArray:
+        """Sample times [s], shape ``(T,)``."""
+        return self.columns[TIME]
+
+    def __len__(self) -> int:
+        """Number of samples ``T``."""
+        return len(self.columns[TIME])
+
+    @property
+    def duration(self) -> float:
+        """Time from the first to the last sample [s] (0 for a single sample)."""
+        t = self.t
+        return float(t[-1] - t[0])
+
+    def quantities(self) -> list[str]:
+        """The quantities of the channels, in order of first appearance (``t`` excluded)."""
+        seen: dict[str, None] = {}
+        for column in self.columns:
+            if column != TIME:
+                seen.setdefault(split_channel(column)[0], None)
+        return list(seen)
+
+    def names(self, quantity: str) -> list[str]:
+        """Channel names of one quantity, in column order.
+
+        Args:
+            quantity: E.g. ``"q"`` for the columns ``q.<joint>``.
+
+        Returns:
+            The names after the dot, e.g. the joint names.
+
+        Raises:
+            InputError: No channel of that quantity.
+        """
+        prefix = quantity + "."
+        out = [c[len(prefix) :] for c in self.columns if c.startswith(prefix)]
+        if not out:
+            raise InputError(
+                f"no channel of quantity {quantity!r}; quantities: {', '.join(self.quantities())}"
+            )
+        return out
+
+    def matrix(self, quantity: str, names: Sequence[str] | None = None) -> FloatArray:
+        """The channels of one quantity stacked as columns.
+
+        Args:
+            quantity: E.g. ``"tension_motor"``.
+            names: Channel names, in the order wanted; default all, in column order.
+
+        Returns:
+            Array of shape ``(T, k)`` (a copy), ``k`` the number of names.
+
+        Raises:
+            InputError: Unknown quantity or name.
+        """
+        available = self.names(quantity)
+        if names is None:
+            names = available
+        else:
+            missing = [n for n in names if n not in available]
+            if missing:
+                raise InputError(
+                    f"no channel {quantity}.{missing[0]}; names of {quantity!r}: "
+                    f"{', '.join(available)}"
+                )
+        if len(names) == 0:
+            return np.empty((len(self), 0))
+        return np.column_stack([self.columns[f"{quantity}.{n}"] for n in names])
+
+    def _columns_equal(self, other: _Channels) -> bool:
+        return list(self.columns) == list(other.columns) and all(
+            a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+            for a, b in zip(self.columns.values(), other.columns.values(), strict=True)
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class RunLog(_Channels):
+    """One run: columns and metadata (the in-memory form of a log file).
+
+    ``t`` is moved to the front; every column is checked (see the module docstring).
+    Equality is bit for bit on the columns (names and order included) and on the metadata.
+
+    Attributes:
+        columns: Column name -> samples, each float64 of shape ``(T,)``: ``t`` [s] and the
+            channels ``<quantity>.<name>``.
+        metadata: What the log says about its run.
+    """
+
+    columns: Mapping[str, FloatArray]
+    metadata: LogMetadata
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "columns", _checked_columns(self.columns, "RunLog"))
+        if not isinstance(self.metadata, LogMetadata):
+            raise InputError(f"metadata must be a LogMetadata, got {type(self.metadata).__name__}")
+        _check_units(self.columns, self.metadata.units, "RunLog")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, RunLog):
+            return NotImplemented
+        return self.metadata == other.metadata and self._columns_equal(other)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    @classmethod
+    def from_quantities(
+        cls,
+        t: ArrayLike,
+        channels: Mapping[str, tuple[Sequence[str], ArrayLike]],
+        metadata: LogMetadata,
+    ) -> RunLog:
+        """Build a log from one matrix per quantity.
+
+        Args:
+            t: Sample times [s], shape ``(T,)``.
+            channels: quantity -> (names, values of shape ``(T, k)``), e.g.
+                ``{"q": (model.joint_names, Q)}``.
+            metadata: The run's metadata.
+
+        Returns:
+            The log, columns ``t`` then each quantity's channels in the order given.
+        """
+        return cls(_columns_from_quantities(t, channels), metadata)
+
+
+@dataclass(frozen=True, eq=False)
+class TruthSidecar(_Channels):
+    """Sim-only ground truth of a run (the in-memory form of a sidecar file).
+
+    Attributes:
+        columns: Column name -> samples, float64 of shape ``(T,)``: ``t`` [s] and channels
+            such as ``tension_insertion.<cable>``.
+        ground_truth: The plant's effects and their parameters (plain JSON data).
+        units: Unit of each quantity of the channels.
+    """
+
+    columns: Mapping[str, FloatArray]
+    ground_truth: Mapping[str, Any]
+    units: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "columns", _checked_columns(self.columns, "TruthSidecar"))
+        if not isinstance(self.ground_truth, Mapping):
+            raise InputError(f"ground_truth must be a mapping, got {type(self.ground_truth)}")
+        object.__setattr__(
+            self, "ground_truth", _json_roundtrip(dict(self.ground_truth), "ground_truth")
+        )
+        object.__setattr__(self, "units", _json_roundtrip(dict(self.units), "units"))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TruthSidecar):
+            return NotImplemented
+        return (
+            self.ground_truth == other.ground_truth
+            and self.units == other.units
+            and self._columns_equal(other)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+# --- checks ---------------------------------------------------------------------------------
+
+
+def _columns_from_quantities(
+    t: ArrayLike, channels: Mapping[str, tuple[Sequence[str], ArrayLike]]
+) -> dict[str, FloatArray]:
+    columns: dict[str, FloatArray] = {TIME: np.asarray(t, dtype=np.float64)}
+    for quantity, (names, values) in channels.items():
+        values = np.asarray(values, dtype=np.float64)
+        if values.ndim != 2 or values.shape[1] != len(names):
+            raise InputError(
+                f"channels[{quantity!r}]: values must have shape (T, {len(names)}) for the "
+                f"{len(names)} names, got {values.shape}"
+            )
+        for j, name in enumerate(names):
+            columns[f"{quantity}.{name}"] = values[:, j]
+    return columns
+
+
+def _checked_columns(columns: Mapping[str, ArrayLike], source: str) -> dict[str, FloatArray]:
+    """Check columns against the schema; returns them as float64 arrays, ``t`` first.
+
+    Raises:
+        LogError: Naming ``source`` and the column.
+    """
+    if not isinstance(columns, Mapping):
+        raise LogError(f"{source}: columns must be a mapping name -> array")
+    if TIME not in columns:
+        raise LogError(
+            f"{source}: no time column '{TIME}'; columns: {', '.join(map(str, columns)) or '-'}"
+        )
+    out: dict[str, FloatArray] = {}
+    n_rows = None
+    for name in [TIME, *(c for c in columns if c != TIME)]:
+        if not isinstance(name, str):
+            raise LogError(f"{source}: column names must be strings, got {name!r}")
+        if name != TIME:
+            try:
+                split_channel(name)
+            except InputError as exc:
+                raise LogError(f"{source}: {exc}") from None
+        raw = columns[name]
+        arr = np.asarray(raw)
+        if arr.dtype.kind not in "fiu":
+            raise LogError(f"{source}: column {name!r} has dtype {arr.dtype}, expected float64")
+        arr = arr.astype(np.float64, copy=False)
+        if arr.ndim != 1:
+            raise LogError(f"{source}: column {name!r} must be 1-D, got shape {arr.shape}")
+        if n_rows is None:
+            n_rows = len(arr)
+            if n_rows == 0:
+                raise LogError(f"{source}: the log has no samples (column '{TIME}' is empty)")
+        elif len(arr) != n_rows:
+            raise LogError(
+                f"{source}: column {name!r} has {len(arr)} rows, column '{TIME}' has {n_rows}"
+            )
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise LogError(f"{source}: column {name!r} has {arr[row]} (not finite) at row {row}")
+        out[name] = arr
+    t = out[TIME]
+    steps = np.diff(t)
+    if (steps <= 0).any():
+        row = int(np.argmax(steps <= 0)) + 1
+        raise LogError(
+            f"{source}: column '{TIME}' is not strictly increasing at row {row} "
+            f"(t[{row - 1}] = {t[row - 1]!r}, t[{row}] = {t[row]!r})"
+        )
+    return out
+
+
+def _check_units(columns: Mapping[str, Any], units: Mapping[str, str], source: str) -> None:
+    for column in columns:
+        if column == TIME:
+            continue
+        quantity = split_channel(column)[0]
+        if quantity not in units:
+            raise LogError(
+                f"{source}: no unit for quantity {quantity!r} (column {column!r}); add it to the "
+                "metadata's units (msarm.io.logs.STANDARD_UNITS has msarm's)"
+            )
+
+
+# --- files ----------------------------------------------------------------------------------
+
+
+def _table(columns: Mapping[str, FloatArray], kv: Mapping[str, str]) -> pa.Table:
+    arrays = [pa.array(v, type=pa.float64()) for v in columns.values()]
+    schema = pa.schema([pa.field(name, pa.float64(), nullable=False) for name in columns])
+    return pa.Table.from_arrays(arrays, schema=schema.with_metadata(dict(kv)))
+
+
+def _write_parquet_atomic(path: Path, table: pa.Table) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        pq.write_table(table, tmp)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _read_parquet(path: Path) -> tuple[dict[str, FloatArray], dict[str, str]]:
+    """Columns (float64 arrays) and string key-value metadata of a Parquet file."""
+    label = str(path)
+    if not path.is_file():
+        raise LogError(f"{label}: file not found" if not path.exists() else f"{label}: not a file")
+    try:
+        with open(path, "rb") as fh:
+            table = pq.ParquetFile(fh).read()
+    except (pa.ArrowException, OSError) as exc:
+        raise LogError(f"{label}: not a readable Parquet file: {exc}") from None
+    raw_meta = table.schema.metadata or {}
+    kv = {k.decode("utf-8", "replace"): v.decode("utf-8", "replace") for k, v in raw_meta.items()}
+    names = table.column_names
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise LogError(f"{label}: column {dup!r} appears more than once")
+    columns: dict[str, FloatArray] = {}
+    for name, col in zip(names, table.columns, strict=True):
+        if col.type != pa.float64():
+            raise LogError(f"{label}: column {name!r} has type {col.type}, expected double")
+        if col.null_count:
+            row = int(np.argmax(col.is_null().to_numpy(zero_copy_only=False)))
+            raise LogError(f"{label}: column {name!r} has a null at row {row}")
+        columns[name] = col.to_numpy()
+    return columns, kv
+
+
+def _decode(kv: Mapping[str, str], key: str, label: str, required: bool = True) -> Any:
+    if key not in kv:
+        if required:
+            raise LogError(f"{label}: metadata key {key!r} is missing")
+        return None
+    try:
+        return json.loads(kv[key])
+    except json.JSONDecodeError as exc:
+        raise LogError(f"{label}: metadata key {key!r} is not valid JSON: {exc}") from None
+
+
+def write_log(path: str | Path, log: RunLog) -> Path:
+    """Write a run log as Parquet, atomically. Never writes the sidecar.
+
+    Args:
+        path: Destination, conventionally ``runs/<name>/<log>.parquet``; the folder is created.
+        log: The log.
+
+    Returns:
+        The path written.
+
+    Raises:
+        LogError: ``path`` is a sidecar name (``*.truth.parquet``).
+    """
+    path = Path(path)
+    if path.name.endswith(_SIDECAR_SUFFIX):
+        raise LogError(f"{path}: a log must not be named '*{_SIDECAR_SUFFIX}' (the sidecar's)")
+    if not isinstance(log, RunLog):
+        raise InputError(f"write_log needs a RunLog, got {type(log).__name__}")
+    _write_parquet_atomic(path, _table(log.columns, log.metadata.to_kv()))
+    return path
+
+
+def read_log(path: str | Path) -> RunLog:
+    """Read and check a run log (never its sidecar).
+
+    Args:
+        path: The log's Parquet file.
+
+    Returns:
+        The log; its column arrays may be read-only.
+
+    Raises:
+        LogError: The file is missing or not Parquet; it is a sidecar; a metadata key is
+            missing, malformed or unknown; the schema version is not 1; ``t`` is missing or
+            not strictly increasing; a column is not float64, has a null, NaN or infinity
+            (column and first row named); a quantity has no unit. Each names the file.
+    """
+    path = Path(path)
+    label = str(path)
+    columns, kv = _read_parquet(path)
+    if _TRUTH_PREFIX + "schema_version" in kv:
+        raise LogError(f"{label}: this is a ground-truth sidecar, not a log; read_sidecar reads it")
+    version = _decode(kv, _PREFIX + "schema_version", label)
+    if version != SCHEMA_VERSION:
+        raise LogError(
+            f"{label}: log schema version {version!r} is not supported (expected {SCHEMA_VERSION})"
+        )
+    known = {_PREFIX + f for f in _META_FIELDS}
+    unknown = sorted(k for k in kv if k.startswith(_PREFIX) and k not in known)
+    if unknown:
+        raise LogError(
+            f"{label}: unknown metadata key {unknown[0]!r}; known keys: {', '.join(sorted(known))}"
+            " (put free data under 'msarm.extra')"
+        )
+    fields: dict[str, Any] = {}
+    for name, required in _META_FIELDS.items():
+        value = _decode(kv, _PREFIX + name, label, required)
+        if value is not None:
+            fields[name] = value
+    try:
+        metadata = LogMetadata(**fields)
+    except InputError as exc:
+        raise LogError(f"{label}: metadata: {exc}") from None
+    checked = _checked_columns(columns, label)
+    _check_units(checked, metadata.units, label)
+    return RunLog(checked, metadata)
+
+
+#: Metadata fields of a log -> whether the file must have them.
+_META_FIELDS: dict[str, bool] = {
+    "schema_version": True,
+    "robot_model": True,
+    "model_sha256": True,
+    "sample_rate_hz": True,
+    "units": True,
+    "controller_config": False,
+    "extra": False,
+}
+
+
+def sidecar_path(log_path: str | Path) -> Path:
+    """The ground-truth sidecar of a log: ``<stem>.truth.parquet`` in the log's folder.
+
+    Args:
+        log_path: The log file, e.g. ``runs/a/log.parquet``.
+
+    Returns:
+        E.g. ``runs/a/log.truth.parquet``.
+    """
+    log_path = Path(log_path)
+    if log_path.name.endswith(_SIDECAR_SUFFIX):
+        raise InputError(f"{log_path} is already a sidecar path")
+    return log_path.with_name(log_path.stem + _SIDECAR_SUFFIX)
+
+
+def write_sidecar(
+    log_path: str | Path,
+    columns: Mapping[str, ArrayLike],
+    ground_truth: Mapping[str, Any],
+    units: Mapping[str, str] | None = None,
+) -> Path:
+    """Write the sim-only ground truth of a run next to its log, atomically.
+
+    Args:
+        log_path: The log the sidecar belongs to (it need not exist yet).
+        columns: ``t`` [s] and channels ``<quantity>.<name>`` (e.g.
+            ``tension_insertion.biceps``), each of shape ``(T,)``.
+        ground_truth: The plant's effects and their parameters (JSON-serialisable).
+        units: Unit of each quantity of the channels.
+
+    Returns:
+        The sidecar's path (:func:`sidecar_path`).
+    """
+    sidecar = TruthSidecar(columns=columns, ground_truth=ground_truth, units=dict(units or {}))
+    path = sidecar_path(log_path)
+    kv = {
+        _TRUTH_PREFIX + "schema_version": json.dumps(SIDECAR_SCHEMA_VERSION),
+        _TRUTH_PREFIX + "ground_truth": json.dumps(sidecar.ground_truth),
+        _TRUTH_PREFIX + "units": json.dumps(sidecar.units),
+    }
+    _write_parquet_atomic(path, _table(sidecar.columns, kv))
+    return path
+
+
+def read_sidecar(log_path: str | Path) -> TruthSidecar:
+    """Read the ground-truth sidecar of a log (for tests and scoring, never for a diagnosis).
+
+    Args:
+        log_path: The log whose sidecar to read (the log itself is not opened).
+
+    Returns:
+        The sidecar.
+
+    Raises:
+        LogError: The sidecar is missing or malformed (file and column or key named).
+    """
+    path = sidecar_path(log_path)
+    label = str(path)
+    columns, kv = _read_parquet(path)
+    version = _decode(kv, _TRUTH_PREFIX + "schema_version", label)
+    if version != SIDECAR_SCHEMA_VERSION:
+        raise LogError(
+            f"{label}: sidecar schema version {version!r} is not supported "
+            f"(expected {SIDECAR_SCHEMA_VERSION})"
+        )
+    ground_truth = _decode(kv, _TRUTH_PREFIX + "ground_truth", label)
+    units = _decode(kv, _TRUTH_PREFIX + "units", label, required=False) or {}
+    if not isinstance(ground_truth, dict) or not isinstance(units, dict):
+        raise LogError(f"{label}: ground_truth and units must be JSON objects")
+    return TruthSidecar(_checked_columns(columns, label), ground_truth, units)

@@ -1,0 +1,125 @@
+"""``msarm bench sim``: closed-loop speed against bare MuJoCo stepping, in one run.
+
+Measures, on one core and in one process:
+
+- bare MuJoCo: ``mj_step`` of the arm model for the task's duration at the plant's time step
+  (the reference);
+- the plant alone: the arm plant (winches, cables, effects) stepping with a constant command;
+- the controller alone: one control tick (µs);
+- the closed loop: a whole task, plant and controller at their rates, logging included.
+
+Each is the best of ``repeats`` runs. The real-time factor is simulated time over wall time;
+the ratio says how many times slower than bare MuJoCo stepping each one is.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+from msarm.control import MuscleSpaceController
+from msarm.model import RobotModel
+from msarm.plant import ArmPlant, PlantConfig
+from msarm.tasks.registry import get_task
+from msarm.tasks.runner import run_tracking
+
+__all__ = ["SimBenchmark", "run_sim_benchmark"]
+
+#: Target of the closed loop (issue: a 20 s task in 0.2 s).
+TARGET_REAL_TIME_FACTOR = 100.0
+
+
+@dataclass(frozen=True)
+class SimBenchmark:
+    """Result of :func:`run_sim_benchmark` (times in seconds of wall time)."""
+
+    task: str
+    plant: str
+    simulated_s: float
+    bare_mujoco_s: float
+    plant_only_s: float
+    controller_tick_us: float
+    closed_loop_s: float
+
+    @property
+    def closed_loop_real_time_factor(self) -> float:
+        """Simulated time over the closed loop's wall time."""
+        return self.simulated_s / self.closed_loop_s
+
+    def rows(self) -> list[tuple[str, float, float, float]]:
+        """(what, wall [s], real-time factor, ratio to bare MuJoCo) rows of the table."""
+        return [
+            (name, wall, self.simulated_s / wall, wall / self.bare_mujoco_s)
+            for name, wall in [
+                ("bare MuJoCo mj_step", self.bare_mujoco_s),
+                ("plant alone (winches, cables, effects)", self.plant_only_s),
+                ("closed loop (plant + controller + log)", self.closed_loop_s),
+            ]
+        ]
+
+    def as_dict(self) -> dict:
+        """JSON-ready dict, derived numbers included."""
+        out = asdict(self)
+        out["closed_loop_real_time_factor"] = self.closed_loop_real_time_factor
+        out["closed_loop_ratio_to_bare_mujoco"] = self.closed_loop_s / self.bare_mujoco_s
+        out["target_real_time_factor"] = TARGET_REAL_TIME_FACTOR
+        out["target_met"] = self.closed_loop_real_time_factor >= TARGET_REAL_TIME_FACTOR
+        return out
+
+
+def _best(repeats: int, run) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def run_sim_benchmark(
+    model: RobotModel, plant_config: PlantConfig, task_name: str = "table1-1", repeats: int = 3
+) -> SimBenchmark:
+    """Time bare MuJoCo, the plant, the controller and the closed loop on one task."""
+    task = get_task(task_name, model)
+    steps = int(round(task.duration / plant_config.timestep))
+
+    bare_model = mujoco.MjModel.from_xml_path(str(model.path))
+    bare_model.opt.timestep = plant_config.timestep
+    bare_data = mujoco.MjData(bare_model)
+
+    def bare() -> None:
+        mujoco.mj_resetData(bare_model, bare_data)
+        bare_data.qpos[:] = task.home
+        for _ in range(steps):
+            mujoco.mj_step(bare_model, bare_data)
+
+    plant = ArmPlant(model, plant_config, seed=0)
+    controller = MuscleSpaceController(model)
+    run_tracking(plant, controller, task)  # warm-up: compiles the kernels
+
+    def plant_only() -> None:
+        plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))
+        for _ in range(steps // 4):
+            plant.step(4)
+
+    plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))
+    readings = plant.sense()
+    zeros = np.zeros(model.n_joints)
+    ticks = 2000
+
+    def controller_only() -> None:  # holding the posture the sensors read
+        for _ in range(ticks):
+            controller.update(readings, readings.q, zeros, zeros)
+
+    return SimBenchmark(
+        task=task.name,
+        plant=plant_config.name,
+        simulated_s=task.duration,
+        bare_mujoco_s=_best(repeats, bare),
+        plant_only_s=_best(repeats, plant_only),
+        controller_tick_us=_best(repeats, controller_only) / ticks * 1e6,
+        closed_loop_s=_best(repeats, lambda: run_tracking(plant, controller, task)),
+    )

@@ -1,0 +1,154 @@
+"""The metrics of paper 003 computed from a run's log, as a real robot's data allow.
+
+Everything here uses logged sensor channels only (encoders, motor encoders, load cells) and
+the nominal model, never the plant's ground truth:
+
+- final end-effector position error ``|p - p_d|`` in mm and in % of the displacement
+  ``|p_d - p_0|`` (eq. 10-11), with ``p`` the ``hand_center`` site of the nominal model at the
+  last logged encoder reading and ``p_0``, ``p_d`` at the task's home and target postures;
+- joint RMSE against the reference [rad];
+- cable length error (eq. 12-13): the RMSE between the cable length the motor encoders say
+  was reeled (``l(q_0) - r (theta - theta_0)``) and the theoretical length ``l(q)`` from the
+  joint encoders, in % of each cable's maximum travel over the joint range;
+- slack events (a load cell falling below ``SLACK_THRESHOLD``) and the time each tension
+  spends outside its bounds ``[min_tension, F_max]`` by more than ``BOUND_TOLERANCE`` (a
+  tension held at its lower bound must not count as outside through round-off or noise).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.model import RobotModel
+from msarm.muscle.geometry import joint_grid
+from msarm.tasks import metrics
+
+__all__ = ["TrackingMetrics", "cable_travel", "evaluate_run", "hand_position"]
+
+FloatArray = NDArray[np.float64]
+#: Load-cell tension below which a cable counts as slack [N].
+SLACK_THRESHOLD = 1.0
+#: Margin beyond the tension bounds before a tension counts as outside them [N] (more than
+#: three standard deviations of the default load-cell noise).
+BOUND_TOLERANCE = 1.0
+#: End-effector site of the arm.
+HAND_SITE = "hand_center"
+
+
+@dataclass(frozen=True)
+class TrackingMetrics:
+    """Metrics of one tracking run (see the module docstring).
+
+    Attributes:
+        final_error_mm: Final end-effector position error [mm].
+        final_error_percent: The same in % of the displacement [%].
+        joint_rmse: Joint RMSE against the reference [rad], one per joint.
+        cable_length_error_percent: Cable length RMSE in % of the cable's travel, one per
+            cable.
+        slack_events: Entries into slack, one per cable.
+        time_outside_bounds: Seconds outside the tension bounds, one per cable.
+        completed: Whether the run reached the end of its task.
+    """
+
+    final_error_mm: float
+    final_error_percent: float
+    joint_rmse: tuple[float, ...]
+    cable_length_error_percent: tuple[float, ...]
+    slack_events: tuple[int, ...]
+    time_outside_bounds: tuple[float, ...]
+    completed: bool
+
+    def as_dict(self) -> dict:
+        """A JSON-ready dict."""
+        return asdict(self)
+
+
+def hand_position(model: RobotModel, q: FloatArray) -> FloatArray:
+    """Position of the hand site [m] for postures ``q`` of shape ``(n,)`` or ``(T, n)``."""
+    q = np.atleast_2d(q)
+    data = model.scratch_data().mj
+    site = model.mj_model.site(HAND_SITE).id
+    out = np.empty((len(q), 3))
+    for k, posture in enumerate(q):
+        data.qpos[:] = posture
+        mujoco.mj_kinematics(model.mj_model, data)
+        out[k] = data.site_xpos[site]
+    return out
+
+
+_TRAVEL_CACHE: dict[str, FloatArray] = {}
+
+
+def cable_travel(model: RobotModel) -> FloatArray:
+    """Maximum travel of each cable over the joint range [m], shape ``(m,)`` (7^n grid).
+
+    Cached by the model file's SHA-256.
+    """
+    if model.sha256 not in _TRAVEL_CACHE:
+        grid = joint_grid(model.joint_lower, model.joint_upper, 7)
+        lengths = np.array([model.geometry(q).lengths for q in grid])
+        _TRAVEL_CACHE[model.sha256] = lengths.max(axis=0) - lengths.min(axis=0)
+    return _TRAVEL_CACHE[model.sha256].copy()
+
+
+def _matrix(columns: dict[str, FloatArray], quantity: str, names: tuple[str, ...]) -> FloatArray:
+    return np.stack([columns[f"{quantity}.{name}"] for name in names], axis=1)
+
+
+def evaluate_run(
+    model: RobotModel,
+    columns: dict[str, FloatArray],
+    home: FloatArray,
+    target: FloatArray,
+    drum_radius: float,
+    min_tension: float,
+    completed: bool = True,
+) -> TrackingMetrics:
+    """Compute the metrics of a run from its log columns.
+
+    Args:
+        model: The nominal robot model.
+        columns: Log columns (``t``, ``q.*``, ``q_ref.*``, ``motor_angle.*``,
+            ``tension_motor.*``).
+        home: The task's start posture [rad], shape ``(n,)``.
+        target: The task's final target posture [rad], shape ``(n,)``.
+        drum_radius: Winch drum radius [m] (to turn motor angles into cable lengths).
+        min_tension: Lower tension bound [N].
+        completed: Whether the run reached its end.
+
+    Returns:
+        The metrics.
+    """
+    joints, cables = model.joint_names, model.cable_names
+    q = _matrix(columns, "q", joints)
+    q_ref = _matrix(columns, "q_ref", joints)
+    p_final, p_target, p_start = hand_position(model, np.stack([q[-1], target, home]))
+    error_m, percent = metrics.final_position_error(p_final, p_target, p_start)
+    theory = np.array([model.geometry(posture).lengths for posture in q])
+    motor = _matrix(columns, "motor_angle", cables)
+    valid = theory[0] - drum_radius * (motor - motor[0])
+    _, length_percent = metrics.cable_length_error(valid, theory, cable_travel(model))
+    tension = _matrix(columns, "tension_motor", cables)
+    dt = float(np.median(np.diff(columns["t"]))) if len(columns["t"]) > 1 else 0.0
+    upper = np.asarray(model.muscles.max_isometric_force, dtype=float)
+    return TrackingMetrics(
+        final_error_mm=1000.0 * float(error_m),
+        final_error_percent=float(percent),
+        joint_rmse=tuple(float(v) for v in metrics.joint_rmse(q, q_ref)),
+        cable_length_error_percent=tuple(float(v) for v in length_percent),
+        slack_events=tuple(int(v) for v in metrics.slack_events(tension, SLACK_THRESHOLD)),
+        time_outside_bounds=tuple(
+            float(v)
+            for v in metrics.time_outside_bounds(
+                tension,
+                np.full(len(cables), min_tension - BOUND_TOLERANCE),
+                upper + BOUND_TOLERANCE,
+                dt,
+            )
+        ),
+        completed=completed,
+    )

@@ -1,0 +1,255 @@
+"""The runner: steps a plant and a controller at their own fixed rates through a task.
+
+Each control period (``1 / rate_hz``, a whole number of plant steps): read the sensors,
+evaluate the task's reference, let the controller (and an optional feedforward
+compensator) compute the tension commands, send them, and advance the plant. Everything the
+controller saw and did is logged at the control rate in the log's channel naming
+(``<quantity>.<name>``); the plant's ground truth goes to separate columns for the sidecar.
+
+A run that diverges stops with :class:`msarm.plant.SimulationDivergedError`; the partial log up
+to that point is kept in :attr:`TrackingRun.error`'s run (see :func:`run_tracking`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.control.arm_controller import ControlOutput, MuscleSpaceController
+from msarm.errors import InputError
+from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
+from msarm.plant.effects import SensorReadings
+
+__all__ = ["LOG_UNITS", "TRUTH_UNITS", "Feedforward", "TrackingRun", "run_tracking"]
+
+FloatArray = NDArray[np.float64]
+
+#: Units of the log's quantities (the runner's channels).
+LOG_UNITS = {
+    "q_ref": "rad",
+    "qd_ref": "rad/s",
+    "q": "rad",
+    "qdot_est": "rad/s",
+    "tau_cmd": "N m",
+    "tau_ff": "N m",
+    "motor_angle": "rad",
+    "motor_torque": "N m",
+    "tension_motor": "N",
+    "tension_cmd": "N",
+    "activation": "1",
+}
+#: Units of the ground-truth (sidecar) quantities.
+TRUTH_UNITS = {
+    "q": "rad",
+    "qdot": "rad/s",
+    "tension_insertion": "N",
+    "tension_motor": "N",
+    "stretch": "m",
+    "wrap_angle": "rad",
+}
+
+#: Wrap angles change slowly with posture: refresh them every this many control periods.
+_WRAP_REFRESH_PERIODS = 10
+
+
+class Feedforward(Protocol):
+    """A joint-torque feedforward compensation ``dtau`` (e.g. the learned compensator)."""
+
+    def __call__(
+        self, readings: SensorReadings, qdot_estimate: FloatArray, q_ref: FloatArray
+    ) -> FloatArray:
+        """Return ``dtau`` [N m], shape ``(n,)``, from what the controller knows this tick."""
+        ...
+
+
+class _Reference(Protocol):
+    name: str
+    duration: float
+    home: FloatArray
+
+    def reference(self, t: float | FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]: ...
+
+
+@dataclass
+class TrackingRun:
+    """The result of one run.
+
+    Attributes:
+        task_name: Name of the task.
+        columns: Log columns at the control rate (``t`` and ``<quantity>.<name>``).
+        truth: Ground-truth columns at the control rate (for the sidecar only).
+        effects: The plant's effects and their parameters (for the sidecar only).
+        control_rate_hz: Control (and log) rate [Hz].
+        error: The divergence that stopped the run, or None if it completed.
+    """
+
+    task_name: str
+    columns: dict[str, FloatArray]
+    truth: dict[str, FloatArray]
+    effects: dict
+    control_rate_hz: float
+    error: SimulationDivergedError | None = field(default=None)
+
+    @property
+    def completed(self) -> bool:
+        """Whether the run reached the end of its task."""
+        return self.error is None
+
+
+def _names(prefix: str, names: tuple[str, ...]) -> list[str]:
+    return [f"{prefix}.{name}" for name in names]
+
+
+def run_tracking(
+    plant: ArmPlant,
+    controller: MuscleSpaceController,
+    task: _Reference,
+    feedforward: Feedforward | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> TrackingRun:
+    """Run ``task`` on ``plant`` with ``controller`` (and ``feedforward``) from the task's home.
+
+    The plant starts at rest at the task's home posture with every cable at the tension the
+    controller asks for there, so the run starts in equilibrium.
+
+    Args:
+        plant: The plant (it is reset).
+        controller: The controller (it is reset).
+        task: The task: ``name``, ``duration`` [s], ``home`` (n,), ``reference(t)``.
+        feedforward: Optional joint-torque compensation, called every control period.
+        progress: Optional callback with the fraction done, called about 50 times.
+
+    Returns:
+        The run, with ``error`` set if the simulation diverged (the log then ends there).
+
+    Raises:
+        InputError: The control period is not a whole number of plant steps.
+    """
+    model = plant.model
+    period = controller.period
+    substeps = int(round(period / plant.config.timestep))
+    if substeps < 1 or abs(substeps * plant.config.timestep - period) > 1e-12:
+        raise InputError(
+            f"the control period {period} s is not a whole number of plant steps of "
+            f"{plant.config.timestep} s"
+        )
+    n_ticks = int(round(task.duration / period))
+    home = np.asarray(task.home, dtype=float)
+    zeros = np.zeros(model.n_joints)
+
+    plant.reset(home)
+    controller.reset(home)
+    start = controller.update(plant.sense(), home, zeros, zeros)
+    plant.reset(home, tensions=start.tension_command)
+    controller.reset(home)
+
+    times = np.arange(n_ticks) * period
+    q_ref_all, qd_ref_all, qdd_ref_all = task.reference(times)
+    n, m = model.n_joints, model.n_cables
+    log = {
+        key: np.full((n_ticks, size), np.nan)
+        for key, size in [
+            ("q_ref", n),
+            ("qd_ref", n),
+            ("q", n),
+            ("qdot_est", n),
+            ("tau_cmd", n),
+            ("tau_ff", n),
+            ("motor_angle", m),
+            ("motor_torque", m),
+            ("tension_motor", m),
+            ("tension_cmd", m),
+            ("activation", m),
+        ]
+    }
+    truth = {
+        key: np.full((n_ticks, size), np.nan)
+        for key, size in [
+            ("q", n),
+            ("qdot", n),
+            ("tension_insertion", m),
+            ("tension_motor", m),
+            ("stretch", m),
+            ("wrap_angle", m),
+        ]
+    }
+    error = None
+    done = n_ticks
+    report_every = max(1, n_ticks // 50)
+    for k in range(n_ticks):
+        readings = plant.sense()
+        q_ref, qd_ref, qdd_ref = q_ref_all[k], qd_ref_all[k], qdd_ref_all[k]
+        dtau = None
+        if feedforward is not None:
+            dtau = np.asarray(feedforward(readings, controller.qdot_estimate, q_ref), dtype=float)
+        out: ControlOutput = controller.update(readings, q_ref, qd_ref, qdd_ref, dtau)
+        plant.command(out.tension_command)
+        _record(log, k, readings, out, q_ref, qd_ref, dtau)
+        _record_truth(truth, k, plant)
+        try:
+            plant.step(substeps)
+        except SimulationDivergedError as exc:
+            error, done = exc, k + 1
+            break
+        if k % _WRAP_REFRESH_PERIODS == 0:
+            plant.update_wrap_angles()
+        if progress is not None and k % report_every == 0:
+            progress(k / n_ticks)
+    if progress is not None:
+        progress(1.0)
+
+    columns: dict[str, FloatArray] = {"t": times[:done].copy()}
+    joint_quantities = {"q_ref", "qd_ref", "q", "qdot_est", "tau_cmd", "tau_ff"}
+    for key, values in log.items():
+        names = model.joint_names if key in joint_quantities else model.cable_names
+        for column, name in enumerate(names):
+            columns[f"{key}.{name}"] = values[:done, column].copy()
+    truth_columns: dict[str, FloatArray] = {"t": times[:done].copy()}
+    for key, values in truth.items():
+        names = model.joint_names if key in {"q", "qdot"} else model.cable_names
+        for column, name in enumerate(names):
+            truth_columns[f"{key}.{name}"] = values[:done, column].copy()
+    return TrackingRun(
+        task_name=task.name,
+        columns=columns,
+        truth=truth_columns,
+        effects=plant.effect_parameters(),
+        control_rate_hz=1.0 / period,
+        error=error,
+    )
+
+
+def _record(
+    log: dict[str, FloatArray],
+    k: int,
+    readings: SensorReadings,
+    out: ControlOutput,
+    q_ref: FloatArray,
+    qd_ref: FloatArray,
+    dtau: FloatArray | None,
+) -> None:
+    log["q_ref"][k] = q_ref
+    log["qd_ref"][k] = qd_ref
+    log["q"][k] = readings.q
+    log["qdot_est"][k] = out.qdot_estimate
+    log["tau_cmd"][k] = out.joint_torque
+    log["tau_ff"][k] = 0.0 if dtau is None else dtau
+    log["motor_angle"][k] = readings.motor_angle
+    log["motor_torque"][k] = readings.motor_torque
+    log["tension_motor"][k] = readings.tension_motor
+    log["tension_cmd"][k] = out.tension_command
+    log["activation"][k] = out.activation
+
+
+def _record_truth(truth: dict[str, FloatArray], k: int, plant: ArmPlant) -> None:
+    state = plant.ground_truth()
+    truth["q"][k] = state["q"]
+    truth["qdot"][k] = state["qdot"]
+    truth["tension_insertion"][k] = state["tension_insertion"]
+    truth["tension_motor"][k] = state["tension_motor"]
+    truth["stretch"][k] = state["stretch"]
+    truth["wrap_angle"][k] = state["wrap_angle"]

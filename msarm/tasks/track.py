@@ -1,0 +1,152 @@
+"""Run a tracking task and write everything a user looks at afterwards.
+
+:func:`track` runs one task on one plant with the paper 003 controller (and an optional
+feedforward compensator) and writes, into one folder (atomically, file by file):
+
+- ``log.parquet``: the log in the documented schema (sensors, references, commands);
+- ``log.truth.parquet``: the sim-only ground truth sidecar (never read by a diagnosis);
+- ``config.yaml``: the resolved plant, controller and task settings and the seed;
+- ``metrics.json``: the metrics of paper 003 (see :mod:`msarm.tasks.evaluate`);
+- ``joints.png`` and ``tensions.png``: joint angles against the reference, cable tensions.
+
+A run that diverges keeps its partial log and reports the divergence in ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from msarm import plots
+from msarm.control import ArmControllerConfig, MuscleSpaceController
+from msarm.io.config import config_to_dict, write_config
+from msarm.io.logs import LogMetadata, RunLog, write_log, write_sidecar
+from msarm.model import RobotModel
+from msarm.plant import ArmPlant, PlantConfig
+from msarm.tasks.evaluate import TrackingMetrics, evaluate_run
+from msarm.tasks.runner import LOG_UNITS, TRUTH_UNITS, Feedforward, TrackingRun, run_tracking
+
+__all__ = ["TrackResult", "TrackSettings", "track", "write_json_atomic"]
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """Everything that defines a tracking run (written as ``config.yaml``).
+
+    Attributes:
+        task: Task name.
+        seed: Seed of the plant (sensor noise).
+        plant: The plant.
+        controller: The controller's gains and settings.
+        feedforward: Path of the feedforward checkpoint, or "" for none.
+    """
+
+    task: str
+    seed: int
+    plant: PlantConfig
+    controller: ArmControllerConfig
+    feedforward: str = ""
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """What :func:`track` produced.
+
+    Attributes:
+        run: The run (log and truth columns).
+        metrics: Its metrics.
+        files: The files written, by kind (``log``, ``sidecar``, ``config``, ``metrics``,
+            ``joints_plot``, ``tensions_plot``); empty when nothing was written.
+    """
+
+    run: TrackingRun
+    metrics: TrackingMetrics
+    files: dict[str, Path]
+
+
+def write_json_atomic(path: Path, payload: dict) -> Path:
+    """Write ``payload`` as JSON to ``path`` atomically (temporary file, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(handle, "w") as stream:
+        json.dump(payload, stream, indent=2)
+        stream.write("\n")
+    os.replace(tmp, path)
+    return path
+
+
+def track(
+    model: RobotModel,
+    task,
+    settings: TrackSettings,
+    out_dir: Path | None = None,
+    feedforward: Feedforward | None = None,
+    progress: Callable[[float], None] | None = None,
+    plots_too: bool = True,
+) -> TrackResult:
+    """Run ``task`` and, if ``out_dir`` is given, write its log, sidecar, config, metrics, plots.
+
+    Args:
+        model: The arm.
+        task: The task (``msarm.tasks.registry.get_task``).
+        settings: Plant, controller, seed (and the feedforward's name, for the record).
+        out_dir: Folder for the outputs, created if needed; nothing is written if None.
+        feedforward: The feedforward compensation, if any.
+        progress: Progress callback (fraction done).
+        plots_too: Also write the PNG plots.
+
+    Returns:
+        The run, its metrics and the files written.
+    """
+    plant = ArmPlant(model, settings.plant, seed=settings.seed)
+    controller = MuscleSpaceController(model, settings.controller)
+    run = run_tracking(plant, controller, task, feedforward=feedforward, progress=progress)
+    metrics = evaluate_run(
+        model,
+        run.columns,
+        home=task.home,
+        target=task.target,
+        drum_radius=settings.plant.winch.drum_radius,
+        min_tension=settings.controller.min_tension,
+        completed=run.completed,
+    )
+    files: dict[str, Path] = {}
+    if out_dir is None:
+        return TrackResult(run, metrics, files)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    metadata = LogMetadata.for_model(
+        model,
+        sample_rate_hz=run.control_rate_hz,
+        units=LOG_UNITS,
+        controller_config=config_to_dict(settings.controller),
+        extra={"task": task.name, "seed": settings.seed},
+    )
+    files["log"] = write_log(out_dir / "log.parquet", RunLog(run.columns, metadata))
+    files["sidecar"] = write_sidecar(files["log"], run.truth, run.effects, TRUTH_UNITS)
+    files["config"] = out_dir / "config.yaml"
+    write_config(settings, files["config"])
+    payload = {"task": task.name, "plant": settings.plant.name, **metrics.as_dict()}
+    if run.error is not None:
+        payload["diverged"] = {"time": run.error.time, "message": str(run.error)}
+    files["metrics"] = write_json_atomic(out_dir / "metrics.json", payload)
+    if plots_too and len(run.columns["t"]) > 1:
+        title = f"{task.name} on the {settings.plant.name} plant"
+        files["joints_plot"] = plots.plot_joint_tracking(
+            run.columns, model.joint_names, out_dir / "joints.png", title=title
+        )
+        files["tensions_plot"] = plots.plot_cable_tensions(
+            run.columns,
+            model.cable_names,
+            out_dir / "tensions.png",
+            lower=settings.controller.min_tension,
+            upper=np.asarray(model.muscles.max_isometric_force),
+            title=title,
+        )
+    return TrackResult(run, metrics, files)

@@ -1,0 +1,201 @@
+"""msarm.io.config: YAML into frozen dataclasses, with every mistake named."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import pytest
+import yaml
+
+from msarm.errors import ConfigError, MsarmError
+from msarm.io.config import config_to_dict, dump_config, load_config, write_config
+
+
+@dataclass(frozen=True)
+class Gains:
+    kp: float
+    kd: float = 0.5
+    per_joint: tuple[float, ...] = (1.0, 2.0)
+
+
+@dataclass(frozen=True)
+class Limits:
+    low: float = 0.0
+    high: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.low > self.high:
+            raise ValueError(f"low {self.low} > high {self.high}")
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    gains: Gains
+    repeats: int = 3
+    verbose: bool = False
+    note: str | None = None
+    pair: tuple[int, float] = (1, 2.0)
+    mode: Literal["fast", "exact"] = "fast"
+    cables: dict[str, Limits] = field(default_factory=dict)
+    limits: Limits = field(default_factory=Limits)
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "exp.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_nested_and_dict_of_dataclass_config_from_yaml(tmp_path):
+    path = _write(
+        tmp_path,
+        """
+name: run-1
+gains: {kp: 3, per_joint: [1, 2.5, 3]}
+repeats: 5
+note: null
+pair: [4, 5]
+mode: exact
+cables:
+  biceps: {low: 1.0, high: 2e1}
+  triceps: {}
+limits: {high: 3.5}
+""",
+    )
+    cfg = load_config(path, Experiment)
+    assert cfg == Experiment(
+        name="run-1",
+        gains=Gains(kp=3.0, per_joint=(1.0, 2.5, 3.0)),
+        repeats=5,
+        pair=(4, 5.0),
+        mode="exact",
+        cables={"biceps": Limits(1.0, 20.0), "triceps": Limits()},
+        limits=Limits(high=3.5),
+    )
+    assert isinstance(cfg.gains.kp, float) and isinstance(cfg.gains.per_joint, tuple)
+
+
+def test_defaults_fill_missing_keys_and_mapping_source_works():
+    cfg = load_config({"name": "a", "gains": {"kp": 1.0}}, Experiment)
+    assert cfg.repeats == 3 and cfg.limits == Limits() and cfg.cables == {}
+
+
+def test_unknown_key_names_file_path_and_valid_keys(tmp_path):
+    path = _write(tmp_path, "name: a\ngains: {kp: 1.0, kpp: 2.0}\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path, Experiment)
+    msg = str(info.value)
+    assert str(path) in msg and "'gains.kpp'" in msg
+    assert "kp, kd, per_joint" in msg and "did you mean 'kp'" in msg
+
+
+def test_unknown_key_inside_dict_of_dataclass(tmp_path):
+    path = _write(tmp_path, "name: a\ngains: {kp: 1}\ncables: {biceps: {lo: 1}}\n")
+    with pytest.raises(ConfigError, match=r"'cables\.biceps\.lo'.*low, high"):
+        load_config(path, Experiment)
+
+
+def test_missing_key_is_named(tmp_path):
+    path = _write(tmp_path, "name: a\ngains: {kd: 1.0}\n")
+    with pytest.raises(ConfigError, match=r"exp\.yaml: missing key 'gains\.kp'"):
+        load_config(path, Experiment)
+    with pytest.raises(ConfigError, match="missing key 'gains'"):
+        load_config({"name": "a"}, Experiment)
+
+
+@pytest.mark.parametrize(
+    ("text", "key", "expected"),
+    [
+        ("gains: {kp: fast}", "gains.kp", "a number"),
+        ("gains: {kp: true}", "gains.kp", "a number"),
+        ("gains: {kp: 1}\nrepeats: 2.5", "repeats", "an integer"),
+        ("gains: {kp: 1}\nverbose: 1", "verbose", "a boolean"),
+        ("gains: {kp: 1, per_joint: 3}", "gains.per_joint", "a list"),
+        ("gains: {kp: 1, per_joint: [1, x]}", r"gains.per_joint\[1\]", "a number"),
+        ("gains: {kp: 1}\npair: [1]", "pair", "a list of 2 items"),
+        ("gains: {kp: 1}\nmode: slow", "mode", "one of 'fast', 'exact'"),
+        ("gains: 3", "gains", "a mapping"),
+        ("gains: {kp: 1}\ncables: {biceps: 2}", "cables.biceps", "a mapping"),
+    ],
+)
+def test_wrong_type_names_key_expected_type_and_value(tmp_path, text, key, expected):
+    path = _write(tmp_path, "name: a\n" + text + "\n")
+    with pytest.raises(ConfigError, match=f"'{key}'.*{expected}") as info:
+        load_config(path, Experiment)
+    assert str(path) in str(info.value)
+
+
+def test_post_init_error_is_reported_with_its_key(tmp_path):
+    path = _write(tmp_path, "name: a\ngains: {kp: 1}\nlimits: {low: 5, high: 1}\n")
+    with pytest.raises(ConfigError, match=r"key 'limits'.*low 5.0 > high 1.0"):
+        load_config(path, Experiment)
+
+
+def test_missing_file_bad_yaml_and_non_mapping(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "nope.yaml", Experiment)
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(_write(tmp_path, "a: [1, 2\n"), Experiment)
+    with pytest.raises(ConfigError, match="expected a mapping"):
+        load_config(_write(tmp_path, "- 1\n- 2\n"), Experiment)
+
+
+def test_config_error_is_msarm_and_value_error():
+    assert issubclass(ConfigError, MsarmError) and issubclass(ConfigError, ValueError)
+
+
+def test_round_trip_write_then_load_is_equal(tmp_path):
+    cfg = Experiment(
+        name="x",
+        gains=Gains(kp=1e-7, kd=0.1 + 0.2, per_joint=(1.0 / 3.0, 2e300)),
+        note="hello",
+        cables={"biceps": Limits(0.5, 1.5)},
+    )
+    path = write_config(cfg, tmp_path / "sub" / "config.yaml")
+    assert path.exists() and load_config(path, Experiment) == cfg
+    assert [p.name for p in path.parent.iterdir()] == ["config.yaml"]  # no temp file left
+    data = yaml.safe_load(path.read_text())
+    assert data == config_to_dict(cfg)
+    assert data["gains"]["per_joint"] == [1.0 / 3.0, 2e300]
+
+
+def test_write_is_atomic_when_serialisation_fails(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text("old: 1\n")
+    with pytest.raises(TypeError):
+        write_config({"bad": object()}, path)
+    assert path.read_text() == "old: 1\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["config.yaml"]
+
+
+def test_write_leaves_old_file_when_rename_fails(tmp_path, monkeypatch):
+    path = tmp_path / "config.yaml"
+    path.write_text("old: 1\n")
+
+    def fail(*args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr("msarm.io.config.os.replace", fail)
+    with pytest.raises(OSError, match="disk full"):
+        write_config(Limits(), path)
+    assert path.read_text() == "old: 1\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["config.yaml"]
+
+
+def test_plant_and_controller_configs_round_trip(tmp_path):
+    from msarm.control.arm_controller import ArmControllerConfig
+    from msarm.plant.config import DEFAULT_PLANT, IDEAL_PLANT, PlantConfig
+
+    for cfg in (DEFAULT_PLANT, IDEAL_PLANT):
+        assert load_config(write_config(cfg, tmp_path / "p.yaml"), PlantConfig) == cfg
+    ctrl = ArmControllerConfig()
+    assert load_config(write_config(ctrl, tmp_path / "c.yaml"), ArmControllerConfig) == ctrl
+    assert "kp: [" in dump_config(ctrl)
+
+
+def test_exponent_without_dot_is_a_float(tmp_path):
+    cfg = load_config(_write(tmp_path, "name: a\ngains: {kp: 1e-4, kd: -2E+3}\n"), Experiment)
+    assert cfg.gains.kp == 1e-4 and cfg.gains.kd == -2000.0

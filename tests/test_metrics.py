@@ -1,0 +1,98 @@
+"""msarm.tasks.metrics: the paper 003 metrics on tiny hand-computed arrays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from msarm.errors import InputError
+from msarm.tasks.metrics import (
+    cable_length_error,
+    final_position_error,
+    joint_rmse,
+    slack_events,
+    time_outside_bounds,
+)
+
+
+def test_final_position_error_eq_10_11():
+    # Start at the origin, target 0.5 m away along x; the arm stops 3-4-5 cm off.
+    error, percent = final_position_error([0.53, 0.04, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0])
+    assert error == pytest.approx(0.05, rel=1e-12)
+    assert percent == pytest.approx(10.0, rel=1e-12)
+    # Paper 003's numbers: 147.1 mm is 31.49 % of a 467.1 mm displacement.
+    error, percent = final_position_error([0.1471, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.4671, 0.0])
+    assert error == pytest.approx(0.1471) and percent == pytest.approx(31.49, abs=0.01)
+
+
+def test_final_position_error_bad_input():
+    with pytest.raises(InputError, match="zero displacement"):
+        final_position_error([1.0, 0.0], [0.0, 0.0], [0.0, 0.0])
+    with pytest.raises(InputError, match="p_start has shape"):
+        final_position_error([1.0, 0.0], [0.0, 0.0], [0.0, 0.0, 0.0])
+    with pytest.raises(InputError, match="p_final has NaN"):
+        final_position_error([np.nan, 0.0], [0.0, 0.0], [1.0, 0.0])
+
+
+def test_joint_rmse_per_joint():
+    q = np.array([[1.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 4.0]])
+    q_ref = np.zeros((4, 2))
+    np.testing.assert_allclose(joint_rmse(q, q_ref), [1.0, 2.0])
+    with pytest.raises(InputError, match="q_ref has shape"):
+        joint_rmse(q, q_ref[:3])
+    with pytest.raises(InputError, match=r"q must be of shape \(T, k\)"):
+        joint_rmse(q[0], q_ref[0])
+    q[2, 1] = np.nan
+    with pytest.raises(InputError, match=r"q has NaN at index \(2, 1\)"):
+        joint_rmse(q, q_ref)
+
+
+def test_cable_length_error_eq_12_13():
+    l_theory = np.array([[0.30, 0.20], [0.31, 0.21], [0.32, 0.22], [0.33, 0.23]])
+    offsets = np.array([[0.003, 0.0], [-0.003, 0.0], [0.003, 0.001], [-0.003, -0.001]])
+    rmse, percent = cable_length_error(l_theory + offsets, l_theory, [0.06, 0.01])
+    # Cable 0: |e| = 3 mm everywhere; cable 1: sqrt((0 + 0 + 1 + 1) / 4) mm.
+    np.testing.assert_allclose(rmse, [0.003, np.sqrt(0.5) * 1e-3], rtol=1e-10)
+    np.testing.assert_allclose(percent, [5.0, np.sqrt(0.5) * 10.0], rtol=1e-10)
+
+
+def test_cable_length_error_bad_input():
+    l_theory = np.zeros((3, 2))
+    with pytest.raises(InputError, match="max_travel must have shape"):
+        cable_length_error(l_theory, l_theory, [0.1])
+    with pytest.raises(InputError, match="max_travel must be > 0.*cable 1"):
+        cable_length_error(l_theory, l_theory, [0.1, 0.0])
+    with pytest.raises(InputError, match="l_theory has shape"):
+        cable_length_error(l_theory, l_theory[:, :1], [0.1, 0.1])
+
+
+def test_slack_events_count_entries_into_slack():
+    tension = np.array(
+        [
+            [10.0, 0.0, 5.0],
+            [0.5, 0.0, 5.0],  # cable 0 goes slack
+            [10.0, 2.0, 5.0],  # cable 1 taut for the first time
+            [0.0, 0.5, 0.9],  # cables 0, 1, 2 go slack
+            [0.0, 0.0, 1.0],  # staying slack is not a new event; exactly 1 N is taut
+            [3.0, 0.0, 0.99],  # cable 2 slack again
+        ]
+    )
+    np.testing.assert_array_equal(slack_events(tension, 1.0), [2, 1, 2])
+    np.testing.assert_array_equal(slack_events(tension, [1.0, 3.0, 0.95]), [2, 0, 1])
+    assert slack_events(tension, 1.0).dtype.kind == "i"
+    with pytest.raises(InputError, match=r"threshold must be a scalar or of shape \(3,\)"):
+        slack_events(tension, [1.0, 2.0])
+
+
+def test_time_outside_bounds_seconds_per_cable():
+    tension = np.array([[0.0, 5.0], [5.0, 5.0], [12.0, 5.0], [10.0, 2.0]])
+    np.testing.assert_allclose(time_outside_bounds(tension, 1.0, 10.0, 0.004), [0.008, 0.0])
+    np.testing.assert_allclose(
+        time_outside_bounds(tension, [1.0, 3.0], [20.0, 20.0], 0.5), [0.5, 0.5]
+    )
+    with pytest.raises(InputError, match="lower > upper at cable 0"):
+        time_outside_bounds(tension, 11.0, 10.0, 0.004)
+    with pytest.raises(InputError, match="dt"):
+        time_outside_bounds(tension, 1.0, 10.0, -1.0)
+    with pytest.raises(InputError, match="tension has NaN"):
+        time_outside_bounds(np.full((2, 2), np.nan), 1.0, 10.0, 0.1)

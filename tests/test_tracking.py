@@ -1,0 +1,128 @@
+"""The runner, tracking metrics, logs and the track command on the arm."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from msarm.cli import app
+from msarm.control import ArmControllerConfig, MuscleSpaceController
+from msarm.errors import InputError
+from msarm.io.logs import read_log, read_sidecar, sidecar_path
+from msarm.plant import DEFAULT_PLANT, IDEAL_PLANT, ArmPlant, Effect
+from msarm.tasks.registry import get_task
+from msarm.tasks.runner import run_tracking
+from msarm.tasks.track import TrackSettings, track
+from msarm.tasks.trajectories import hold_then_move
+
+HOME = np.array([0.0, 0.0, 0.0, -0.2])
+SHORT = hold_then_move("short", HOME, [0.1, 0.3, -0.2, -0.8], wait=0.2, move_time=1.0, duration=2.0)
+
+
+def settings(plant=DEFAULT_PLANT, seed=0) -> TrackSettings:
+    return TrackSettings("short", seed, plant, ArmControllerConfig())
+
+
+def test_ideal_plant_converges_to_a_table1_target(arm):
+    task = get_task("table1-1", arm)
+    result = track(arm, task, settings(IDEAL_PLANT))
+    assert result.metrics.completed
+    assert result.metrics.final_error_mm < 1.0
+    assert sum(result.metrics.slack_events) == 0
+
+
+def test_default_plant_shows_a_gap_to_the_ideal_plant(arm):
+    task = get_task("table1-1", arm)
+    ideal = track(arm, task, settings(IDEAL_PLANT)).metrics
+    default = track(arm, task, settings(DEFAULT_PLANT)).metrics
+    assert default.final_error_mm > 5 * max(ideal.final_error_mm, 0.05)
+    assert min(default.joint_rmse) > 10 * max(ideal.joint_rmse)
+    assert max(default.cable_length_error_percent) > 10 * max(ideal.cable_length_error_percent)
+
+
+def test_same_seed_same_log_bit_for_bit(arm, tmp_path):
+    first = track(arm, SHORT, settings(seed=3), tmp_path / "a", plots_too=False)
+    second = track(arm, SHORT, settings(seed=3), tmp_path / "b", plots_too=False)
+    other = track(arm, SHORT, settings(seed=4), tmp_path / "c", plots_too=False)
+    log_a, log_b = read_log(first.files["log"]), read_log(second.files["log"])
+    assert log_a == log_b
+    assert log_a != read_log(other.files["log"])  # the noise differs
+
+
+def test_log_round_trips_and_holds_no_ground_truth(arm, tmp_path):
+    result = track(arm, SHORT, settings(seed=1), tmp_path, plots_too=False)
+    log = read_log(result.files["log"])
+    for name, values in result.run.columns.items():
+        np.testing.assert_array_equal(log.columns[name], values)
+    assert set(log.columns) == set(result.run.columns)
+    forbidden = {"tension_insertion", "stretch", "wrap_angle", "qdot"}
+    assert not forbidden & set(log.quantities())
+    text = str(log.metadata)
+    assert "sheath_friction" not in text and "stiffness" not in text
+    truth = read_sidecar(result.files["log"])
+    assert "sheath_friction" in truth.ground_truth
+    assert "tension_insertion" in truth.quantities()
+    # the log is read without its sidecar
+    sidecar_path(result.files["log"]).unlink()
+    assert read_log(result.files["log"]) == log
+
+
+def test_divergence_stops_with_time_and_state_and_keeps_the_partial_log(arm, tmp_path):
+    class Explode(Effect):
+        name = "explode"
+
+        def winch_torque(self, state):
+            blow = np.full(state.lengths.shape, np.nan if state.q[3] < -0.3 else 0.0)
+            return blow, np.zeros_like(blow)
+
+    plant = ArmPlant(arm, DEFAULT_PLANT, seed=0, extra_effects=[Explode()])
+    run = run_tracking(plant, MuscleSpaceController(arm), SHORT)
+    assert not run.completed
+    assert "diverged at t =" in str(run.error) and "q =" in str(run.error)
+    assert 0 < len(run.columns["t"]) < int(SHORT.duration * 250)
+    assert np.all(np.isfinite(run.columns["q.elbow"]))
+
+
+def test_control_period_must_be_whole_plant_steps(arm):
+    plant = ArmPlant(arm, replace(IDEAL_PLANT, timestep=0.0003))
+    with pytest.raises(InputError, match="whole number of plant steps"):
+        run_tracking(plant, MuscleSpaceController(arm), SHORT)
+
+
+def test_track_command_writes_its_outputs(tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(
+        app, ["track", "--task", "table1-2", "--plant", "ideal", "--out", str(tmp_path), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    assert '"final_error_mm"' in result.output
+    for name in ("log.parquet", "log.truth.parquet", "config.yaml", "metrics.json", "joints.png"):
+        assert (tmp_path / name).is_file()
+
+
+def test_unknown_names_list_the_valid_ones(tmp_path):
+    runner = CliRunner()
+    bad_task = runner.invoke(app, ["track", "--task", "nope", "--out", str(tmp_path)])
+    assert bad_task.exit_code != 0
+    assert "table1-1" in str(bad_task.exception)
+    bad_plant = runner.invoke(app, ["track", "--plant", "nope", "--out", str(tmp_path)])
+    assert "default" in str(bad_plant.exception) and "ideal" in str(bad_plant.exception)
+
+
+def test_plant_file_with_an_unknown_key_is_refused(tmp_path):
+    path = tmp_path / "plant.yaml"
+    path.write_text("name: mine\neffects:\n  sheath_friction:\n    muu: 0.1\n")
+    runner = CliRunner()
+    result = runner.invoke(app, ["track", "--plant", str(path), "--out", str(tmp_path)])
+    assert result.exit_code != 0
+    assert "muu" in str(result.exception)
+
+
+def test_list_shows_tasks_plants_and_effects():
+    result = CliRunner().invoke(app, ["track", "--list"])
+    assert result.exit_code == 0
+    for word in ("table1-1", "random-<seed>", "ideal", "sheath_friction", "cogging"):
+        assert word in result.output
