@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 export MPLBACKEND := Agg
 
-.PHONY: install demo test lint bench clean
+.PHONY: install demo tour test lint bench clean
 
 $(STAMP): requirements.lock pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -16,17 +16,25 @@ $(STAMP): requirements.lock pyproject.toml
 
 install: $(STAMP)
 
+# The main job: collect runs on the simulated robot, train the feedforward compensator,
+# compare tracking without and with it (table and plots under runs/compare).
 demo: install
-	$(PY) examples/arm_tour.py --out runs/demo
+	$(VENV)/bin/msarm train --config training/compensator.yaml
+	$(VENV)/bin/msarm compare --ff runs/compensator/compensator.pt --out runs/compare
+
+# A tour of the arm model: joints, muscles, moment arms, Hill curves (plots in runs/tour).
+tour: install
+	$(PY) examples/arm_tour.py --out runs/tour
 
 lint: install
 	$(VENV)/bin/ruff check msarm tests examples
 
 test: install lint
-	$(PY) -m pytest -n 2 -q
+	$(PY) -m pytest -n 2 --dist loadfile -q
 
 bench: install
 	$(VENV)/bin/msarm bench allocation
+	$(VENV)/bin/msarm bench sim
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis

@@ -10,6 +10,7 @@ import typer
 
 from msarm.cli.arm import arm_command
 from msarm.cli.bench import bench_app
+from msarm.cli.compensator import compare_command, train_command
 from msarm.cli.track import track_command
 
 app = typer.Typer(
@@ -21,6 +22,8 @@ app = typer.Typer(
 )
 app.command("arm")(arm_command)
 app.command("track")(track_command)
+app.command("train")(train_command)
+app.command("compare")(compare_command)
 app.add_typer(bench_app, name="bench")
 
 

@@ -85,6 +85,9 @@ def track_command(
     controller: Annotated[
         Path | None, typer.Option(help="YAML file of controller gains (ArmControllerConfig).")
     ] = None,
+    ff: Annotated[
+        Path | None, typer.Option("--ff", help="Feedforward compensator checkpoint.")
+    ] = None,
     out: Annotated[
         Path | None, typer.Option(help="Output folder (default runs/track-<task>-<plant>).")
     ] = None,
@@ -112,7 +115,11 @@ def track_command(
         else load_config(controller, ArmControllerConfig)
     )
     feedforward = None
-    settings = TrackSettings(task_obj.name, seed, plant_config, gains)
+    if ff is not None:
+        from msarm.compensation.feedforward import load_feedforward
+
+        feedforward = load_feedforward(ff, arm)
+    settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
     out_dir = out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}"
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task(f"{task_obj.name} on {plant_config.name}", total=1.0)

@@ -21,6 +21,7 @@ The controller's model is the nominal one: rigid, frictionless cables through
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import mujoco
@@ -74,6 +75,7 @@ class ControlOutput:
     Attributes:
         tension_command: Tension for each motor drive [N], shape ``(m,)``.
         joint_torque: Wanted joint torque (feedforward compensation included) [N m], ``(n,)``.
+        feedforward: The feedforward compensation ``dtau`` added [N m], ``(n,)`` (zeros if none).
         muscle_force: Allocated muscle forces [N], shape ``(m,)``.
         activation: Muscle activations [-], shape ``(m,)``.
         qdot_estimate: Estimated joint velocities [rad/s], shape ``(n,)``.
@@ -83,6 +85,7 @@ class ControlOutput:
 
     tension_command: FloatArray
     joint_torque: FloatArray
+    feedforward: FloatArray
     muscle_force: FloatArray
     activation: FloatArray
     qdot_estimate: FloatArray
@@ -169,7 +172,7 @@ class MuscleSpaceController:
         q_ref: ArrayLike,
         qd_ref: ArrayLike,
         qdd_ref: ArrayLike,
-        feedforward: ArrayLike | None = None,
+        feedforward: ArrayLike | Callable[..., ArrayLike] | None = None,
     ) -> ControlOutput:
         """One control tick.
 
@@ -178,7 +181,9 @@ class MuscleSpaceController:
             q_ref: Reference joint angles [rad], shape ``(n,)``.
             qd_ref: Reference joint velocities [rad/s], shape ``(n,)``.
             qdd_ref: Reference joint accelerations [rad/s^2], shape ``(n,)``.
-            feedforward: Joint-torque compensation ``dtau`` [N m], shape ``(n,)``, or None.
+            feedforward: Joint-torque compensation ``dtau`` [N m], shape ``(n,)``; or a callable
+                ``(readings, qdot_estimate, q_ref, qd_ref) -> dtau`` called after this tick's
+                velocity estimate; or None.
 
         Returns:
             The commands and what led to them.
@@ -206,8 +211,13 @@ class MuscleSpaceController:
         )[np.argsort(model.pin_q_index)]
         tau = tau + self._kp * error + self._ki * state.integral
         tau += self._kd * (np.asarray(qd_ref, dtype=float) - qdot)
+        if callable(feedforward):
+            feedforward = feedforward(readings, qdot, q_ref, qd_ref)
         if feedforward is not None:
-            tau = tau + np.asarray(feedforward, dtype=float)
+            dtau = np.asarray(feedforward, dtype=float)
+            if dtau.shape != tau.shape or not np.all(np.isfinite(dtau)):
+                raise InputError(f"feedforward must be {tau.shape} finite N m, got {dtau}")
+            tau = tau + dtau
 
         lengths, jacobian = self._cable_geometry(q)
         speed = np.maximum(jacobian @ qdot, -self._max_shortening)
@@ -225,6 +235,7 @@ class MuscleSpaceController:
         return ControlOutput(
             tension_command=force,
             joint_torque=tau,
+            feedforward=np.zeros_like(tau) if feedforward is None else dtau,
             muscle_force=result.f,
             activation=state.activation.copy(),
             qdot_estimate=qdot.copy(),

@@ -57,12 +57,23 @@ _WRAP_REFRESH_PERIODS = 10
 
 
 class Feedforward(Protocol):
-    """A joint-torque feedforward compensation ``dtau`` (e.g. the learned compensator)."""
+    """A joint-torque feedforward compensation ``dtau`` (e.g. the learned compensator).
+
+    The controller calls it every tick after estimating the joint velocities.
+    """
+
+    def reset(self) -> None:
+        """Forget the previous run (called before a run starts)."""
+        ...
 
     def __call__(
-        self, readings: SensorReadings, qdot_estimate: FloatArray, q_ref: FloatArray
+        self,
+        readings: SensorReadings,
+        qdot_estimate: FloatArray,
+        q_ref: FloatArray,
+        qd_ref: FloatArray,
     ) -> FloatArray:
-        """Return ``dtau`` [N m], shape ``(n,)``, from what the controller knows this tick."""
+        """Return ``dtau`` [N m], shape ``(n,)``, from this tick's readings and reference."""
         ...
 
 
@@ -146,6 +157,8 @@ def run_tracking(
     start = controller.update(plant.sense(), home, zeros, zeros)
     plant.reset(home, tensions=start.tension_command)
     controller.reset(home)
+    if feedforward is not None:
+        feedforward.reset()
 
     times = np.arange(n_ticks) * period
     q_ref_all, qd_ref_all, qdd_ref_all = task.reference(times)
@@ -183,12 +196,9 @@ def run_tracking(
     for k in range(n_ticks):
         readings = plant.sense()
         q_ref, qd_ref, qdd_ref = q_ref_all[k], qd_ref_all[k], qdd_ref_all[k]
-        dtau = None
-        if feedforward is not None:
-            dtau = np.asarray(feedforward(readings, controller.qdot_estimate, q_ref), dtype=float)
-        out: ControlOutput = controller.update(readings, q_ref, qd_ref, qdd_ref, dtau)
+        out: ControlOutput = controller.update(readings, q_ref, qd_ref, qdd_ref, feedforward)
         plant.command(out.tension_command)
-        _record(log, k, readings, out, q_ref, qd_ref, dtau)
+        _record(log, k, readings, out, q_ref, qd_ref)
         _record_truth(truth, k, plant)
         try:
             plant.step(substeps)
@@ -230,14 +240,13 @@ def _record(
     out: ControlOutput,
     q_ref: FloatArray,
     qd_ref: FloatArray,
-    dtau: FloatArray | None,
 ) -> None:
     log["q_ref"][k] = q_ref
     log["qd_ref"][k] = qd_ref
     log["q"][k] = readings.q
     log["qdot_est"][k] = out.qdot_estimate
     log["tau_cmd"][k] = out.joint_torque
-    log["tau_ff"][k] = 0.0 if dtau is None else dtau
+    log["tau_ff"][k] = out.feedforward
     log["motor_angle"][k] = readings.motor_angle
     log["motor_torque"][k] = readings.motor_torque
     log["tension_motor"][k] = readings.tension_motor

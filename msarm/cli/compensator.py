@@ -1,0 +1,216 @@
+"""``msarm train`` and ``msarm compare``: the feedforward compensator's main job."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from msarm.cli.common import console, resolve_plant
+
+DEFAULT_RECIPE = Path("training/compensator.yaml")
+DEFAULT_CHECKPOINT = Path("runs/compensator/compensator.pt")
+
+
+def train_command(
+    config: Annotated[
+        Path, typer.Option(help="Training recipe (YAML of CompensatorRecipe).")
+    ] = DEFAULT_RECIPE,
+    fresh: Annotated[
+        bool, typer.Option("--fresh", help="Ignore an interrupted training; start over.")
+    ] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
+) -> None:
+    """Collect (or reuse) seeded runs on the plant and train the feedforward compensator."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from msarm.compensation.dataset import split_runs
+    from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
+    from msarm.io.config import load_config
+    from msarm.model import load_arm
+
+    recipe = load_config(config, CompensatorRecipe) if config.is_file() else None
+    if recipe is None:
+        if config != DEFAULT_RECIPE:
+            raise typer.BadParameter(f"recipe file not found: {config}")
+        recipe = CompensatorRecipe()
+    arm = load_arm()
+    plant = resolve_plant(recipe.data.plant)
+    split = split_runs(recipe.data.seeds, recipe.data.split)
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.fields[info]}"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, disable=json_output, transient=False) as bar:
+        runs = bar.add_task("collect runs", total=recipe.data.n_runs, info="")
+        epochs = bar.add_task("train", total=recipe.network.max_epochs, info="", visible=False)
+
+        def on_run(done: int, total: int, reused: bool) -> None:
+            bar.update(runs, completed=done, info=f"{done}/{total}{' (reused)' if reused else ''}")
+
+        def on_epoch(epoch: int, total: int, train_loss: float, val_loss: float) -> None:
+            bar.update(
+                epochs,
+                visible=True,
+                completed=epoch,
+                info=f"epoch {epoch}: train {train_loss:.4f}, validation {val_loss:.4f}",
+            )
+
+        rerun = len(split.train) + len(split.validation)  # runs collected again per round
+
+        def on_round(round_: int, rounds: int) -> None:
+            label = f"round {round_}/{rounds}"
+            total = recipe.data.n_runs if round_ == 0 else rerun
+            bar.update(runs, completed=0, total=total, description=f"collect runs, {label}")
+            bar.update(epochs, completed=0, description=f"train, {label}")
+
+        report = train_compensator(
+            arm,
+            recipe,
+            plant,
+            resume=not fresh,
+            on_run=on_run,
+            on_epoch=on_epoch,
+            on_round=on_round,
+        )
+        bar.update(epochs, completed=recipe.network.max_epochs)
+    payload = {
+        "checkpoint": str(report.checkpoint),
+        "split": report.split,
+        "samples": report.samples,
+        "collect_time_s": report.collect_time_s,
+        "train_time_s": report.train_time_s,
+        "epochs_run": report.epochs[0],
+        "best_epoch": report.epochs[1],
+        "test_rmse_Nm": report.test_rmse,
+        "test_baseline_rmse_Nm": report.test_baseline_rmse,
+        "test_r2": report.test_r2,
+    }
+    if json_output:
+        typer.echo(json.dumps(payload, indent=2))
+        return
+    out = console()
+    table = Table(title=escape("T_f prediction on the held-out test runs [N m]"))
+    for column in ("joint", "RMSE", "RMS of T_f (predict 0)", "R²"):
+        table.add_column(column, justify="left" if column == "joint" else "right")
+    for k, joint in enumerate(arm.joint_names):
+        table.add_row(
+            joint,
+            f"{report.test_rmse[k]:.3f}",
+            f"{report.test_baseline_rmse[k]:.3f}",
+            f"{report.test_r2[k]:.3f}",
+        )
+    out.print(table)
+    out.print(
+        f"runs: train {report.split['train']}, validation {report.split['validation']}, "
+        f"test {report.split['test']}; samples {report.samples}"
+    )
+    out.print(
+        f"collected in {report.collect_time_s:.1f} s, trained in {report.train_time_s:.1f} s "
+        f"({report.epochs[0]} epochs, best {report.epochs[1]})"
+    )
+    out.print(f"checkpoint: {report.checkpoint}")
+
+
+def compare_command(
+    ff: Annotated[
+        Path, typer.Option("--ff", help="Compensator checkpoint (from msarm train).")
+    ] = DEFAULT_CHECKPOINT,
+    plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/compare"),
+    seed: Annotated[int, typer.Option(help="Noise seed of the Table I runs.")] = 0,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+) -> None:
+    """Table I tasks and held-out random tasks, without and with feedforward: table and plots."""
+    from rich.progress import Progress
+
+    from msarm.compensation.compare import WITH, WITHOUT, compare_feedforward
+    from msarm.compensation.feedforward import load_feedforward
+    from msarm.control import ArmControllerConfig
+    from msarm.model import load_arm
+
+    if not ff.is_file():
+        raise typer.BadParameter(f"no checkpoint at {ff}: run `msarm train` first, or give --ff")
+    arm = load_arm()
+    feedforward = load_feedforward(ff, arm)
+    meta = feedforward.compensator.metadata
+    held_out = meta["split"]["test"]
+    gains = _controller_from(meta) or ArmControllerConfig()
+    n_runs = 2 * (4 + len(held_out))
+    with Progress(transient=True, disable=json_output) as bar:
+        job = bar.add_task("compare", total=n_runs)
+
+        def step(label: str) -> None:
+            bar.update(job, advance=1, description=label)
+
+        result = compare_feedforward(
+            arm, feedforward, resolve_plant(plant), gains, held_out, out, seed=seed, progress=step
+        )
+    if json_output:
+        typer.echo(json.dumps(result.as_dict(), indent=2))
+        return
+    out_console = console()
+    out_console.print(comparison_table(result, arm.joint_names))
+    for label, tasks in (
+        ("held-out random tasks", list(result.held_out)),
+        ("Table I tasks", [t for t in result.tasks if t.startswith("table1")]),
+    ):
+        if not tasks:
+            continue
+        without = np.mean([result.metrics[t][WITHOUT].final_error_mm for t in tasks])
+        with_ff = np.mean([result.metrics[t][WITH].final_error_mm for t in tasks])
+        rmse_without = np.mean([np.mean(result.metrics[t][WITHOUT].joint_rmse) for t in tasks])
+        rmse_with = np.mean([np.mean(result.metrics[t][WITH].joint_rmse) for t in tasks])
+        out_console.print(
+            f"{label}: mean final error {without:.2f} mm without, {with_ff:.2f} mm with "
+            f"feedforward (ratio {without / with_ff:.2f}); mean joint RMSE "
+            f"{1000 * rmse_without:.1f} -> {1000 * rmse_with:.1f} mrad"
+        )
+    for kind, path in result.files.items():
+        out_console.print(f"{kind}: {path}")
+
+
+def _controller_from(meta: dict):
+    from msarm.control import ArmControllerConfig
+    from msarm.io.config import load_config
+
+    recipe = meta.get("recipe", {})
+    if "controller" not in recipe:
+        return None
+    return load_config(recipe["controller"], ArmControllerConfig)
+
+
+def comparison_table(result, joint_names) -> Table:
+    """The table of paper 003 section 3: each task without and with feedforward."""
+    from msarm.compensation.compare import WITH, WITHOUT
+
+    table = Table(title="tracking without / with feedforward (same controller, same plant)")
+    for column in (
+        "task",
+        "final error [mm]",
+        "final error [%]",
+        "joint RMSE [mrad] (mean)",
+        "cable length error [% travel]",
+        "slack events",
+    ):
+        table.add_column(escape(column), justify="left" if column == "task" else "right")
+    for task in result.tasks:
+        a, b = result.metrics[task][WITHOUT], result.metrics[task][WITH]
+        label = f"{task}{' (held out)' if task in result.held_out else ''}"
+        table.add_row(
+            label,
+            f"{a.final_error_mm:.2f} / {b.final_error_mm:.2f}",
+            f"{a.final_error_percent:.2f} / {b.final_error_percent:.2f}",
+            f"{1000 * np.mean(a.joint_rmse):.1f} / {1000 * np.mean(b.joint_rmse):.1f}",
+            f"{min(a.cable_length_error_percent):.2f}-{max(a.cable_length_error_percent):.2f} / "
+            f"{min(b.cable_length_error_percent):.2f}-{max(b.cable_length_error_percent):.2f}",
+            f"{sum(a.slack_events)} / {sum(b.slack_events)}",
+        )
+    return table

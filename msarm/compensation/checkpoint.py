@@ -1,0 +1,424 @@
+"""The trained compensator: weights, normalizers, config and metadata, saved and loaded safely.
+
+A :class:`Compensator` maps features ``x`` (shape ``(d,)`` or ``(N, d)``) to predicted
+joint-torque errors ``y`` [N·m] (shape ``(n,)`` or ``(N, n)``) with the network of
+:mod:`msarm.compensation.network`. Its ``metadata`` dict says what it was made for; the keys
+msarm itself reads are:
+
+- ``"model_sha256"``: SHA-256 (hex) of the robot model file the training data came from;
+- ``"feature_spec"``: the feature specification (a plain dict) that turns observations into
+  ``x``.
+
+A compensator file is written with ``torch.save`` and holds only plain containers (dicts,
+lists, tuples, strings, numbers, tensors), so :meth:`Compensator.load` reads it with
+``torch.load(weights_only=True)``: loading never unpickles arbitrary classes. Loading refuses,
+with a :class:`CheckpointError` saying why, a file that is missing, corrupt, of another format
+or version, or missing keys, and, when asked, a compensator made for another robot model (both
+hashes shown) or another feature spec (the differing keys shown).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+
+from msarm.compensation.network import (
+    DTYPE,
+    TRAINING_CHECKPOINT_FORMAT,
+    NetworkConfig,
+    Normalizer,
+    _atomic_torch_save,
+    _plain_copy,
+    build_mlp,
+    check_finite,
+)
+from msarm.errors import ConfigError, InputError, MsarmError
+from msarm.io.config import config_to_dict, load_config
+
+__all__ = ["COMPENSATOR_FORMAT", "COMPENSATOR_VERSION", "CheckpointError", "Compensator"]
+
+FloatArray = NDArray[np.float64]
+
+#: Format tag and version of a compensator file.
+COMPENSATOR_FORMAT = "msarm.compensation.compensator"
+COMPENSATOR_VERSION = 1
+_KEYS = (
+    "format",
+    "format_version",
+    "input_dim",
+    "output_dim",
+    "config",
+    "state_dict",
+    "input_normalizer",
+    "output_normalizer",
+    "metadata",
+)
+#: Most differences listed when a feature spec does not match.
+_MAX_DIFFERENCES = 10
+
+
+class CheckpointError(MsarmError):
+    """A compensator or training checkpoint cannot be used: the message says why."""
+
+
+class Compensator:
+    """A trained feedforward compensator: features in, joint-torque errors [N·m] out.
+
+    Attributes:
+        config: The network shape and the training settings it was trained with.
+        input_normalizer: Normalizer of the ``d`` inputs (fitted on the training inputs).
+        output_normalizer: Normalizer of the ``n`` outputs (fitted on the training targets).
+        metadata: What the compensator was made for (plain data; see the module docstring),
+            filled by the caller; saved and loaded with it.
+    """
+
+    def __init__(
+        self,
+        state_dict: Mapping[str, torch.Tensor],
+        input_normalizer: Normalizer,
+        output_normalizer: Normalizer,
+        config: NetworkConfig,
+        metadata: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Build the compensator from network weights.
+
+        Args:
+            state_dict: Weights of ``build_mlp(d, n, config)`` (its ``state_dict()``), where
+                ``d`` and ``n`` are the normalizers' sizes; copied (as float64).
+            input_normalizer: Normalizer of the inputs, size ``d``.
+            output_normalizer: Normalizer of the outputs, size ``n``.
+            config: Network config (hidden widths, activation, training settings).
+            metadata: Plain data describing what the compensator is for (copied).
+
+        Raises:
+            InputError: The weights do not fit that network, or metadata is not plain data.
+        """
+        if not isinstance(config, NetworkConfig):
+            raise InputError(f"config must be a NetworkConfig, got {type(config).__name__}")
+        if not isinstance(input_normalizer, Normalizer) or not isinstance(
+            output_normalizer, Normalizer
+        ):
+            raise InputError("input_normalizer and output_normalizer must be Normalizer objects")
+        self.config = config
+        self.input_normalizer = input_normalizer
+        self.output_normalizer = output_normalizer
+        d, n = input_normalizer.size, output_normalizer.size
+        with torch.random.fork_rng(devices=[]):  # the initial weights are overwritten below
+            module = build_mlp(d, n, config)
+        try:
+            module.load_state_dict(dict(state_dict), strict=True)
+        except (RuntimeError, KeyError, TypeError) as exc:
+            raise InputError(
+                f"the weights do not fit a network {d} -> {list(config.hidden)} -> {n} "
+                f"({config.activation}): {exc}"
+            ) from None
+        module.eval()
+        module.requires_grad_(False)
+        self._module = module
+        self.metadata: dict[str, Any] = _plain_copy(dict(metadata or {}), "metadata")
+
+    # --- shape and weights ----------------------------------------------------------------
+
+    @property
+    def input_dim(self) -> int:
+        """Number of inputs ``d``."""
+        return self.input_normalizer.size
+
+    @property
+    def output_dim(self) -> int:
+        """Number of outputs ``n``."""
+        return self.output_normalizer.size
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """A copy of the network weights (float64 tensors, torch ``state_dict`` names)."""
+        return {k: v.detach().clone() for k, v in self._module.state_dict().items()}
+
+    def layer_weights(self) -> list[tuple[FloatArray, FloatArray]]:
+        """The weights of each linear layer, input side first, as float64 numpy copies.
+
+        Returns:
+            ``[(W, b), ...]`` with ``W`` of shape ``(out, in)`` and ``b`` of shape ``(out,)``,
+            acting on normalised units: ``z_next = act(W @ z + b)`` (no activation on the
+            last layer).
+        """
+        return [
+            (
+                np.ascontiguousarray(layer.weight.detach().numpy(), dtype=np.float64).copy(),
+                np.ascontiguousarray(layer.bias.detach().numpy(), dtype=np.float64).copy(),
+            )
+            for layer in self._module
+            if isinstance(layer, torch.nn.Linear)
+        ]
+
+    # --- inference ------------------------------------------------------------------------
+
+    def predict(self, x: ArrayLike) -> FloatArray:
+        """Predict the joint-torque errors with torch.
+
+        Args:
+            x: Features, shape ``(d,)`` for one sample or ``(N, d)`` for a batch; finite.
+
+        Returns:
+            Predicted targets [N·m], shape ``(n,)`` or ``(N, n)`` (float64).
+
+        Raises:
+            InputError: Wrong shape, or a NaN/inf (row and column named).
+        """
+        array = np.asarray(x, dtype=np.float64)
+        if array.ndim not in (1, 2) or array.shape[-1] != self.input_dim:
+            raise InputError(
+                f"Compensator.predict expects shape ({self.input_dim},) or (N, "
+                f"{self.input_dim}), got {array.shape}"
+            )
+        single = array.ndim == 1
+        batch = array.reshape(1, -1) if single else array
+        check_finite("x", batch)
+        z = torch.from_numpy(np.ascontiguousarray(self.input_normalizer.normalize(batch)))
+        with torch.inference_mode():
+            out = self._module(z.to(DTYPE)).numpy()
+        y = self.output_normalizer.denormalize(out)
+        return y[0] if single else y
+
+    __call__ = predict
+
+    # --- files ----------------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """The plain form written by :meth:`save` (tensors, dicts, lists, strings, numbers)."""
+        return {
+            "format": COMPENSATOR_FORMAT,
+            "format_version": COMPENSATOR_VERSION,
+            "input_dim": self.input_dim,
+            "output_dim": self.output_dim,
+            "config": config_to_dict(self.config),
+            "state_dict": self.state_dict(),
+            "input_normalizer": self.input_normalizer.to_dict(),
+            "output_normalizer": self.output_normalizer.to_dict(),
+            "metadata": _plain_copy(self.metadata, "metadata"),
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the compensator atomically (temporary file in the same folder, then rename).
+
+        Args:
+            path: Destination file (conventionally ``*.pt``); its folder is created if missing.
+
+        Returns:
+            The path written.
+
+        Raises:
+            InputError: ``metadata`` holds something that is not plain data (key named).
+        """
+        path = Path(path)
+        _atomic_torch_save(self.to_dict(), path)
+        return path
+
+    @classmethod
+    def load(
+        cls,
+        path: str | Path,
+        expected_model_sha256: str | None = None,
+        expected_feature_spec: Mapping[str, Any] | None = None,
+    ) -> Compensator:
+        """Read a compensator written by :meth:`save`, refusing one that does not fit.
+
+        Args:
+            path: The compensator file.
+            expected_model_sha256: If given, the SHA-256 of the robot model in use: the file
+                must have been made for it (``metadata["model_sha256"]``).
+            expected_feature_spec: If given, the feature spec in use: the file's
+                ``metadata["feature_spec"]`` must equal it (tuples and lists compare equal).
+
+        Returns:
+            The compensator.
+
+        Raises:
+            CheckpointError: The file is missing, unreadable or corrupt, not a compensator
+                file, of another format version, or lacks keys; or it was made for another
+                robot model or another feature spec. The message says which, and shows the
+                values that differ.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise CheckpointError(f"{path}: compensator file not found")
+        try:
+            saved = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # any failure to unpickle means an unusable file
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise CheckpointError(
+                f"{path}: not a readable compensator file (corrupt, truncated, or not written "
+                f"by Compensator.save): {reason}"
+            ) from None
+        compensator = cls.from_dict(saved, source=str(path))
+        compensator.check_compatible(expected_model_sha256, expected_feature_spec, str(path))
+        return compensator
+
+    @classmethod
+    def from_dict(cls, saved: Any, source: str = "<dict>") -> Compensator:
+        """Build a compensator from the plain form of :meth:`to_dict`.
+
+        Args:
+            saved: The plain form.
+            source: Where it came from, for error messages.
+
+        Raises:
+            CheckpointError: Wrong format or version, missing keys, or contents that do not fit.
+        """
+        if not isinstance(saved, Mapping):
+            raise CheckpointError(
+                f"{source}: not a compensator file (holds a {type(saved).__name__}, expected "
+                "a dict)"
+            )
+        fmt = saved.get("format")
+        if fmt == TRAINING_CHECKPOINT_FORMAT:
+            raise CheckpointError(
+                f"{source}: this is a training checkpoint (what train_network resumes from), "
+                "not a compensator; save TrainingResult.compensator with Compensator.save"
+            )
+        if fmt != COMPENSATOR_FORMAT:
+            raise CheckpointError(
+                f"{source}: not a compensator file (format {fmt!r}, expected "
+                f"{COMPENSATOR_FORMAT!r})"
+            )
+        version = saved.get("format_version")
+        if version != COMPENSATOR_VERSION:
+            raise CheckpointError(
+                f"{source}: compensator format version {version!r}; this msarm reads version "
+                f"{COMPENSATOR_VERSION}"
+            )
+        missing = [k for k in _KEYS if k not in saved]
+        if missing:
+            raise CheckpointError(
+                f"{source}: compensator file is missing keys: {', '.join(missing)}"
+            )
+        try:
+            config = load_config(saved["config"], NetworkConfig)
+        except ConfigError as exc:
+            raise CheckpointError(f"{source}: invalid network config: {exc}") from None
+        try:
+            in_norm = Normalizer.from_dict(saved["input_normalizer"])
+            out_norm = Normalizer.from_dict(saved["output_normalizer"])
+        except (InputError, KeyError, TypeError, ValueError) as exc:
+            raise CheckpointError(f"{source}: invalid normalizer: {exc}") from None
+        if (in_norm.size, out_norm.size) != (saved["input_dim"], saved["output_dim"]):
+            raise CheckpointError(
+                f"{source}: normalizers have {in_norm.size} inputs and {out_norm.size} outputs, "
+                f"the file says {saved['input_dim']} and {saved['output_dim']}"
+            )
+        if not isinstance(saved["metadata"], Mapping):
+            raise CheckpointError(
+                f"{source}: metadata must be a dict, got {type(saved['metadata']).__name__}"
+            )
+        if not isinstance(saved["state_dict"], Mapping):
+            raise CheckpointError(f"{source}: state_dict must be a dict of tensors")
+        try:
+            return cls(saved["state_dict"], in_norm, out_norm, config, saved["metadata"])
+        except InputError as exc:
+            raise CheckpointError(f"{source}: {exc}") from None
+
+    def check_compatible(
+        self,
+        expected_model_sha256: str | None = None,
+        expected_feature_spec: Mapping[str, Any] | None = None,
+        source: str = "compensator",
+    ) -> None:
+        """Refuse a compensator made for another robot model or another feature spec.
+
+        Args:
+            expected_model_sha256: SHA-256 (hex) of the robot model in use, or None to skip.
+            expected_feature_spec: The feature spec in use, or None to skip.
+            source: Name of the compensator in messages (its file).
+
+        Raises:
+            CheckpointError: The metadata lacks the key, or records another value (both
+                shown; for a feature spec, each differing key with both values).
+        """
+        if expected_model_sha256 is not None:
+            recorded = self.metadata.get("model_sha256")
+            if recorded is None:
+                raise CheckpointError(
+                    f"{source}: records no robot model (metadata has no 'model_sha256'); "
+                    f"expected a compensator made for model {expected_model_sha256}"
+                )
+            if str(recorded).lower() != str(expected_model_sha256).lower():
+                raise CheckpointError(
+                    f"{source}: made for another robot model: its model SHA-256 is {recorded}, "
+                    f"the model in use has {expected_model_sha256}; retrain it for this model"
+                )
+        if expected_feature_spec is not None:
+            if "feature_spec" not in self.metadata:
+                raise CheckpointError(
+                    f"{source}: records no feature spec (metadata has no 'feature_spec')"
+                )
+            expected = _comparable(_plain_copy(dict(expected_feature_spec), "feature_spec"))
+            recorded = _comparable(self.metadata["feature_spec"])
+            diffs = _differences(recorded, expected, "feature_spec")
+            if diffs:
+                shown = "; ".join(diffs[:_MAX_DIFFERENCES])
+                more = (
+                    f"; and {len(diffs) - _MAX_DIFFERENCES} more"
+                    if len(diffs) > _MAX_DIFFERENCES
+                    else ""
+                )
+                raise CheckpointError(
+                    f"{source}: made for another feature spec ({len(diffs)} "
+                    f"difference{'s' if len(diffs) != 1 else ''}: {shown}{more})"
+                )
+
+    def __repr__(self) -> str:
+        sha = self.metadata.get("model_sha256")
+        return (
+            f"Compensator({self.input_dim} -> {list(self.config.hidden)} -> {self.output_dim}, "
+            f"{self.config.activation}, model_sha256={str(sha)[:12] + '…' if sha else None})"
+        )
+
+
+def _comparable(value: Any) -> Any:
+    """Tuples as lists, tensors as lists, recursively: the form feature specs are compared in."""
+    if isinstance(value, Mapping):
+        return {k: _comparable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_comparable(v) for v in value]
+    if isinstance(value, torch.Tensor):
+        return value.tolist()
+    return value
+
+
+def _differences(recorded: Any, expected: Any, key: str) -> list[str]:
+    """Human-readable differences between two plain values, by dotted key path."""
+    if isinstance(recorded, dict) and isinstance(expected, dict):
+        out: list[str] = []
+        for k in recorded:
+            if k not in expected:
+                out.append(f"{key}.{k} only in the compensator ({recorded[k]!r})")
+        for k in expected:
+            if k not in recorded:
+                out.append(f"{key}.{k} only in the spec in use ({expected[k]!r})")
+            else:
+                out.extend(_differences(recorded[k], expected[k], f"{key}.{k}"))
+        return out
+    if (
+        isinstance(recorded, list)
+        and isinstance(expected, list)
+        and len(recorded) == len(expected)
+        and any(isinstance(v, dict | list) for v in recorded)
+    ):
+        out = []
+        for i, (a, b) in enumerate(zip(recorded, expected, strict=True)):
+            out.extend(_differences(a, b, f"{key}[{i}]"))
+        return out
+    if type(recorded) is not type(expected) and not (
+        isinstance(recorded, int | float)
+        and isinstance(expected, int | float)
+        and not isinstance(recorded, bool)
+        and not isinstance(expected, bool)
+    ):
+        return [f"{key}: compensator {recorded!r}, in use {expected!r}"]
+    if recorded != expected:
+        return [f"{key}: compensator {recorded!r}, in use {expected!r}"]
+    return []

@@ -1,0 +1,166 @@
+"""Compare tracking without and with the learned feedforward (paper 003 section 3).
+
+The same controller, the same gains, the same plant and the same seed run every task twice:
+once without and once with the feedforward, which is the only difference. Tasks: the four
+Table I tasks and held-out random tasks (the test runs of the compensator's split, never used
+for training or early stopping). Writes, into one folder:
+
+- ``comparison.json``: every metric of every run;
+- ``trajectories_<task>.png``: joint angles without and with feedforward against the
+  reference (paper 003 Fig. 7 and 8);
+- ``error_statistics.png``: final end-effector error per task and cable length error per
+  cable (mean and standard deviation over the tasks) without and with feedforward
+  (paper 003 Fig. 9).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from msarm import plots  # noqa: E402
+from msarm.control import ArmControllerConfig  # noqa: E402
+from msarm.model import RobotModel  # noqa: E402
+from msarm.plant import PlantConfig  # noqa: E402
+from msarm.tasks.evaluate import TrackingMetrics  # noqa: E402
+from msarm.tasks.registry import get_task  # noqa: E402
+from msarm.tasks.runner import Feedforward  # noqa: E402
+from msarm.tasks.track import TrackSettings, track, write_json_atomic  # noqa: E402
+
+__all__ = ["Comparison", "compare_feedforward"]
+
+WITHOUT, WITH = "without feedforward", "with feedforward"
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Metrics of every task without and with feedforward.
+
+    Attributes:
+        tasks: Task names, in order.
+        held_out: The subset of ``tasks`` that are held-out random tasks.
+        metrics: ``metrics[task][WITHOUT | WITH]``.
+        files: Files written (plots, JSON).
+    """
+
+    tasks: tuple[str, ...]
+    held_out: tuple[str, ...]
+    metrics: dict[str, dict[str, TrackingMetrics]]
+    files: dict[str, Path]
+
+    def ratio(self, tasks: Sequence[str]) -> float:
+        """Mean final error without over mean final error with feedforward, over ``tasks``."""
+        without = np.mean([self.metrics[t][WITHOUT].final_error_mm for t in tasks])
+        with_ff = np.mean([self.metrics[t][WITH].final_error_mm for t in tasks])
+        return float(without / with_ff) if with_ff > 0 else float("inf")
+
+    def as_dict(self) -> dict:
+        """JSON-ready form."""
+        return {
+            "tasks": list(self.tasks),
+            "held_out": list(self.held_out),
+            "metrics": {
+                task: {label: m.as_dict() for label, m in runs.items()}
+                for task, runs in self.metrics.items()
+            },
+            "final_error_ratio_held_out": self.ratio(self.held_out) if self.held_out else None,
+            "final_error_ratio_table1": self.ratio(
+                [t for t in self.tasks if t.startswith("table1")]
+            ),
+            "files": {kind: str(path) for kind, path in self.files.items()},
+        }
+
+
+def compare_feedforward(
+    model: RobotModel,
+    feedforward: Feedforward,
+    plant: PlantConfig,
+    controller: ArmControllerConfig,
+    held_out_seeds: Sequence[int],
+    out_dir: Path,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> Comparison:
+    """Run the Table I tasks and the held-out random tasks without and with feedforward.
+
+    Args:
+        model: The arm.
+        feedforward: The learned feedforward.
+        plant: The plant (the same for both).
+        controller: The controller's gains (the same for both).
+        held_out_seeds: Seeds of the held-out random tasks (the compensator's test runs).
+        out_dir: Folder for the runs, plots and JSON.
+        seed: Seed of the plant's noise for the Table I tasks (a random task uses its own).
+        progress: Called with a label before each run.
+
+    Returns:
+        The comparison.
+    """
+    out_dir = Path(out_dir)
+    tasks = [f"table1-{k}" for k in range(1, 5)] + [f"random-{s}" for s in held_out_seeds]
+    held_out = tuple(f"random-{s}" for s in held_out_seeds)
+    metrics: dict[str, dict[str, TrackingMetrics]] = {}
+    columns: dict[str, dict[str, dict]] = {}
+    for name in tasks:
+        task = get_task(name, model)
+        run_seed = int(name.split("-")[1]) if name.startswith("random-") else seed
+        metrics[name], columns[name] = {}, {}
+        for label, ff in ((WITHOUT, None), (WITH, feedforward)):
+            if progress is not None:
+                progress(f"{name}, {label}")
+            settings = TrackSettings(name, run_seed, plant, controller, "learned" if ff else "")
+            folder = out_dir / name / ("with_ff" if ff else "without_ff")
+            result = track(model, task, settings, folder, feedforward=ff, plots_too=False)
+            metrics[name][label] = result.metrics
+            columns[name][label] = result.run.columns
+    files: dict[str, Path] = {}
+    for name in tasks[:4] + list(held_out[:2]):
+        files[f"trajectories_{name}"] = plots.plot_joint_tracking(
+            columns[name][WITHOUT],
+            model.joint_names,
+            out_dir / f"trajectories_{name}.png",
+            title=f"{name}: without (measured) and with feedforward",
+            others={WITH: columns[name][WITH]},
+        )
+    files["error_statistics"] = _plot_error_statistics(
+        metrics, tasks, model.cable_names, out_dir / "error_statistics.png"
+    )
+    comparison = Comparison(tuple(tasks), held_out, metrics, files)
+    files["json"] = out_dir / "comparison.json"
+    write_json_atomic(files["json"], comparison.as_dict())
+    return comparison
+
+
+def _plot_error_statistics(
+    metrics: dict[str, dict[str, TrackingMetrics]],
+    tasks: Sequence[str],
+    cable_names: Sequence[str],
+    path: Path,
+) -> Path:
+    fig, (ax_final, ax_cable) = plt.subplots(1, 2, figsize=(13, 4.5), layout="constrained")
+    x = np.arange(len(tasks))
+    for offset, label in ((-0.2, WITHOUT), (0.2, WITH)):
+        ax_final.bar(
+            x + offset, [metrics[t][label].final_error_mm for t in tasks], 0.4, label=label
+        )
+    ax_final.set_xticks(x, tasks, rotation=30, ha="right")
+    ax_final.set_ylabel("final end-effector error [mm]")
+    ax_final.legend()
+    c = np.arange(len(cable_names))
+    for offset, label in ((-0.2, WITHOUT), (0.2, WITH)):
+        values = np.array([metrics[t][label].cable_length_error_percent for t in tasks])
+        ax_cable.bar(
+            c + offset, values.mean(axis=0), 0.4, yerr=values.std(axis=0), capsize=3, label=label
+        )
+    ax_cable.set_xticks(c, cable_names, rotation=30, ha="right")
+    ax_cable.set_ylabel("cable length error [% of travel], mean ± std over tasks")
+    ax_cable.legend()
+    fig.suptitle("error statistics without and with feedforward (paper 003 Fig. 9)")
+    return plots._save(fig, path)

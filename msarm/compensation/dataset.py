@@ -1,0 +1,185 @@
+"""Training data of the compensator: seeded random runs on a plant, split by runs.
+
+Paper 003 recorded 14 runs of 20 s at 250 Hz and split them 70 / 15 / 15 % into training,
+validation and test. :func:`collect_runs` does the same on a simulated plant: each run is the
+task ``random-<seed>`` written as a log (with its sidecar and config) into
+``<folder>/run-<seed>/``; a run whose log already exists with the same settings is reused, so
+an interrupted collection resumes. :func:`split_runs` splits runs (never samples), and
+:func:`build_arrays` turns logs into feature and target arrays, naming the run file and the
+column of any NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.compensation.features import FeatureExtractor, FeatureSpec
+from msarm.compensation.target import TargetSpec, torque_error
+from msarm.control import ArmControllerConfig
+from msarm.errors import InputError, MsarmError
+from msarm.io.config import load_config
+from msarm.io.logs import read_log
+from msarm.model import RobotModel
+from msarm.plant import PlantConfig
+from msarm.tasks.registry import get_task
+from msarm.tasks.track import TrackSettings, track
+
+__all__ = ["DataConfig", "RunSplit", "build_arrays", "collect_runs", "split_runs"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Which runs to collect and how to split them.
+
+    Attributes:
+        plant: Plant preset (``default``, ``ideal``) or a plant YAML file.
+        n_runs: Number of runs (paper 003: 14).
+        first_seed: Seed of the first run's task and noise; run i uses ``first_seed + i``.
+        split: Shares of runs for training, validation and test (paper 003: 0.7/0.15/0.15).
+        folder: Where the runs' logs are written.
+        rounds: Rounds of iterative training after the first: each collects the training
+            and validation runs again with the current feedforward on and trains on all runs
+            so far, so that the network sees the states its own compensation leads to.
+    """
+
+    plant: str = "default"
+    n_runs: int = 14
+    first_seed: int = 1000
+    split: tuple[float, float, float] = (0.7, 0.15, 0.15)
+    folder: str = "runs/compensator/data"
+    rounds: int = 2
+
+    def __post_init__(self) -> None:
+        if self.rounds < 0:
+            raise ValueError(f"rounds must be >= 0, got {self.rounds}")
+        if self.n_runs < 3:
+            raise ValueError(f"n_runs must be >= 3 (training, validation, test), got {self.n_runs}")
+        if len(self.split) != 3 or min(self.split) <= 0 or abs(sum(self.split) - 1) > 1e-9:
+            raise ValueError(f"split must be three positive shares adding to 1, got {self.split}")
+
+    @property
+    def seeds(self) -> list[int]:
+        """The runs' seeds."""
+        return [self.first_seed + i for i in range(self.n_runs)]
+
+
+@dataclass(frozen=True)
+class RunSplit:
+    """Seeds of the runs in each set."""
+
+    train: tuple[int, ...]
+    validation: tuple[int, ...]
+    test: tuple[int, ...]
+
+
+def split_runs(seeds: Sequence[int], shares: tuple[float, float, float]) -> RunSplit:
+    """Split runs (not samples) into training, validation and test, in seed order.
+
+    At least one run goes to each set; 14 runs at 0.7/0.15/0.15 give 10/2/2.
+    """
+    seeds = list(seeds)
+    n = len(seeds)
+    if n < 3:
+        raise InputError(f"need at least 3 runs to hold any out, got {n}")
+    n_val = max(1, round(shares[1] * n))
+    n_test = max(1, round(shares[2] * n))
+    n_train = n - n_val - n_test
+    if n_train < 1:
+        raise InputError(f"{n} runs leave none for training with shares {shares}")
+    return RunSplit(
+        tuple(seeds[:n_train]),
+        tuple(seeds[n_train : n_train + n_val]),
+        tuple(seeds[n_train + n_val :]),
+    )
+
+
+def run_folder(folder: str | Path, seed: int) -> Path:
+    """Folder of the run with ``seed``."""
+    return Path(folder) / f"run-{seed}"
+
+
+def collect_runs(
+    model: RobotModel,
+    data: DataConfig,
+    plant: PlantConfig,
+    controller: ArmControllerConfig,
+    progress: Callable[[int, int, bool], None] | None = None,
+    feedforward=None,
+    feedforward_name: str = "",
+    seeds: Sequence[int] | None = None,
+    folder: str | Path | None = None,
+) -> list[Path]:
+    """Run (or reuse) the random tasks of ``data`` on ``plant``; return their log paths.
+
+    Args:
+        model: The arm.
+        data: Which runs.
+        plant: The plant to run them on.
+        controller: The controller's gains.
+        progress: Called after each run with ``(done, total, reused)``.
+        feedforward: A feedforward to run with (later rounds of an iterative training).
+        feedforward_name: Its name, recorded in each run's config (decides reuse).
+        seeds: The runs' seeds (default ``data.seeds``).
+        folder: Where the runs go (default ``data.folder``).
+
+    Raises:
+        MsarmError: A run diverged (its partial log is kept; the message names it).
+    """
+    paths = []
+    seeds = list(data.seeds if seeds is None else seeds)
+    for i, seed in enumerate(seeds):
+        run_dir = run_folder(data.folder if folder is None else folder, seed)
+        settings = TrackSettings(f"random-{seed}", seed, plant, controller, feedforward_name)
+        log_path = run_dir / "log.parquet"
+        reused = _reusable(run_dir, settings)
+        if not reused:
+            task = get_task(settings.task, model)
+            result = track(model, task, settings, run_dir, feedforward=feedforward, plots_too=False)
+            if result.run.error is not None:
+                raise MsarmError(f"{log_path}: run random-{seed} diverged: {result.run.error}")
+        paths.append(log_path)
+        if progress is not None:
+            progress(i + 1, len(seeds), reused)
+    return paths
+
+
+def _reusable(folder: Path, settings: TrackSettings) -> bool:
+    config_path, log_path = folder / "config.yaml", folder / "log.parquet"
+    if not (config_path.is_file() and log_path.is_file()):
+        return False
+    try:
+        return load_config(config_path, TrackSettings) == settings
+    except MsarmError:
+        return False
+
+
+def build_arrays(
+    model: RobotModel,
+    log_paths: Sequence[Path],
+    features: FeatureSpec,
+    target: TargetSpec,
+) -> tuple[FloatArray, FloatArray]:
+    """Features ``(N, d)`` and targets ``(N, n)`` of the logs, stacked in order.
+
+    Raises:
+        InputError: A log holds NaN (file, column and row named) or lacks a channel.
+    """
+    extractor = FeatureExtractor(model, features)
+    xs, ys = [], []
+    for path in log_paths:
+        log = read_log(path)  # refuses NaN, naming the file, column and row
+        if log.metadata.model_sha256 != model.sha256:
+            raise InputError(
+                f"{path}: the log was recorded with model {log.metadata.model_sha256[:12]}…, "
+                f"not {model.name} ({model.sha256[:12]}…)"
+            )
+        xs.append(extractor.from_log(log, source=str(path)))
+        ys.append(torque_error(model, log, target, source=str(path)))
+    return np.concatenate(xs), np.concatenate(ys)

@@ -1,0 +1,296 @@
+"""Features of the feedforward compensator: the friction state of paper 003 eq. 8.
+
+At each control tick, from what the robot's sensors give (joint encoders ``q``, the
+controller's velocity estimate ``qdot``, motor encoders ``theta``, load cells ``F``) and the
+nominal cable geometry ``l(q)``, ``J_c(q)``:
+
+==========================  ===============================================  ==========
+group (paper 003 eq. 8)     value                                            size
+==========================  ===============================================  ==========
+``q`` (U_A)                 joint angles [rad]                               n
+``qdot`` (U_A)              joint velocities [rad/s]                         n
+``cable_length_error``      ``l_hat - l`` [m]: the cable length the motor    m
+(U_B)                       encoders say was reeled, ``l(q_0) - r (theta -
+                            theta_0)``, minus the path length ``l(q)``
+``sign_qdot`` (U_C)         ``s(qdot) = tanh(qdot / eps_q)``                 n
+``exp_sign_qdot`` (U_D)     ``exp(-s(qdot)) s(qdot)``                        n
+``exp_sign_ldot`` (U_E)     ``exp(-tanh(ldot / eps_l))``, ``ldot = J_c qdot``  m
+``tension`` (U_F)           load-cell tensions ``F_sensor`` [N]              m
+``joint_memory``            Dahl-type memory of each joint's last direction  n
+``cable_memory``            Dahl-type memory of each cable's last direction  m
+==========================  ===============================================  ==========
+
+The choice of inputs. All of paper 003's groups are available (43 inputs with 4 joints and
+9 cables; the paper used 42), but two of them, ``tension`` and ``cable_length_error`` (the
+cable's stretch, hence its tension), are outputs of the very loop the compensator closes:
+its ``dtau`` raises the commanded tensions, which raise those inputs, which raise ``dtau``.
+Trained on runs without feedforward, a network with those inputs predicts the torque error
+well offline (R^2 about 0.95-0.98 on held-out runs) and drives the arm unstable in closed
+loop (final errors of 170-500 mm where the plain controller has 1-6 mm; see the README). The
+default inputs (:data:`DEFAULT_GROUPS`, 38) are therefore the robot's motion state: ``q``
+(wrap angles, moment arms and gravity load: posture-dependent capstan friction), ``qdot``
+and its smoothed signs (the friction direction), the sign of each cable's velocity, and two
+Dahl-type direction memories (paper 001 eq. 12-14 use the same idea for friction at a
+direction change): a resting cable sticks on the side of its last motion, which the
+instantaneous velocity no longer shows. The sign functions are smoothed (``tanh``) so that
+the network's input is continuous. ``theta_0``, ``q_0`` and the memories start at the first
+sample of a run: :meth:`reset` starts a new run.
+
+The same code computes the features online (one tick, :meth:`FeatureExtractor.__call__`) and
+offline from a log (:meth:`FeatureExtractor.from_log`); a test keeps them equal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.errors import InputError
+from msarm.io.logs import RunLog
+from msarm.model import RobotModel
+
+__all__ = ["DEFAULT_GROUPS", "FEATURE_GROUPS", "FeatureExtractor", "FeatureSpec"]
+
+FloatArray = NDArray[np.float64]
+
+#: Feature groups in their order, with whether each has one entry per joint or per cable.
+FEATURE_GROUPS = {
+    "q": "joint",
+    "qdot": "joint",
+    "cable_length_error": "cable",
+    "sign_qdot": "joint",
+    "exp_sign_qdot": "joint",
+    "exp_sign_ldot": "cable",
+    "tension": "cable",
+    "joint_memory": "joint",
+    "cable_memory": "cable",
+}
+#: The default inputs: the state of paper 003 eq. 8 without the two groups that the
+#: compensator's own output feeds back into (``cable_length_error`` and ``tension``, see the
+#: module docstring), plus the direction memories.
+DEFAULT_GROUPS = (
+    "q",
+    "qdot",
+    "sign_qdot",
+    "exp_sign_qdot",
+    "exp_sign_ldot",
+    "joint_memory",
+    "cable_memory",
+)
+
+
+@dataclass(frozen=True)
+class FeatureSpec:
+    """Which features, and how they are computed (stored with every checkpoint).
+
+    Attributes:
+        groups: Feature groups, in order (names of :data:`FEATURE_GROUPS`).
+        sign_joint_speed: ``eps_q`` of ``tanh(qdot / eps_q)`` [rad/s].
+        sign_cable_speed: ``eps_l`` of ``tanh(ldot / eps_l)`` [m/s].
+        drum_radius: Winch drum radius ``r`` turning motor angles into cable length [m].
+        memory_angle: Joint travel over which the joint direction memory forgets [rad].
+        memory_length: Cable travel over which the cable direction memory forgets [m].
+        source: Where the motion groups (``q``, ``qdot``, the signs, the memories) come
+            from: ``"reference"`` (the task's reference: a true feedforward, independent of
+            the robot's response) or ``"measured"`` (encoders and the controller's velocity
+            estimate: a learned feedback).
+    """
+
+    groups: tuple[str, ...] = DEFAULT_GROUPS
+    sign_joint_speed: float = 0.05
+    sign_cable_speed: float = 0.002
+    drum_radius: float = 0.003
+    memory_angle: float = 0.05
+    memory_length: float = 0.001
+    source: str = "reference"
+
+    def __post_init__(self) -> None:
+        unknown = [g for g in self.groups if g not in FEATURE_GROUPS]
+        if unknown or not self.groups:
+            raise ValueError(
+                f"unknown feature groups {unknown}; expected some of {list(FEATURE_GROUPS)}"
+            )
+        if self.source not in ("reference", "measured"):
+            raise ValueError(f"source must be 'reference' or 'measured', got {self.source!r}")
+        if len(set(self.groups)) != len(self.groups):
+            raise ValueError(f"feature groups repeat: {self.groups}")
+        for name in (
+            "sign_joint_speed",
+            "sign_cable_speed",
+            "drum_radius",
+            "memory_angle",
+            "memory_length",
+        ):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+
+    def as_dict(self) -> dict:
+        """Plain-data form (lists, numbers) for checkpoints."""
+        out = asdict(self)
+        out["groups"] = list(self.groups)
+        return out
+
+
+class FeatureExtractor:
+    """Computes the features of :class:`FeatureSpec` online and from logs.
+
+    Args:
+        model: The nominal robot model (cable geometry).
+        spec: The features.
+    """
+
+    def __init__(self, model: RobotModel, spec: FeatureSpec | None = None) -> None:
+        self.model = model
+        self.spec = spec or FeatureSpec()
+        self._data = model.create_data()
+        self._jacobian = np.zeros((model.n_cables, model.n_joints))
+        self._origin: tuple[FloatArray, FloatArray] | None = None
+        self._memory: tuple[float, FloatArray, FloatArray] | None = None
+        sizes = {"joint": model.n_joints, "cable": model.n_cables}
+        self.names: list[str] = []
+        for group in self.spec.groups:
+            names = model.joint_names if FEATURE_GROUPS[group] == "joint" else model.cable_names
+            self.names += [f"{group}.{name}" for name in names]
+        self.size = sum(sizes[FEATURE_GROUPS[g]] for g in self.spec.groups)
+
+    def reset(self) -> None:
+        """Start a new run: the next sample fixes ``q_0`` and ``theta_0``, memories at 0."""
+        self._origin = None
+        self._memory = None
+
+    def _geometry(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        m_model, m_data = self.model.mj_model, self._data.mj
+        m_data.qpos[:] = q
+        mujoco.mj_kinematics(m_model, m_data)
+        mujoco.mj_comPos(m_model, m_data)
+        mujoco.mj_tendon(m_model, m_data)
+        mujoco.mju_sparse2dense(
+            self._jacobian,
+            m_data.ten_J,
+            m_model.ten_J_rownnz,
+            m_model.ten_J_rowadr,
+            m_model.ten_J_colind,
+        )
+        return m_data.ten_length.copy(), self._jacobian
+
+    def _memories(
+        self, t: float, qdot: FloatArray, ldot: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Dahl-type direction memories: ``dm/dt = (tanh(v / eps) - m) |v| / travel``.
+
+        ``m`` moves towards the sign of the velocity as the joint (cable) travels and keeps
+        its value while it rests: it remembers the direction of the last motion, which sets
+        the side of the friction hysteresis a resting cable sticks on.
+        """
+        spec = self.spec
+        if self._memory is None:
+            self._memory = (t, np.zeros_like(qdot), np.zeros_like(ldot))
+        t_prev, joint, cable = self._memory
+        dt = max(t - t_prev, 0.0)
+        joint_rate = np.minimum(1.0, np.abs(qdot) * dt / spec.memory_angle)
+        cable_rate = np.minimum(1.0, np.abs(ldot) * dt / spec.memory_length)
+        joint = joint + (np.tanh(qdot / spec.sign_joint_speed) - joint) * joint_rate
+        cable = cable + (np.tanh(ldot / spec.sign_cable_speed) - cable) * cable_rate
+        self._memory = (t, joint, cable)
+        return joint, cable
+
+    def _features(
+        self,
+        t: float,
+        measured: tuple[FloatArray, FloatArray],
+        reference: tuple[FloatArray, FloatArray],
+        motor_angle: FloatArray,
+        tension: FloatArray,
+    ) -> FloatArray:
+        spec = self.spec
+        q_meas = measured[0]
+        q, qdot = reference if spec.source == "reference" else measured
+        measured_lengths = None
+        if self._origin is None or "cable_length_error" in spec.groups:
+            measured_lengths = self._geometry(q_meas)[0]  # before: the Jacobian buffer is shared
+        _, jacobian = self._geometry(q)
+        if self._origin is None:
+            self._origin = (measured_lengths.copy(), motor_angle.copy())
+        length0, angle0 = self._origin
+        sign_q = np.tanh(qdot / spec.sign_joint_speed)
+        ldot = jacobian @ qdot
+        joint_memory, cable_memory = self._memories(t, qdot, ldot)
+        values = {
+            "q": q,
+            "qdot": qdot,
+            "cable_length_error": (
+                (length0 - spec.drum_radius * (motor_angle - angle0)) - measured_lengths
+                if measured_lengths is not None
+                else None
+            ),
+            "sign_qdot": sign_q,
+            "exp_sign_qdot": np.exp(-sign_q) * sign_q,
+            "exp_sign_ldot": np.exp(-np.tanh(ldot / spec.sign_cable_speed)),
+            "tension": tension,
+            "joint_memory": joint_memory,
+            "cable_memory": cable_memory,
+        }
+        return np.concatenate([values[group] for group in spec.groups])  # type: ignore[misc]
+
+    def __call__(
+        self,
+        readings,
+        qdot_estimate: FloatArray,
+        q_ref: FloatArray,
+        qd_ref: FloatArray,
+    ) -> FloatArray:
+        """Features of one control tick, shape ``(d,)``.
+
+        Args:
+            readings: Sensor readings (``t``, ``q``, ``motor_angle``, ``tension_motor``).
+            qdot_estimate: The controller's joint velocity estimate [rad/s], shape ``(n,)``.
+            q_ref: Reference joint angles [rad], shape ``(n,)``.
+            qd_ref: Reference joint velocities [rad/s], shape ``(n,)``.
+        """
+        return self._features(
+            float(readings.t),
+            (np.asarray(readings.q, dtype=float), np.asarray(qdot_estimate, dtype=float)),
+            (np.asarray(q_ref, dtype=float), np.asarray(qd_ref, dtype=float)),
+            np.asarray(readings.motor_angle, dtype=float),
+            np.asarray(readings.tension_motor, dtype=float),
+        )
+
+    def from_log(self, log: RunLog, source: str = "log") -> FloatArray:
+        """Features of every sample of a log, shape ``(T, d)`` (a run from its start).
+
+        Args:
+            log: A run's log with ``q``, ``qdot_est``, ``motor_angle`` and ``tension_motor``.
+            source: Name of the log (file) for error messages.
+
+        Raises:
+            InputError: A channel the features need is missing (file and column named).
+        """
+        joints, cables = list(self.model.joint_names), list(self.model.cable_names)
+        needed = [("q", joints), ("qdot_est", joints), ("motor_angle", cables)]
+        needed += [("tension_motor", cables), ("q_ref", joints), ("qd_ref", joints)]
+        for quantity, names in needed:
+            for name in names:
+                if f"{quantity}.{name}" not in log.columns:
+                    raise InputError(
+                        f"{source}: column {quantity}.{name} is missing; the compensator's "
+                        f"features need {quantity} for every "
+                        f"{'joint' if names is joints else 'cable'}"
+                    )
+        q = log.matrix("q", joints)
+        qdot = log.matrix("qdot_est", joints)
+        q_ref = log.matrix("q_ref", joints)
+        qd_ref = log.matrix("qd_ref", joints)
+        motor = log.matrix("motor_angle", cables)
+        tension = log.matrix("tension_motor", cables)
+        t = log.t
+        self.reset()
+        out = np.empty((len(q), self.size))
+        for k in range(len(q)):
+            out[k] = self._features(
+                float(t[k]), (q[k], qdot[k]), (q_ref[k], qd_ref[k]), motor[k], tension[k]
+            )
+        self.reset()
+        return out

@@ -1,0 +1,221 @@
+"""The training recipe: collect runs, build features and targets, train, evaluate, save.
+
+``msarm train --config training/compensator.yaml`` runs :func:`train_compensator`. The
+checkpoint holds the network, its normalisation, the feature and target specs, the model's
+SHA-256, the recipe, the run split and the training metrics; it is written atomically and an
+interrupted training resumes from it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from msarm.compensation.checkpoint import Compensator
+from msarm.compensation.dataset import DataConfig, build_arrays, collect_runs, split_runs
+from msarm.compensation.features import FeatureExtractor, FeatureSpec
+from msarm.compensation.feedforward import LearnedFeedforward
+from msarm.compensation.network import NetworkConfig, train_network
+from msarm.compensation.target import TargetSpec
+from msarm.control import ArmControllerConfig
+from msarm.io.config import config_to_dict
+from msarm.model import RobotModel
+from msarm.plant import PlantConfig
+
+__all__ = ["CompensatorRecipe", "TrainingReport", "train_compensator"]
+
+
+@dataclass(frozen=True)
+class CompensatorRecipe:
+    """Everything that defines a trained compensator (``training/compensator.yaml``).
+
+    Attributes:
+        name: Name of the recipe.
+        data: Runs to collect and their split.
+        features: Network inputs.
+        target: How the torque-error target is computed.
+        network: Network and training settings.
+        controller: The controller's gains while collecting data.
+        checkpoint: Where the trained compensator is written.
+    """
+
+    name: str = "compensator"
+    data: DataConfig = field(default_factory=DataConfig)
+    features: FeatureSpec = field(default_factory=FeatureSpec)
+    target: TargetSpec = field(default_factory=TargetSpec)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    controller: ArmControllerConfig = field(default_factory=ArmControllerConfig)
+    checkpoint: str = "runs/compensator/compensator.pt"
+
+
+@dataclass(frozen=True)
+class TrainingReport:
+    """What :func:`train_compensator` did and measured.
+
+    Attributes:
+        checkpoint: Path of the written checkpoint.
+        split: Seeds of the training, validation and test runs.
+        samples: Samples in each set.
+        collect_time_s: Time spent simulating (or reusing) the runs [s], all rounds.
+        train_time_s: Time spent training the networks [s], all rounds.
+        epochs: Epochs run and best epoch of the last round.
+        test_rmse: RMS error of the predicted T_f on the test runs [N m], per joint.
+        test_baseline_rmse: RMS of T_f itself on the test runs (predicting 0) [N m].
+        test_r2: Share of T_f variance explained on the test runs, per joint.
+    """
+
+    checkpoint: Path
+    split: dict[str, list[int]]
+    samples: dict[str, int]
+    collect_time_s: float
+    train_time_s: float
+    epochs: tuple[int, int]
+    test_rmse: tuple[float, ...]
+    test_baseline_rmse: tuple[float, ...]
+    test_r2: tuple[float, ...]
+
+
+def _weights_hash(compensator: Compensator) -> str:
+    digest = hashlib.sha256()
+    for weight, bias in compensator.layer_weights():
+        digest.update(np.ascontiguousarray(weight).tobytes())
+        digest.update(np.ascontiguousarray(bias).tobytes())
+    return digest.hexdigest()[:12]
+
+
+def train_compensator(
+    model: RobotModel,
+    recipe: CompensatorRecipe,
+    plant: PlantConfig,
+    resume: bool = True,
+    on_run: Callable[[int, int, bool], None] | None = None,
+    on_epoch: Callable[[int, int, float, float], None] | None = None,
+    on_round: Callable[[int, int], None] | None = None,
+) -> TrainingReport:
+    """Collect (or reuse) the runs, train on the training runs, test on the test runs.
+
+    Round 0 collects ``recipe.data.n_runs`` runs without feedforward and trains on the
+    training runs (early stopping on the validation runs). Each further round (``rounds``)
+    runs the training and validation tasks again with the feedforward of the previous round,
+    adds those runs to their sets and trains a fresh network on all of them. The test runs
+    are collected once, without feedforward, and never trained on.
+
+    Args:
+        model: The arm.
+        recipe: The recipe.
+        plant: The plant the runs are collected on (resolved from ``recipe.data.plant``).
+        resume: Continue an interrupted training from its state file, if one is there.
+        on_run: Progress of the data collection ``(done, total, reused)``.
+        on_epoch: Progress of the training ``(epoch, max_epochs, train_loss, val_loss)``.
+        on_round: Called at the start of each round ``(round, rounds)``.
+
+    Returns:
+        The report; the checkpoint is written to ``recipe.checkpoint``.
+    """
+    data = recipe.data
+    collect_time = train_time = 0.0
+    start = time.perf_counter()
+    paths = collect_runs(model, data, plant, recipe.controller, progress=on_run)
+    collect_time += time.perf_counter() - start
+    by_seed = dict(zip(data.seeds, paths, strict=True))
+    split = split_runs(data.seeds, data.split)
+    train_paths = [by_seed[s] for s in split.train]
+    val_paths = [by_seed[s] for s in split.validation]
+    test_arrays = build_arrays(
+        model, [by_seed[s] for s in split.test], recipe.features, recipe.target
+    )
+    names = FeatureExtractor(model, recipe.features).names
+    checkpoint = Path(recipe.checkpoint)
+    checkpoint.parent.mkdir(parents=True, exist_ok=True)
+    metadata = {
+        "model_sha256": model.sha256,
+        "model_name": model.name,
+        "feature_spec": recipe.features.as_dict(),
+        "feature_names": names,
+        "target_spec": config_to_dict(recipe.target),
+        "recipe": config_to_dict(recipe),
+        "split": {
+            "train": list(split.train),
+            "validation": list(split.validation),
+            "test": list(split.test),
+        },
+    }
+    compensator: Compensator | None = None
+    for round_ in range(data.rounds + 1):
+        if on_round is not None:
+            on_round(round_, data.rounds)
+        if compensator is not None:
+            feedforward = LearnedFeedforward(model, compensator)
+            seeds = list(split.train) + list(split.validation)
+            start = time.perf_counter()
+            new = collect_runs(
+                model,
+                data,
+                plant,
+                recipe.controller,
+                progress=on_run,
+                feedforward=feedforward,
+                feedforward_name=f"{recipe.name}-round{round_}-{_weights_hash(compensator)}",
+                seeds=seeds,
+                folder=Path(data.folder) / f"round-{round_}",
+            )
+            collect_time += time.perf_counter() - start
+            train_paths += new[: len(split.train)]
+            val_paths += new[len(split.train) :]
+        x_train, y_train = build_arrays(model, train_paths, recipe.features, recipe.target)
+        x_val, y_val = build_arrays(model, val_paths, recipe.features, recipe.target)
+        state_path = checkpoint.with_name(f"{checkpoint.stem}.round{round_}.training.pt")
+        metadata["round"] = round_
+        result = train_network(
+            x_train,
+            y_train,
+            x_val,
+            y_val,
+            recipe.network,
+            checkpoint_path=state_path,
+            resume=resume and state_path.is_file(),
+            progress=on_epoch,
+            metadata=metadata,
+            column_names=names,
+        )
+        train_time += result.train_time_s
+        compensator = result.compensator
+    assert compensator is not None
+    x_test, y_test = test_arrays
+    error = compensator.predict(x_test) - y_test
+    rmse = np.sqrt(np.mean(error**2, axis=0))
+    baseline = np.sqrt(np.mean(y_test**2, axis=0))
+    r2 = 1.0 - np.sum(error**2, axis=0) / np.sum((y_test - y_test.mean(axis=0)) ** 2, axis=0)
+    report = TrainingReport(
+        checkpoint=checkpoint,
+        split=metadata["split"],
+        samples={
+            "train": int(len(x_train)),
+            "validation": int(len(x_val)),
+            "test": int(len(x_test)),
+        },
+        collect_time_s=collect_time,
+        train_time_s=train_time,
+        epochs=(result.epochs_run, result.best_epoch),
+        test_rmse=tuple(float(v) for v in rmse),
+        test_baseline_rmse=tuple(float(v) for v in baseline),
+        test_r2=tuple(float(v) for v in r2),
+    )
+    compensator.metadata["training"] = {
+        "rounds": data.rounds,
+        "samples": report.samples,
+        "collect_time_s": collect_time,
+        "train_time_s": train_time,
+        "epochs_run": result.epochs_run,
+        "best_epoch": result.best_epoch,
+        "test_rmse": list(report.test_rmse),
+        "test_r2": list(report.test_r2),
+        "history": [list(map(float, row)) for row in result.history],
+    }
+    compensator.save(checkpoint)
+    return report

@@ -1,0 +1,93 @@
+"""The training target of the compensator: the joint-torque error T_f of paper 003 eq. 5.
+
+``D(q) qdd + C(q, qd) qd + G(q) = tau_MS - T_f``, so
+
+``T_f = tau_MS - ID(q, qd, qdd)``
+
+with ``tau_MS = -J_c(q)^T F_sensor`` the torque the logged motor-side tensions would deliver
+through ideal cables, and ``ID`` Pinocchio's inverse dynamics (RNEA) of the logged motion.
+The derivatives come from the joint encoders through a Savitzky-Golay filter (zero phase:
+this is offline, for training only). On a plant without unmodelled effects ``T_f`` is zero up
+to filtering error; friction, slack and cable elasticity make it differ.
+
+The feedforward compensation is ``dtau = T_f_hat``: asking the muscles for ``tau + T_f``
+makes the joints receive ``tau``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio
+from numpy.typing import NDArray
+from scipy.signal import savgol_filter
+
+from msarm.errors import InputError
+from msarm.io.logs import RunLog
+from msarm.model import RobotModel
+
+__all__ = ["TargetSpec", "torque_error"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """How the target is computed from a log.
+
+    Attributes:
+        window: Savitzky-Golay window [samples], odd (25 samples = 0.1 s at 250 Hz).
+        polyorder: Savitzky-Golay polynomial order.
+    """
+
+    window: int = 25
+    polyorder: int = 3
+
+    def __post_init__(self) -> None:
+        if self.window % 2 == 0 or self.window <= self.polyorder:
+            raise ValueError(
+                f"window must be odd and > polyorder, got {self.window}, {self.polyorder}"
+            )
+
+
+def torque_error(
+    model: RobotModel, log: RunLog, spec: TargetSpec | None = None, source: str = "log"
+) -> FloatArray:
+    """``T_f`` of every sample of a log [N m], shape ``(T, n)``.
+
+    Args:
+        model: The nominal robot model.
+        log: A run's log (``q`` and ``tension_motor`` channels, uniform sampling).
+        spec: Filter settings.
+        source: Name of the log for error messages.
+
+    Raises:
+        InputError: Too few samples for the filter, or a needed channel is missing.
+    """
+    spec = spec or TargetSpec()
+    joints, cables = list(model.joint_names), list(model.cable_names)
+    for quantity, names in (("q", joints), ("tension_motor", cables)):
+        missing = [n for n in names if f"{quantity}.{n}" not in log.columns]
+        if missing:
+            raise InputError(f"{source}: columns {quantity}.{missing[0]} ... are missing")
+    q_raw = log.matrix("q", joints)
+    if len(q_raw) < spec.window:
+        raise InputError(f"{source}: {len(q_raw)} samples, fewer than the filter's {spec.window}")
+    dt = 1.0 / log.metadata.sample_rate_hz
+    q = savgol_filter(q_raw, spec.window, spec.polyorder, axis=0)
+    qd = savgol_filter(q_raw, spec.window, spec.polyorder, deriv=1, delta=dt, axis=0)
+    qdd = savgol_filter(q_raw, spec.window, spec.polyorder, deriv=2, delta=dt, axis=0)
+    tension = log.matrix("tension_motor", cables)
+    data = model.create_data()
+    out = np.empty_like(q)
+    index = model.pin_q_index
+    inverse = np.argsort(index)
+    for k in range(len(q)):
+        geometry_jacobian = model.geometry(q_raw[k]).jacobian
+        delivered = -geometry_jacobian.T @ tension[k]
+        needed = pinocchio.rnea(
+            model.pin_model, data.pin, q[k][index], qd[k][index], qdd[k][index]
+        )[inverse]
+        out[k] = delivered - needed
+    return out

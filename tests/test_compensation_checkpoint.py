@@ -1,0 +1,225 @@
+"""The trained compensator: save/load round trip, refusal of files that do not fit (with the
+reason), and the numpy fast path against torch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from msarm.compensation import (
+    CheckpointError,
+    Compensator,
+    FastCompensator,
+    NetworkConfig,
+    Normalizer,
+    build_mlp,
+    train_network,
+)
+from msarm.errors import InputError
+
+D, N_OUT = 43, 4
+SHA = "a" * 64
+OTHER_SHA = "b" * 64
+SPEC = {"groups": ("q", "qdot", "tension"), "window": 5, "filter": {"cutoff_hz": 20.0}}
+
+
+def _compensator(
+    hidden: tuple[int, ...] = (150,), activation: str = "tanh", seed: int = 0
+) -> Compensator:
+    """A compensator with random weights and non-trivial normalizers (offsets, scales)."""
+    rng = np.random.default_rng(seed)
+    config = NetworkConfig(hidden=hidden, activation=activation)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        net = build_mlp(D, N_OUT, config)
+    x = rng.normal(size=(200, D)) * rng.uniform(0.01, 10.0, size=D) + rng.normal(size=D) * 5
+    y = rng.normal(size=(200, N_OUT)) * np.array([0.5, 2.0, 1.0, 0.1]) + 0.3
+    metadata = {"model_sha256": SHA, "feature_spec": SPEC, "metrics": {"rmse": [0.1, 0.2]}}
+    return Compensator(
+        net.state_dict(), Normalizer.fit(x), Normalizer.fit(y), config, metadata=metadata
+    )
+
+
+@pytest.fixture(scope="module")
+def compensator() -> Compensator:
+    return _compensator()
+
+
+def _inputs(compensator: Compensator, rows: int, seed: int) -> np.ndarray:
+    """Random inputs spread like the data the normalizer was fitted on."""
+    rng = np.random.default_rng(seed)
+    norm = compensator.input_normalizer
+    return norm.mean + norm.std * rng.normal(size=(rows, D)) * 1.5
+
+
+def test_save_load_round_trip(compensator, tmp_path):
+    path = compensator.save(tmp_path / "sub" / "comp.pt")
+    assert [p.name for p in path.parent.iterdir()] == ["comp.pt"]  # no temporary file left
+    loaded = Compensator.load(path, expected_model_sha256=SHA, expected_feature_spec=SPEC)
+    x = _inputs(compensator, 64, seed=1)
+    np.testing.assert_array_equal(loaded.predict(x), compensator.predict(x))
+    assert loaded.metadata == compensator.metadata
+    assert loaded.metadata["feature_spec"]["groups"] == ("q", "qdot", "tension")
+    assert loaded.config == compensator.config
+    assert loaded.input_normalizer == compensator.input_normalizer
+    assert loaded.output_normalizer == compensator.output_normalizer
+    # a spec read back from YAML (lists instead of tuples, ints for floats) is the same spec
+    yaml_spec = {"groups": ["q", "qdot", "tension"], "window": 5, "filter": {"cutoff_hz": 20}}
+    Compensator.load(path, expected_feature_spec=yaml_spec)
+    # overwriting an existing file
+    compensator.save(path)
+    assert [p.name for p in path.parent.iterdir()] == ["comp.pt"]
+
+
+def test_predict_shapes_and_bad_inputs(compensator):
+    x = _inputs(compensator, 5, seed=2)
+    batch = compensator.predict(x)
+    assert batch.shape == (5, N_OUT) and batch.dtype == np.float64
+    single = compensator.predict(x[3])
+    assert single.shape == (N_OUT,)
+    np.testing.assert_allclose(single, batch[3], rtol=0, atol=1e-12)
+    with pytest.raises(InputError, match=r"expects shape \(43,\) or \(N, 43\), got \(42,\)"):
+        compensator.predict(x[0, :42])
+    x[2, 7] = np.nan
+    with pytest.raises(InputError, match="row 2, column 7"):
+        compensator.predict(x)
+
+
+def test_load_refuses_another_robot_model(compensator, tmp_path):
+    path = compensator.save(tmp_path / "comp.pt")
+    with pytest.raises(CheckpointError, match="another robot model") as info:
+        Compensator.load(path, expected_model_sha256=OTHER_SHA)
+    assert SHA in str(info.value) and OTHER_SHA in str(info.value)
+    no_sha = _compensator()
+    del no_sha.metadata["model_sha256"]
+    with pytest.raises(CheckpointError, match="no 'model_sha256'"):
+        Compensator.load(no_sha.save(tmp_path / "nosha.pt"), expected_model_sha256=SHA)
+
+
+def test_load_refuses_another_feature_spec(compensator, tmp_path):
+    path = compensator.save(tmp_path / "comp.pt")
+    other = {"groups": ("q", "qdot"), "window": 10, "filter": {"cutoff_hz": 20.0}, "extra": 1}
+    with pytest.raises(CheckpointError, match="another feature spec") as info:
+        Compensator.load(path, expected_model_sha256=SHA, expected_feature_spec=other)
+    message = str(info.value)
+    assert "3 differences" in message
+    assert "feature_spec.window: compensator 5, in use 10" in message
+    assert "feature_spec.groups: compensator ['q', 'qdot', 'tension'], in use ['q', 'qdot']" in (
+        message
+    )
+    assert "feature_spec.extra only in the spec in use" in message
+    assert "cutoff_hz" not in message
+
+
+def test_load_refuses_missing_corrupt_and_foreign_files(compensator, tmp_path):
+    with pytest.raises(CheckpointError, match="not found"):
+        Compensator.load(tmp_path / "missing.pt")
+    good = compensator.save(tmp_path / "good.pt").read_bytes()
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(good[: len(good) // 2])
+    with pytest.raises(CheckpointError, match="not a readable compensator file"):
+        Compensator.load(corrupt)
+    corrupt.write_bytes(np.random.default_rng(0).bytes(4000))
+    with pytest.raises(CheckpointError, match="not a readable compensator file"):
+        Compensator.load(corrupt)
+
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(3)}, other)
+    with pytest.raises(CheckpointError, match="not a compensator file .format None"):
+        Compensator.load(other)
+    plain = compensator.to_dict()
+    del plain["state_dict"], plain["metadata"]
+    torch.save(plain, other)
+    with pytest.raises(CheckpointError, match="missing keys: state_dict, metadata"):
+        Compensator.load(other)
+    plain = compensator.to_dict()
+    plain["format_version"] = 99
+    torch.save(plain, other)
+    with pytest.raises(CheckpointError, match="format version 99"):
+        Compensator.load(other)
+    plain = compensator.to_dict()
+    plain["state_dict"]["0.weight"] = torch.zeros(150, 42, dtype=torch.float64)
+    torch.save(plain, other)
+    with pytest.raises(CheckpointError, match="do not fit a network 43 -> .150. -> 4"):
+        Compensator.load(other)
+    plain = compensator.to_dict()
+    plain["config"]["activation"] = "sigmoid"
+    torch.save(plain, other)
+    with pytest.raises(CheckpointError, match="invalid network config.*activation"):
+        Compensator.load(other)
+
+
+class _Arbitrary:
+    def __init__(self, value: int) -> None:
+        self.value = value
+
+
+def test_load_never_unpickles_arbitrary_classes(compensator, tmp_path):
+    plain = compensator.to_dict()
+    plain["metadata"] = {"object": _Arbitrary(1)}
+    path = tmp_path / "pickled.pt"
+    torch.save(plain, path)
+    with pytest.raises(CheckpointError, match="not a readable compensator file"):
+        Compensator.load(path)
+    with pytest.raises(InputError, match=r"metadata\.object: a _Arbitrary cannot be stored"):
+        Compensator(
+            compensator.state_dict(),
+            compensator.input_normalizer,
+            compensator.output_normalizer,
+            compensator.config,
+            metadata={"object": _Arbitrary(1)},
+        )
+
+
+def test_training_checkpoint_is_not_a_compensator(tmp_path):
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(50, 3)), rng.normal(size=(50, 2))
+    state = tmp_path / "state.pt"
+    result = train_network(
+        x, y, x, y, NetworkConfig(hidden=(8,), max_epochs=1), checkpoint_path=state,
+        metadata={"model_sha256": SHA},
+    )  # fmt: skip
+    assert result.compensator.metadata == {"model_sha256": SHA}
+    with pytest.raises(CheckpointError, match="this is a training checkpoint"):
+        Compensator.load(state)
+
+
+@pytest.mark.parametrize(
+    ("hidden", "activation"), [((150,), "tanh"), ((150,), "relu"), ((32, 16), "tanh"), ((), "tanh")]
+)
+def test_fast_path_equals_torch(hidden, activation):
+    compensator = _compensator(hidden, activation, seed=3)
+    fast = FastCompensator(compensator)
+    x = _inputs(compensator, 200, seed=4)
+    expected = compensator.predict(x)
+    assert np.max(np.abs(expected)) > 0.1  # outputs are not trivially small
+    for row in range(0, 200, 7):
+        np.testing.assert_allclose(fast(x[row]), expected[row], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(fast(x), expected, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(fast.predict_batch(x), expected, rtol=0, atol=1e-6)
+    # a returned array is the caller's own: the next call does not overwrite it
+    first = fast(x[0])
+    fast(x[1])
+    np.testing.assert_allclose(first, expected[0], rtol=0, atol=1e-6)
+    # lists and float32 arrays go through the checked path
+    np.testing.assert_allclose(fast(list(x[5])), expected[5], rtol=0, atol=1e-6)
+    out = np.empty(N_OUT)
+    assert fast(x[6], out=out) is out
+    np.testing.assert_allclose(out, expected[6], rtol=0, atol=1e-6)
+
+
+def test_fast_path_refuses_bad_inputs(compensator):
+    fast = FastCompensator(compensator)
+    x = _inputs(compensator, 1, seed=5)[0]
+    for bad in (np.nan, np.inf, -np.inf):
+        x_bad = x.copy()
+        x_bad[11] = bad
+        with pytest.raises(InputError, match="row 0, column 11"):
+            fast(x_bad)
+    with pytest.raises(InputError, match=r"expects shape \(43,\) or \(N, 43\), got \(44,\)"):
+        fast(np.zeros(44))
+    with pytest.raises(InputError, match="out must be a float64 array of shape"):
+        fast(x, out=np.empty(3))
+    with pytest.raises(InputError, match="only supported for one sample"):
+        fast(np.zeros((2, D)), out=np.empty(N_OUT))

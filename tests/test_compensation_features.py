@@ -1,0 +1,167 @@
+"""Features, target and data of the compensator."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from msarm.compensation.dataset import build_arrays, split_runs
+from msarm.compensation.features import FeatureExtractor, FeatureSpec
+from msarm.compensation.target import TargetSpec, torque_error
+from msarm.control import ArmControllerConfig
+from msarm.errors import InputError, LogError
+from msarm.io.logs import LogMetadata, RunLog, read_log, write_log
+from msarm.plant import DEFAULT_PLANT, IDEAL_PLANT
+from msarm.plant.effects import SensorReadings
+from msarm.tasks.track import TrackSettings, track
+from msarm.tasks.trajectories import hold_then_move
+
+HOME = np.array([0.0, 0.0, 0.0, -0.2])
+SHORT = hold_then_move(
+    "short", HOME, [0.1, 0.35, -0.3, -0.9], wait=0.3, move_time=1.2, duration=2.5
+)
+
+
+def hand_log(arm) -> RunLog:
+    """Three samples with simple, known values."""
+    t = np.array([0.0, 0.004, 0.008])
+    q = np.array([[0.1, 0.2, -0.1, -0.5], [0.1, 0.21, -0.1, -0.5], [0.1, 0.22, -0.1, -0.49]])
+    q_ref = q + 0.01
+    qd_ref = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 2.5, 0.0, 0.0], [0.0, 2.5, 0.0, 2.5]])
+    qdot = qd_ref * 0.9
+    motor = np.array([np.zeros(9), np.full(9, 0.1), np.full(9, 0.3)])
+    tension = np.array([np.full(9, 10.0), np.full(9, 11.0), np.full(9, 12.0)])
+    channels = {
+        "q": (arm.joint_names, q),
+        "q_ref": (arm.joint_names, q_ref),
+        "qd_ref": (arm.joint_names, qd_ref),
+        "qdot_est": (arm.joint_names, qdot),
+        "motor_angle": (arm.cable_names, motor),
+        "tension_motor": (arm.cable_names, tension),
+    }
+    units = {
+        "q": "rad",
+        "q_ref": "rad",
+        "qd_ref": "rad/s",
+        "qdot_est": "rad/s",
+        "motor_angle": "rad",
+        "tension_motor": "N",
+    }
+    return RunLog.from_quantities(t, channels, LogMetadata.for_model(arm, 250.0, units=units))
+
+
+def test_features_from_a_hand_made_log_are_the_hand_computed_values(arm):
+    spec = FeatureSpec(
+        groups=(
+            "q",
+            "qdot",
+            "sign_qdot",
+            "exp_sign_qdot",
+            "joint_memory",
+            "cable_length_error",
+            "tension",
+        )
+    )
+    x = FeatureExtractor(arm, spec).from_log(hand_log(arm))
+    q_ref = hand_log(arm).matrix("q_ref")
+    qd_ref = hand_log(arm).matrix("qd_ref")
+    np.testing.assert_array_equal(x[:, 0:4], q_ref)  # source = reference
+    np.testing.assert_array_equal(x[:, 4:8], qd_ref)
+    sign = np.tanh(qd_ref / 0.05)
+    np.testing.assert_allclose(x[:, 8:12], sign, rtol=1e-15)
+    np.testing.assert_allclose(x[:, 12:16], np.exp(-sign) * sign, rtol=1e-15)
+    # joint memory: m_k = m_{k-1} + (s_k - m_{k-1}) min(1, |v_k| dt / 0.05); dt = 0.004
+    rate = np.minimum(1.0, np.abs(qd_ref) * 0.004 / 0.05)  # 0.2 where moving at 2.5 rad/s
+    memory = np.zeros(4)
+    for k in range(3):
+        memory = memory + (sign[k] - memory) * (rate[k] if k else 0.0)
+        np.testing.assert_allclose(x[k, 16:20], memory, rtol=1e-12)
+    assert x[2, 17] == pytest.approx(0.2 * 1.0 + 0.8 * 0.2 * 1.0, rel=1e-6)  # 0.36
+    # cable length error: l(q0) - r (theta - theta0) - l(q) from the measured posture
+    q = hand_log(arm).matrix("q")
+    l0 = arm.geometry(q[0]).lengths
+    for k, theta in enumerate((0.0, 0.1, 0.3)):
+        expected = l0 - 0.003 * theta - arm.geometry(q[k]).lengths
+        np.testing.assert_allclose(x[k, 20:29], expected, atol=1e-15)
+    np.testing.assert_array_equal(x[:, 29:38], hand_log(arm).matrix("tension_motor"))
+
+
+def test_online_features_equal_offline_features(arm):
+    log = hand_log(arm)
+    extractor = FeatureExtractor(
+        arm, FeatureSpec(groups=tuple(FeatureSpec().groups) + ("tension",))
+    )
+    offline = extractor.from_log(log)
+    extractor.reset()
+    for k in range(len(log)):
+        readings = SensorReadings(
+            t=float(log.t[k]),
+            q=log.matrix("q")[k],
+            motor_angle=log.matrix("motor_angle")[k],
+            motor_torque=np.zeros(9),
+            tension_motor=log.matrix("tension_motor")[k],
+        )
+        online = extractor(
+            readings, log.matrix("qdot_est")[k], log.matrix("q_ref")[k], log.matrix("qd_ref")[k]
+        )
+        np.testing.assert_array_equal(online, offline[k])
+
+
+def test_target_is_zero_on_the_ideal_plant_and_not_on_the_default_plant(arm, tmp_path):
+    gains = ArmControllerConfig()
+    values = {}
+    for plant in (IDEAL_PLANT, DEFAULT_PLANT):
+        result = track(
+            arm,
+            SHORT,
+            TrackSettings("short", 0, plant, gains),
+            tmp_path / plant.name,
+            plots_too=False,
+        )
+        tf = torque_error(arm, read_log(result.files["log"]), TargetSpec())
+        values[plant.name] = np.sqrt(np.mean(tf[15:-15] ** 2, axis=0))  # filter edges left out
+    assert values["ideal"].max() < 0.02  # N m: filtering error only
+    assert values["default"].min() > 0.2
+
+
+def test_nan_in_training_data_names_the_file_and_column(arm, tmp_path):
+    log = hand_log(arm)
+    path = write_log(tmp_path / "good.parquet", log)
+    table = pq.read_table(path)
+    column = table.column("tension_motor.biceps").to_numpy().copy()
+    column[1] = np.nan
+    bad = table.set_column(
+        table.schema.get_field_index("tension_motor.biceps"),
+        "tension_motor.biceps",
+        pa.array(column),
+    )
+    bad_path = tmp_path / "bad.parquet"
+    pq.write_table(bad.replace_schema_metadata(table.schema.metadata), bad_path)
+    with pytest.raises(LogError, match=r"bad\.parquet.*tension_motor\.biceps"):
+        build_arrays(arm, [bad_path], FeatureSpec(), TargetSpec(window=3, polyorder=1))
+
+
+def test_missing_channel_is_named(arm, tmp_path):
+    log = hand_log(arm)
+    columns = {k: v for k, v in log.columns.items() if k != "q_ref.elbow"}
+    slim = RunLog(columns, log.metadata)
+    with pytest.raises(InputError, match="q_ref.elbow"):
+        FeatureExtractor(arm).from_log(slim, source="slim.parquet")
+
+
+def test_runs_not_samples_are_split():
+    split = split_runs(list(range(1000, 1014)), (0.7, 0.15, 0.15))
+    assert split.train == tuple(range(1000, 1010))
+    assert split.validation == (1010, 1011) and split.test == (1012, 1013)
+    with pytest.raises(InputError, match="at least 3 runs"):
+        split_runs([1, 2], (0.7, 0.15, 0.15))
+
+
+def test_feature_spec_refuses_unknown_groups():
+    with pytest.raises(ValueError, match="unknown feature groups"):
+        FeatureSpec(groups=("q", "torque"))
+    assert replace(FeatureSpec(), source="measured").source == "measured"

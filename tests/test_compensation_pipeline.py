@@ -1,0 +1,87 @@
+"""The compensator end to end: train on a few runs, compare on a held-out run."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from msarm.cli import app
+from msarm.compensation.checkpoint import CheckpointError, Compensator
+from msarm.compensation.compare import WITH, WITHOUT, compare_feedforward
+from msarm.compensation.dataset import DataConfig
+from msarm.compensation.feedforward import load_feedforward
+from msarm.compensation.network import NetworkConfig
+from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
+from msarm.io.config import write_config
+from msarm.model import load_arm
+from msarm.plant import DEFAULT_PLANT
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A compensator trained on the paper-sized data set (14 runs: 10/2/2), one round."""
+    folder = tmp_path_factory.mktemp("compensator")
+    recipe = CompensatorRecipe(
+        data=DataConfig(n_runs=14, first_seed=1000, folder=str(folder / "data"), rounds=0),
+        network=NetworkConfig(max_epochs=100, patience=20),
+        checkpoint=str(folder / "compensator.pt"),
+    )
+    arm = load_arm()
+    report = train_compensator(arm, recipe, DEFAULT_PLANT)
+    return arm, recipe, report, folder
+
+
+def test_training_writes_a_checkpoint_for_this_model(trained):
+    arm, recipe, report, _ = trained
+    assert report.split == {
+        "train": list(range(1000, 1010)),
+        "validation": [1010, 1011],
+        "test": [1012, 1013],
+    }
+    compensator = Compensator.load(recipe.checkpoint, expected_model_sha256=arm.sha256)
+    assert compensator.metadata["feature_spec"]["groups"] == list(recipe.features.groups)
+    assert all(r2 > 0 for r2 in report.test_r2)  # explains some held-out T_f variance
+
+
+def test_feedforward_improves_tracking_on_the_held_out_tasks(trained):
+    arm, recipe, report, folder = trained
+    feedforward = load_feedforward(recipe.checkpoint, arm)
+    comparison = compare_feedforward(
+        arm, feedforward, DEFAULT_PLANT, recipe.controller, report.split["test"], folder / "compare"
+    )
+    for task in comparison.held_out:
+        without, with_ff = comparison.metrics[task][WITHOUT], comparison.metrics[task][WITH]
+        assert with_ff.completed
+        assert np.mean(with_ff.joint_rmse) < 0.8 * np.mean(without.joint_rmse)
+    assert (folder / "compare" / "error_statistics.png").is_file()
+
+
+def test_checkpoint_for_another_model_is_refused(trained, tmp_path):
+    arm, recipe, _, _ = trained
+    other = replace(arm, sha256="0" * 64)
+    with pytest.raises(CheckpointError, match="another robot model|model"):
+        load_feedforward(recipe.checkpoint, other)
+
+
+def test_resumed_training_gives_the_same_compensator(trained, tmp_path):
+    arm, recipe, _, _ = trained
+    again = replace(recipe, checkpoint=str(tmp_path / "again.pt"))
+    train_compensator(arm, again, DEFAULT_PLANT)  # runs reused from the first training
+    first = Compensator.load(recipe.checkpoint)
+    second = Compensator.load(again.checkpoint)
+    for (w1, b1), (w2, b2) in zip(first.layer_weights(), second.layer_weights(), strict=True):
+        np.testing.assert_array_equal(w1, w2)
+        np.testing.assert_array_equal(b1, b2)
+
+
+def test_train_command_reads_a_recipe(tmp_path, trained):
+    _, recipe, _, _ = trained
+    path = tmp_path / "recipe.yaml"
+    short = replace(recipe, network=replace(recipe.network, max_epochs=3))
+    write_config(replace(short, checkpoint=str(tmp_path / "cli.pt")), path)
+    result = CliRunner().invoke(app, ["train", "--config", str(path), "--json"])
+    assert result.exit_code == 0, result.output
+    assert '"test_r2"' in result.output
