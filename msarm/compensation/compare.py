@@ -160,7 +160,8 @@ def _plot_error_statistics(
             c + offset, values.mean(axis=0), 0.4, yerr=values.std(axis=0), capsize=3, label=label
         )
     ax_cable.set_xticks(c, cable_names, rotation=30, ha="right")
-    ax_cable.set_ylabel("cable length error [% of travel], mean ± std over tasks")
+    ax_cable.set_ylabel("cable length error [% of travel]")
+    ax_cable.set_title("mean ± std over the tasks", fontsize=9)
     ax_cable.legend()
     fig.suptitle("error statistics without and with feedforward (paper 003 Fig. 9)")
     return plots._save(fig, path)

@@ -44,13 +44,13 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
 from msarm.errors import InputError
 from msarm.io.logs import RunLog
 from msarm.model import RobotModel
+from msarm.muscle.geometry import cable_kinematics
 
 __all__ = ["DEFAULT_GROUPS", "FEATURE_GROUPS", "FeatureExtractor", "FeatureSpec"]
 
@@ -162,19 +162,8 @@ class FeatureExtractor:
         self._memory = None
 
     def _geometry(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
-        m_model, m_data = self.model.mj_model, self._data.mj
-        m_data.qpos[:] = q
-        mujoco.mj_kinematics(m_model, m_data)
-        mujoco.mj_comPos(m_model, m_data)
-        mujoco.mj_tendon(m_model, m_data)
-        mujoco.mju_sparse2dense(
-            self._jacobian,
-            m_data.ten_J,
-            m_model.ten_J_rownnz,
-            m_model.ten_J_rowadr,
-            m_model.ten_J_colind,
-        )
-        return m_data.ten_length.copy(), self._jacobian
+        lengths = cable_kinematics(self.model.mj_model, self._data.mj, q, self._jacobian)
+        return lengths, self._jacobian
 
     def _memories(
         self, t: float, qdot: FloatArray, ldot: FloatArray

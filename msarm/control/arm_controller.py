@@ -24,7 +24,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 import pinocchio
 from numpy.typing import ArrayLike, NDArray
@@ -34,6 +33,7 @@ from msarm.errors import InputError
 from msarm.model import RobotModel
 from msarm.muscle.activation import step_activation
 from msarm.muscle.fast import FastHill
+from msarm.muscle.geometry import cable_kinematics
 from msarm.plant.effects import SensorReadings
 
 __all__ = ["ArmControllerConfig", "ControlOutput", "MuscleSpaceController"]
@@ -140,19 +140,8 @@ class MuscleSpaceController:
 
     def _cable_geometry(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Nominal cable lengths l(q) [m] and muscle Jacobian J_c(q) [m/rad] (MuJoCo)."""
-        m_model, m_data = self.model.mj_model, self._data.mj
-        m_data.qpos[:] = q
-        mujoco.mj_kinematics(m_model, m_data)
-        mujoco.mj_comPos(m_model, m_data)
-        mujoco.mj_tendon(m_model, m_data)
-        mujoco.mju_sparse2dense(
-            self._jacobian,
-            m_data.ten_J,
-            m_model.ten_J_rownnz,
-            m_model.ten_J_rowadr,
-            m_model.ten_J_colind,
-        )
-        return m_data.ten_length.copy(), self._jacobian
+        lengths = cable_kinematics(self.model.mj_model, self._data.mj, q, self._jacobian)
+        return lengths, self._jacobian
 
     @property
     def qdot_estimate(self) -> FloatArray:

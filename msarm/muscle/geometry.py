@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CableGeometry",
     "cable_geometry",
+    "cable_kinematics",
     "joint_grid",
     "path_points",
     "positive_spanning_margin",
@@ -111,24 +112,49 @@ def cable_geometry(
     q = _checked_vector(q, n, "q")
     qdot = _checked_vector(qdot, n, "qdot")
     m_model, m_data = model.mj_model, data.mj
-    m_data.qpos[:] = q
     m_data.qvel[:] = qdot
-    mujoco.mj_kinematics(m_model, m_data)
-    mujoco.mj_comPos(m_model, m_data)
-    mujoco.mj_tendon(m_model, m_data)
     jacobian = np.zeros((m_model.ntendon, m_model.nv))
-    mujoco.mju_sparse2dense(
-        jacobian, m_data.ten_J, m_model.ten_J_rownnz, m_model.ten_J_rowadr, m_model.ten_J_colind
-    )
+    lengths = cable_kinematics(m_model, m_data, q, jacobian)
     return CableGeometry(
         q=q.copy(),
-        lengths=m_data.ten_length.copy(),
+        lengths=lengths,
         velocities=jacobian @ qdot,
         jacobian=jacobian,
         wrap_angles=(
             wrap_angles(m_model, m_data) if with_wrap_angles else np.full(m_model.ntendon, np.nan)
         ),
     )
+
+
+def cable_kinematics(
+    m_model: mujoco.MjModel,
+    m_data: mujoco.MjData,
+    q: NDArray[np.float64],
+    jacobian: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Cable lengths and dense muscle Jacobian at posture ``q``, without validation.
+
+    The hot path shared by :func:`cable_geometry`, the controller and the compensator's
+    features: MuJoCo's ``mj_kinematics``, ``mj_comPos`` and ``mj_tendon`` on ``m_data``, then
+    the sparse tendon Jacobian densified into ``jacobian``.
+
+    Args:
+        m_model: MuJoCo model.
+        m_data: MuJoCo data (its ``qpos`` is overwritten).
+        q: Joint coordinates [rad], shape ``(n,)``.
+        jacobian: Output ``J_c = dl/dq`` [m/rad], shape ``(m, n)``, written in place.
+
+    Returns:
+        The cable lengths l(q) [m], shape ``(m,)`` (a copy).
+    """
+    m_data.qpos[:] = q
+    mujoco.mj_kinematics(m_model, m_data)
+    mujoco.mj_comPos(m_model, m_data)
+    mujoco.mj_tendon(m_model, m_data)
+    mujoco.mju_sparse2dense(
+        jacobian, m_data.ten_J, m_model.ten_J_rownnz, m_model.ten_J_rowadr, m_model.ten_J_colind
+    )
+    return m_data.ten_length.copy()
 
 
 def path_points(m_model: mujoco.MjModel, m_data: mujoco.MjData, cable: int) -> list[NDArray]:
