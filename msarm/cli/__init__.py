@@ -10,6 +10,7 @@ import typer
 
 from msarm.cli.arm import arm_command
 from msarm.cli.bench import bench_app
+from msarm.cli.cdpr import cdpr_app
 from msarm.cli.compensator import compare_command, train_command
 from msarm.cli.track import track_command
 
@@ -25,8 +26,21 @@ app.command("track")(track_command)
 app.command("train")(train_command)
 app.command("compare")(compare_command)
 app.add_typer(bench_app, name="bench")
+app.add_typer(cdpr_app, name="cdpr")
 
 
 def main() -> None:
-    """Entry point of the ``msarm`` console script."""
-    app()
+    """Entry point of the ``msarm`` console script.
+
+    msarm's own errors (bad input, a bad model or log file, ...) are printed as one line
+    naming the problem, with exit code 2; anything else keeps its traceback (a bug).
+    """
+    from msarm.errors import MsarmError
+
+    try:
+        app()
+    except MsarmError as exc:
+        import sys
+
+        print(f"msarm: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
