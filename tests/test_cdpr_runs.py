@@ -84,3 +84,27 @@ def test_cdpr_run_command(tmp_path):
     bad = CliRunner().invoke(app, ["cdpr", "run", "--trajectory", "star"])
     assert bad.exit_code != 0 and "triangle-12" in str(bad.exception)
     assert np.isfinite(payload["mean_position_error_mm"])
+
+
+def test_sensitivity_map_shows_each_pair_good_on_its_side(robot, tmp_path):
+    from msarm.cdpr.sensitivity import sensitivity_map
+    from msarm.tasks.cdpr_compare import MAP_HEIGHT, plot_sensitivity
+
+    weight = np.concatenate([robot.mass * np.asarray(robot.gravity), np.zeros(3)])
+    x, y = [-0.025], [-0.15, 0.15]
+    low = {
+        pair: sensitivity_map(
+            robot.robot,
+            pair,
+            x,
+            y,
+            [MAP_HEIGHT],
+            wrench=weight,
+            f_min=robot.f_min,
+            f_max=robot.f_max,
+        ).sigma[0, :, 0]
+        for pair in ((0, 1), (2, 3))
+    }
+    assert low[(0, 1)][1] < 1.5 < low[(0, 1)][0]  # cables 1,2: good where y > 0
+    assert low[(2, 3)][0] < 1.5 < low[(2, 3)][1]  # cables 3,4: good where y < 0
+    assert plot_sensitivity(robot, tmp_path / "map.png", points=11).is_file()

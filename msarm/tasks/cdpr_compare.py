@@ -51,6 +51,12 @@ TRAJECTORIES = {
     4: "circle-34",
     5: "rectangle-switch",
 }
+#: Switching steps of eq. 10 compared on the rectangle (paper 000 Fig. 13).
+SWITCHING_DELTAS = (0.0005, 0.02, 0.5)
+#: The controllers' default switching step.
+DEFAULT_SWITCHING_DELTA = 0.02
+#: Height of the trajectories and of the sensitivity map [m].
+MAP_HEIGHT = 0.115
 #: Tests repeated for Table 5.
 REPEATABILITY_TESTS = ("11", "21", "31", "41")
 
@@ -95,6 +101,9 @@ def _grid() -> list[tuple[str, str, str, dict]]:
     runs.append(("51", "hc-e-all", TRAJECTORIES[1], {}))
     runs.append(("hc-tau/1", "hc-tau", TRAJECTORIES[1], {}))
     runs.append(("hc-tau-no-friction/1", "hc-tau", TRAJECTORIES[1], {"friction_model": False}))
+    for delta in SWITCHING_DELTAS:
+        if delta != DEFAULT_SWITCHING_DELTA:
+            runs.append((f"25/delta={delta:g}", "hc-e", TRAJECTORIES[5], {"delta": delta}))
     return runs
 
 
@@ -157,6 +166,18 @@ def compare_cdpr(
             files[f"forces_{safe}"] = plot_forces(
                 runs[test], model, out_dir / f"forces_test_{safe}.png", title=f"test {test}"
             )
+    switching = {
+        delta: runs[test]
+        for delta, test in (
+            (d, "25" if d == DEFAULT_SWITCHING_DELTA else f"25/delta={d:g}")
+            for d in SWITCHING_DELTAS
+        )
+        if test in runs
+    }
+    if len(switching) > 1:
+        files["switching"] = plot_switching(switching, out_dir / "switching_delta.png")
+    if tests is None:
+        files["sensitivity"] = plot_sensitivity(model, out_dir / "sensitivity_map.png")
     comparison = CdprComparison(results, repeatability, repeats, files)
     files["json"] = write_json_atomic(out_dir / "cdpr_comparison.json", comparison.as_dict())
     return comparison
@@ -196,4 +217,68 @@ def plot_forces(run: CdprRun, model: CableRobotModel, path: Path, title: str = "
     fig.suptitle(
         f"{title}: {run.controller} on {run.trajectory} (bounds dotted, force control shaded)"
     )
+    return plots._save(fig, path)
+
+
+def plot_switching(runs: dict[float, CdprRun], path: Path) -> Path:
+    """Forces of cables 1-4 and the position error on the rectangle for each delta (Fig. 13)."""
+    fig, axes = plt.subplots(
+        2, len(runs), figsize=(5 * len(runs), 6), sharex=True, squeeze=False, layout="constrained"
+    )
+    for column, (delta, run) in enumerate(sorted(runs.items())):
+        t = run.columns["t"]
+        for i in range(4):
+            name = f"cable_{i}"
+            axes[0, column].plot(
+                t, run.truth[f"tension.{name}"], lw=0.9, label=f"{name} (paper {i + 1})"
+            )
+        axes[0, column].axhline(5.0, color="tab:red", ls=":", lw=0.8)
+        axes[0, column].set_title(f"delta = {delta:g} ({int(np.ceil(np.pi / 2 / delta))} ms)")
+        marker = np.stack([run.columns[f"marker.{a}"] for a in "xyz"], axis=1)
+        reference = np.stack([run.columns[f"r_ref.{a}"] for a in "xyz"], axis=1)
+        axes[1, column].plot(t, 1000 * np.linalg.norm(marker - reference, axis=1), lw=0.9)
+        axes[1, column].set_xlabel("time [s]")
+    axes[0, 0].set_ylabel("cable force [N]")
+    axes[1, 0].set_ylabel("position error [mm]")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle("switching the force-controlled pair on the rectangle (HC-e, paper 000 Fig. 13)")
+    return plots._save(fig, path)
+
+
+def plot_sensitivity(model: CableRobotModel, path: Path, points: int = 41) -> Path:
+    """The sensitivity index over the workspace for pairs (1, 2) and (3, 4) (paper 000 Fig. 7).
+
+    Horizontal slice at the trajectories' height, R = I, the platform's weight; hatched where
+    the statics are infeasible; the 1.5 N contour drawn and the Fig. 9 paths overlaid.
+    """
+    from msarm.cdpr.sensitivity import sensitivity_map
+
+    lower, upper = np.asarray(model.workspace_lower), np.asarray(model.workspace_upper)
+    x = np.linspace(lower[0], upper[0], points)
+    y = np.linspace(lower[1], upper[1], points)
+    weight = np.concatenate([model.mass * np.asarray(model.gravity, dtype=float), np.zeros(3)])
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), layout="constrained")
+    for ax, pair in zip(axes, ((0, 1), (2, 3)), strict=True):
+        result = sensitivity_map(
+            model.robot,
+            pair,
+            x,
+            y,
+            [MAP_HEIGHT],
+            wrench=weight,
+            f_min=model.f_min,
+            f_max=model.f_max,
+        )
+        sigma = np.where(result.feasible, result.sigma, np.nan)[:, :, 0].T
+        mesh = ax.pcolormesh(x, y, np.clip(sigma, 0, 4), shading="auto", cmap="viridis")
+        ax.contour(x, y, sigma, levels=[1.5], colors="w", linewidths=1.2)
+        for name in TRAJECTORIES.values():
+            path_xy = get_cdpr_trajectory(name).position
+            ax.plot(path_xy[:, 0], path_xy[:, 1], lw=0.8, color="tab:red")
+        ax.set_title(f"force-controlled cables {pair[0] + 1},{pair[1] + 1} (msarm {pair})")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_aspect("equal")
+        fig.colorbar(mesh, ax=ax, label="sigma [N] (white: 1.5 N)")
+    fig.suptitle(f"sensitivity index at z = {MAP_HEIGHT} m, R = I (paper 000 Fig. 7)")
     return plots._save(fig, path)
