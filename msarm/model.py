@@ -39,6 +39,7 @@ __all__ = [
     "RobotModel",
     "load_arm",
     "load_robot",
+    "mujoco_model_name",
 ]
 
 #: Folder of the robot models shipped with msarm.
@@ -56,6 +57,11 @@ HILL_COLUMNS = (
 _SUPPORTED_JOINTS = {mujoco.mjtJoint.mjJNT_HINGE: "hinge", mujoco.mjtJoint.mjJNT_SLIDE: "slide"}
 #: Largest allowed disagreement between the engines' body positions [m] and masses [kg].
 _ENGINE_TOLERANCE = 1e-9
+
+
+def mujoco_model_name(mj_model: mujoco.MjModel) -> str:
+    """The model's name: the ``model`` attribute of the file's ``<mujoco>`` element."""
+    return mj_model.names[: mj_model.names.index(b"\0")].decode()
 
 
 @dataclass
@@ -105,7 +111,7 @@ class RobotModel:
     @property
     def name(self) -> str:
         """The model's name (the ``model`` attribute of ``<mujoco>``)."""
-        return self.mj_model.names[: self.mj_model.names.index(b"\0")].decode()
+        return mujoco_model_name(self.mj_model)
 
     @property
     def n_joints(self) -> int:

@@ -54,7 +54,7 @@ from msarm.cdpr.forward_kinematics import (
 )
 from msarm.cdpr.kinematics import CableRobot
 from msarm.errors import InputError, ModelError
-from msarm.model import MODELS_DIR, RobotData
+from msarm.model import MODELS_DIR, RobotData, mujoco_model_name
 
 FloatArray = NDArray[np.float64]
 
@@ -239,7 +239,7 @@ class CableRobotModel:
     @property
     def name(self) -> str:
         """The model's name (the ``model`` attribute of ``<mujoco>``)."""
-        return self.mj_model.names[: self.mj_model.names.index(b"\0")].decode()
+        return mujoco_model_name(self.mj_model)
 
     @property
     def n_cables(self) -> int:
