@@ -243,3 +243,29 @@ def test_bad_reset_is_refused(arm):
         plant.reset(np.zeros(3))
     with pytest.raises(InputError, match="tensions must be >= 0"):
         plant.reset(POSTURE, tensions=-np.ones(arm.n_cables))
+
+
+@pytest.mark.parametrize(
+    "effects",
+    [
+        {"elasticity": ElasticityConfig(enabled=True)},
+        {
+            "elasticity": ElasticityConfig(enabled=True),
+            "sheath_friction": SheathFrictionConfig(enabled=True),
+        },
+    ],
+    ids=["elasticity", "elasticity+sheath"],
+)
+def test_cable_effects_alone_keep_tracking_stable(arm, effects):
+    """The rope's damping keeps the cable-arm oscillation from running away."""
+    from msarm.control import ArmControllerConfig
+    from msarm.tasks.registry import get_task
+    from msarm.tasks.track import TrackSettings, track
+
+    task = get_task("table1-1", arm)
+    metrics = track(
+        arm, task, TrackSettings(task.name, 0, only(**effects), ArmControllerConfig())
+    ).metrics
+    assert metrics.completed
+    assert metrics.final_error_mm < 10.0
+    assert max(metrics.joint_rmse) < 0.05

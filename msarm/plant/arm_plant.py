@@ -112,6 +112,7 @@ class ArmPlant:
             "cog_periods": float(cogging.periods_per_revolution),
             "cog_phase": cogging.phase,
             "elastic": 1.0 if self.elastic else 0.0,
+            "damping": effects.elasticity.damping,
         }
         self._params = np.array([values[name] for name in PARAMS])
         self._slide = np.zeros(m)
@@ -237,7 +238,10 @@ class ArmPlant:
         """Ground truth of the plant: every effect switched on, with its parameters."""
         truth = {effect.name: effect.parameters() for effect in self.effects}
         if self.elastic:
-            truth["elasticity"] = {"stiffness": self._k}
+            truth["elasticity"] = {
+                "stiffness": self._k,
+                "damping": self.config.effects.elasticity.damping,
+            }
         return truth
 
     # ------------------------------------------------------------------------------ step

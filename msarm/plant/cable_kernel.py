@@ -14,6 +14,8 @@ Elastic cable in two segments joined at the sheath by a massless node that slide
 towards the motor (capstan friction with true stiction, a quasi-static Coulomb law):
     motor-side stretch ``e_m = e_m0 + r theta - x``, ``T_m = 2k max(e_m, 0)``;
     insertion-side stretch ``e_i = e_i0 + (l(q) - l_ref) + x``, ``T_i = 2k max(e_i, 0)``;
+    a dashpot in parallel with the whole rope adds ``c (dl/dt + r omega)`` (the rate of the
+    total stretch) to both while the cable is taut, each tension staying >= 0;
     the node sticks while ``T_i / beta <= T_m <= beta T_i`` with ``beta = exp(mu Theta(q))``
     and otherwise slides until ``T_m = beta T_i`` (cable pulled in) or ``T_m = T_i / beta``
     (paid out). Without sheath friction (``mu = 0``) the node balances and the cable is one
@@ -51,6 +53,7 @@ PARAMS = (
     "cog_periods",
     "cog_phase",
     "elastic",
+    "damping",
 )
 
 
@@ -83,7 +86,7 @@ def step_cables(
     """Advance the winches one step and write the cable tensions and joint forces.
 
     Args:
-        params: Scalars in the order of :data:`PARAMS`, shape ``(14,)``.
+        params: Scalars in the order of :data:`PARAMS`, shape ``(15,)``.
         lengths: Cable path lengths l(q) [m], ``(m,)``.
         velocities: Cable path velocities dl/dt [m/s], ``(m,)``.
         wrap: Wrap angles Theta(q) [rad], ``(m,)``.
@@ -121,6 +124,7 @@ def step_cables(
     cog_n = params[11]
     cog_p = params[12]
     elastic = params[13] > 0.5
+    c_damp = params[14]
     m = lengths.shape[0]
     for i in range(m):
         tau_m = r * (command[i] + gain * (command[i] - tension_motor[i]))
@@ -155,8 +159,12 @@ def step_cables(
                 else:
                     k_eff = k2 if a - slide[i] > 0.0 else 0.0
             t_m_now = k2 * max(a - slide[i], 0.0)
-            lhs = inertia / h + r * r * k_eff * h - slope
-            rhs = inertia * w / h + tau_m - r * t_m_now + tau_w - slope * w
+            # the rope's dashpot on the total stretch rate (taut cables), implicit in omega
+            c_eff = c_damp if a + bb > 0.0 else 0.0
+            lhs = inertia / h + r * r * (k_eff * h + c_eff) - slope
+            rhs = (
+                inertia * w / h + tau_m - r * (t_m_now + c_eff * velocities[i]) + tau_w - slope * w
+            )
             w_new = rhs / lhs
             omega[i] = w_new
             theta[i] += h * w_new
@@ -179,6 +187,9 @@ def step_cables(
                     slide[i] = (k2 * a - (k2 / beta) * bb) / (k2 + k2 / beta)
                 t_m = k2 * max(a - slide[i], 0.0)
                 t_i = k2 * max(bb + slide[i], 0.0)
+                damping = c_eff * (velocities[i] + r * w_new)
+                t_m = max(t_m + damping, 0.0)
+                t_i = max(t_i + damping, 0.0)
             tension_motor[i] = t_m
             tension_insertion[i] = t_i * user_factor[i]
         else:

@@ -11,7 +11,9 @@ Sources of the default values (plausible values for a robot of this size, not me
 - winch: drum radius 3 mm and peak torque F_max * r, as the model file's header sizes the
   motors; rotor inertia 3e-5 kg m^2 reflected at the drum (a 60 W flat brushless motor,
   ~1.2e-6 kg m^2, through a 5:1 gearbox);
-- cable: 1 mm Dyneema (UHMWPE) rope, EA of about 1.5e4 N, over ~0.7 m: 2e4 N/m;
+- cable: 1 mm Dyneema (UHMWPE) rope, EA of about 1.5e4 N, over ~0.7 m: 2e4 N/m; internal
+  damping 40 N s/m (a damping time c/k of 2 ms, a few percent of critical for the cable-arm
+  modes);
 - sheath friction: a Bowden sheath against a polymer cable, mu = 0.12 per radian of wrap.
   With the arm's 2.4-3.9 rad of wrap this transmits exp(-mu Theta) = 62-75 % of the force
   when pulling, inside the 60-85 % reported for Bowden cables over about half a metre
@@ -70,10 +72,13 @@ class ElasticityConfig:
             stiction). Off: the cable is rigid and the winch quasi-static, the tension is what
             the drive renders.
         stiffness: Cable stiffness k [N/m] (end to end).
+        damping: The rope's internal damping c [N s/m], a dashpot in parallel with the whole
+            cable acting on its stretch rate while it is taut.
     """
 
     enabled: bool = True
     stiffness: float = 2.0e4
+    damping: float = 40.0
 
 
 @dataclass(frozen=True)
