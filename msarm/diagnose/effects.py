@@ -1,0 +1,816 @@
+"""Candidate unmodelled effects: parametric terms fitted to a joint-torque residual.
+
+The residual of a run is, per sample,
+
+``r = tau_MS - ID(q, qd, qdd)``  [N m], shape ``(T, n)``,
+
+with ``tau_MS = -J_c(q)^T F`` the torque the logged motor-side tensions ``F`` would deliver
+through ideal cables and ``ID`` the nominal (rigid, frictionless) inverse dynamics. ``r`` is the
+torque *lost* between the motors and the joints: positive friction (opposing a positive
+velocity) gives a positive ``r``. Every candidate's :meth:`CandidateEffect.torque` is its
+prediction of ``r`` (not of the torque it adds to the joints, which is ``-r``).
+
+Sign conventions of msarm: ``J_c = dl/dq`` (``m x n``), ``tau = -J_c^T f``, the cable velocity
+``ldot = J_c qd`` is negative while the motor pulls the cable in.
+
+A candidate is **linear** when its prediction is ``design(signals) @ theta`` for a regressor of
+shape ``(T, n, p)``; :func:`msarm.diagnose.fitting.fit` then solves a least-squares problem.
+A **nonlinear** candidate writes its prediction once, in :meth:`CandidateEffect.torque`, with the
+operations of an :class:`Ops` backend, so that the same code evaluates it on numpy arrays and
+builds the casadi expression that IPOPT fits.
+
+Adding a candidate::
+
+    from msarm.diagnose.effects import CandidateEffect, register
+
+    @register
+    class ConstantOffset(CandidateEffect):
+        '''Constant joint-torque offset: r_j = c_j.'''
+
+        name = "constant_offset"
+        description = "r_j = c_j, a constant torque per joint"
+        linear = True
+
+        def __init__(self, n_joints: int = 4) -> None:
+            self.channels = tuple(range(n_joints))
+            self.parameter_names = tuple(f"c[{j}]" for j in self.channels)
+
+        def design(self, signals):
+            T, n = signals.n_samples, signals.n_joints
+            return np.broadcast_to(np.eye(n)[None, :, :], (T, n, n)).copy()
+
+A nonlinear one sets ``linear = False`` and overrides :meth:`CandidateEffect.torque` (using only
+``ops``), :meth:`CandidateEffect.initial_guess` and :meth:`CandidateEffect.bounds`.
+``CANDIDATES`` maps names to the registered classes; :func:`create` builds one by name.
+"""
+
+from __future__ import annotations
+
+from abc import ABC
+from collections.abc import Sequence
+from typing import Any, ClassVar, TypeVar
+
+import casadi
+import numpy as np
+import pinocchio
+from numpy.typing import NDArray
+
+from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
+
+__all__ = [
+    "CANDIDATES",
+    "CableCapstanFriction",
+    "CandidateEffect",
+    "CasadiOps",
+    "CoulombFriction",
+    "InertiaError",
+    "MotorCogging",
+    "NOT_IMPLEMENTED",
+    "NumpyOps",
+    "Ops",
+    "SensorBiasScale",
+    "StribeckFriction",
+    "TensionDelay",
+    "ViscousFriction",
+    "create",
+    "register",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- backends
+class Ops:
+    """The operations a nonlinear candidate may use: 2-D arrays ``(T, k)`` and parameters.
+
+    Data arrays come in as numpy arrays and are wrapped with :meth:`const`; parameters are
+    ``theta[i]`` (scalars) or :meth:`row` of a slice (a ``(1, k)`` row broadcast over ``T``
+    samples). ``*``, ``+``, ``-``, ``/`` and ``**`` between same-shape arrays and scalars work in
+    both backends; numpy-style broadcasting of rows does not (use :meth:`row`).
+    """
+
+    def const(self, a: FloatArray) -> Any:
+        """A data array ``(T, k)`` as a backend array."""
+        raise NotImplementedError
+
+    def row(self, theta: Any, start: int, stop: int, n_rows: int) -> Any:
+        """Parameters ``theta[start:stop]`` as a ``(n_rows, stop - start)`` array (rows equal)."""
+        raise NotImplementedError
+
+    def exp(self, x: Any) -> Any:
+        """Elementwise exponential."""
+        raise NotImplementedError
+
+    def tanh(self, x: Any) -> Any:
+        """Elementwise hyperbolic tangent."""
+        raise NotImplementedError
+
+    def column(self, x: Any, j: int) -> Any:
+        """Column ``j`` of ``x`` as a ``(T, 1)`` array."""
+        return x[:, j : j + 1]
+
+    def sum_columns(self, x: Any) -> Any:
+        """Sum over columns, ``(T, k) -> (T, 1)``."""
+        raise NotImplementedError
+
+    def hcat(self, columns: Sequence[Any]) -> Any:
+        """Concatenate ``(T, 1)`` columns into ``(T, k)``."""
+        raise NotImplementedError
+
+    def zeros(self, n_rows: int) -> Any:
+        """A ``(n_rows, 1)`` column of zeros."""
+        return self.const(np.zeros((n_rows, 1)))
+
+    def cable_to_joint(self, jacobian: FloatArray, g: Any) -> Any:
+        """``J_c^T g`` per sample: ``(T, m, n)`` data and ``(T, m)`` cable forces -> ``(T, n)``."""
+        return self.hcat(
+            [self.sum_columns(self.const(jacobian[:, :, j]) * g) for j in range(jacobian.shape[2])]
+        )
+
+
+class NumpyOps(Ops):
+    """:class:`Ops` on numpy arrays (evaluation)."""
+
+    def const(self, a: FloatArray) -> FloatArray:  # noqa: D102
+        return np.asarray(a, dtype=float)
+
+    def row(self, theta: Any, start: int, stop: int, n_rows: int) -> FloatArray:  # noqa: D102
+        return np.asarray(theta, dtype=float)[start:stop].reshape(1, -1)
+
+    def exp(self, x: Any) -> Any:  # noqa: D102
+        return np.exp(x)
+
+    def tanh(self, x: Any) -> Any:  # noqa: D102
+        return np.tanh(x)
+
+    def sum_columns(self, x: Any) -> Any:  # noqa: D102
+        return np.sum(x, axis=1, keepdims=True)
+
+    def hcat(self, columns: Sequence[Any]) -> Any:  # noqa: D102
+        return np.hstack(list(columns))
+
+
+class CasadiOps(Ops):
+    """:class:`Ops` on casadi matrices (data as ``DM``, parameters as ``SX`` symbols)."""
+
+    def const(self, a: FloatArray) -> casadi.DM:  # noqa: D102
+        return casadi.DM(np.asarray(a, dtype=float))
+
+    def row(self, theta: Any, start: int, stop: int, n_rows: int) -> Any:  # noqa: D102
+        return casadi.repmat(casadi.reshape(theta[start:stop], 1, stop - start), n_rows, 1)
+
+    def exp(self, x: Any) -> Any:  # noqa: D102
+        return casadi.exp(x)
+
+    def tanh(self, x: Any) -> Any:  # noqa: D102
+        return casadi.tanh(x)
+
+    def sum_columns(self, x: Any) -> Any:  # noqa: D102
+        return casadi.sum2(x)
+
+    def hcat(self, columns: Sequence[Any]) -> Any:  # noqa: D102
+        return casadi.horzcat(*columns)
+
+
+NUMPY_OPS = NumpyOps()
+
+
+# --------------------------------------------------------------------------- base class
+class CandidateEffect(ABC):
+    """A parametric unmodelled effect that predicts the joint-torque residual ``r``.
+
+    Attributes:
+        name: Registry name (class attribute).
+        description: The term's equation in words (class attribute).
+        linear: Whether the prediction is linear in the parameters (class attribute).
+        parameter_names: Names of the ``p`` parameters, in the order of ``theta``.
+        channels: Indices of the joints the term acts on (its prediction is zero elsewhere).
+    """
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    linear: ClassVar[bool] = True
+    parameter_names: tuple[str, ...]
+    channels: tuple[int, ...]
+
+    @property
+    def n_parameters(self) -> int:
+        """Number of parameters ``p``."""
+        return len(self.parameter_names)
+
+    def design(self, signals: Signals) -> FloatArray:
+        """The regressor of a linear term [N m per parameter unit], shape ``(T, n, p)``.
+
+        Raises:
+            NotImplementedError: The term is nonlinear.
+        """
+        raise NotImplementedError(f"{self.name} is nonlinear: it has no design matrix")
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:
+        """The predicted residual [N m], shape ``(T, n)``, for parameters ``theta`` ``(p,)``.
+
+        Linear terms evaluate ``design @ theta`` (numpy only); nonlinear terms override this
+        with code written in ``ops`` so that it works with numpy and casadi.
+        """
+        if not self.linear:
+            raise NotImplementedError(f"{type(self).__name__} must implement torque()")
+        if not isinstance(ops, NumpyOps):
+            design = self.design(signals)
+            T, n, p = design.shape
+            return casadi.reshape(casadi.DM(design.reshape(T * n, p)) @ theta, n, T).T
+        theta = self._check_theta(theta)
+        return np.einsum("tnp,p->tn", self.design(signals), theta)
+
+    def initial_guess(self, signals: Signals, residual: FloatArray | None = None) -> FloatArray:
+        """Starting parameters of a nonlinear fit, shape ``(p,)`` (zeros by default).
+
+        Args:
+            signals: The training signals.
+            residual: The training residual [N m], ``(T, n)``, for data-driven guesses.
+        """
+        return np.zeros(self.n_parameters)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:
+        """Lower and upper parameter bounds of a nonlinear fit, each ``(p,)`` (none by default)."""
+        return np.full(self.n_parameters, -np.inf), np.full(self.n_parameters, np.inf)
+
+    def check(self, signals: Signals) -> None:
+        """Raise :class:`InputError` when ``signals`` do not fit this term (sizes)."""
+        return None
+
+    def _check_theta(self, theta: Any) -> FloatArray:
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (self.n_parameters,):
+            raise InputError(
+                f"{self.name}: theta has shape {theta.shape}, expected ({self.n_parameters},) "
+                f"for parameters {self.parameter_names}"
+            )
+        return theta
+
+    def _check_joints(self, signals: Signals, n_joints: int) -> None:
+        if signals.n_joints != n_joints:
+            raise InputError(
+                f"{self.name}: built for {n_joints} joints, signals have {signals.n_joints}"
+            )
+
+    def _check_cables(self, signals: Signals, n_cables: int) -> None:
+        if signals.n_cables != n_cables:
+            raise InputError(
+                f"{self.name}: built for {n_cables} cables, signals have {signals.n_cables}"
+            )
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(p={self.n_parameters}, channels={self.channels})"
+
+
+#: Registered candidate classes by name.
+CANDIDATES: dict[str, type[CandidateEffect]] = {}
+
+_E = TypeVar("_E", bound=type[CandidateEffect])
+
+
+def register(cls: _E) -> _E:
+    """Class decorator: add a :class:`CandidateEffect` subclass to :data:`CANDIDATES`.
+
+    Raises:
+        InputError: The class has no ``name`` or the name is taken by another class.
+    """
+    if not cls.name:
+        raise InputError(f"{cls.__name__}: a candidate needs a non-empty class attribute 'name'")
+    if cls.name in CANDIDATES and CANDIDATES[cls.name] is not cls:
+        raise InputError(f"candidate name {cls.name!r} is already registered")
+    CANDIDATES[cls.name] = cls
+    return cls
+
+
+def create(name: str, **kwargs: Any) -> CandidateEffect:
+    """Build the registered candidate ``name`` with its constructor's keyword arguments.
+
+    Raises:
+        InputError: No candidate of that name.
+    """
+    if name not in CANDIDATES:
+        raise InputError(f"unknown candidate {name!r}; known: {sorted(CANDIDATES)}")
+    return CANDIDATES[name](**kwargs)
+
+
+def _joint_channels(n_joints: int, joints: Sequence[int] | None) -> tuple[int, ...]:
+    channels = tuple(range(n_joints)) if joints is None else tuple(int(j) for j in joints)
+    if not channels or any(j < 0 or j >= n_joints for j in channels):
+        raise InputError(f"joints: expected indices in [0, {n_joints}), got {joints}")
+    if len(set(channels)) != len(channels):
+        raise InputError(f"joints: repeated index in {joints}")
+    return channels
+
+
+def _positive(name: str, value: float) -> float:
+    value = float(value)
+    if not np.isfinite(value) or value <= 0.0:
+        raise InputError(f"{name}: expected a finite value > 0, got {value}")
+    return value
+
+
+def _per_joint_design(signals: Signals, channels: tuple[int, ...], feature: FloatArray):
+    """Design ``(T, n, k)`` with ``feature[:, j]`` of each channel ``j`` in its own column."""
+    T, n = signals.n_samples, signals.n_joints
+    out = np.zeros((T, n, len(channels)))
+    for column, j in enumerate(channels):
+        out[:, j, column] = feature[:, j]
+    return out
+
+
+# --------------------------------------------------------------------------- joint friction
+@register
+class CoulombFriction(CandidateEffect):
+    """Joint Coulomb friction with a smoothed sign.
+
+    ``r_j = c_j tanh(qd_j / eps)``; ``c_j`` [N m] per joint, ``eps`` [rad/s] fixed.
+    """
+
+    name = "coulomb"
+    description = "r_j = c_j * tanh(qd_j / eps): Coulomb friction of joint j, smoothed sign"
+    linear = True
+
+    def __init__(
+        self, n_joints: int = 4, joints: Sequence[int] | None = None, eps: float = 0.01
+    ) -> None:
+        """Build the term.
+
+        Args:
+            n_joints: Number of joints ``n`` of the robot.
+            joints: Joints with friction (all when ``None``).
+            eps: Velocity scale of the smoothed sign [rad/s].
+        """
+        self.n_joints = int(n_joints)
+        self.channels = _joint_channels(self.n_joints, joints)
+        self.eps = _positive("eps", eps)
+        self.parameter_names = tuple(f"coulomb[{j}]" for j in self.channels)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        return _per_joint_design(signals, self.channels, np.tanh(signals.qd / self.eps))
+
+
+@register
+class ViscousFriction(CandidateEffect):
+    """Joint viscous friction: ``r_j = b_j qd_j``, ``b_j`` [N m s/rad] per joint."""
+
+    name = "viscous"
+    description = "r_j = b_j * qd_j: viscous friction of joint j"
+    linear = True
+
+    def __init__(self, n_joints: int = 4, joints: Sequence[int] | None = None) -> None:
+        """Build the term.
+
+        Args:
+            n_joints: Number of joints ``n`` of the robot.
+            joints: Joints with friction (all when ``None``).
+        """
+        self.n_joints = int(n_joints)
+        self.channels = _joint_channels(self.n_joints, joints)
+        self.parameter_names = tuple(f"viscous[{j}]" for j in self.channels)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        return _per_joint_design(signals, self.channels, signals.qd)
+
+
+@register
+class StribeckFriction(CandidateEffect):
+    """Joint Stribeck friction (nonlinear).
+
+    ``r_j = (c_j + (s_j - c_j) exp(-(qd_j / v_j)^2)) tanh(qd_j / eps) + b_j qd_j``
+
+    Parameters per joint: Coulomb level ``c_j`` [N m], static (breakaway) level ``s_j`` [N m],
+    Stribeck velocity ``v_j`` [rad/s] (> 0) and, when ``viscous`` is set, ``b_j`` [N m s/rad].
+    ``eps`` [rad/s] is fixed.
+    """
+
+    name = "stribeck"
+    description = (
+        "r_j = (c_j + (s_j - c_j) exp(-(qd_j/v_j)^2)) tanh(qd_j/eps) [+ b_j qd_j]: "
+        "Coulomb level c, static level s, Stribeck velocity v"
+    )
+    linear = False
+
+    def __init__(
+        self,
+        n_joints: int = 4,
+        joints: Sequence[int] | None = None,
+        eps: float = 0.01,
+        viscous: bool = False,
+        max_stribeck_velocity: float = 10.0,
+    ) -> None:
+        """Build the term.
+
+        Args:
+            n_joints: Number of joints ``n`` of the robot.
+            joints: Joints with friction (all when ``None``).
+            eps: Velocity scale of the smoothed sign [rad/s].
+            viscous: Add a viscous coefficient per joint.
+            max_stribeck_velocity: Upper bound of ``v_j`` [rad/s].
+        """
+        self.n_joints = int(n_joints)
+        self.channels = _joint_channels(self.n_joints, joints)
+        self.eps = _positive("eps", eps)
+        self.viscous = bool(viscous)
+        self.max_stribeck_velocity = _positive("max_stribeck_velocity", max_stribeck_velocity)
+        per = ("coulomb", "static", "stribeck_velocity") + (("viscous",) if viscous else ())
+        self._per = len(per)
+        self.parameter_names = tuple(f"{p}[{j}]" for j in self.channels for p in per)
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        if isinstance(ops, NumpyOps):
+            theta = self._check_theta(theta)
+        T = signals.n_samples
+        qd = ops.const(signals.qd)
+        columns = [ops.zeros(T) for _ in range(self.n_joints)]
+        for k, j in enumerate(self.channels):
+            c, s, v = (theta[self._per * k + i] for i in range(3))
+            w = ops.column(qd, j)
+            friction = (c + (s - c) * ops.exp(-((w / v) ** 2))) * ops.tanh(w / self.eps)
+            if self.viscous:
+                friction = friction + theta[self._per * k + 3] * w
+            columns[j] = friction
+        return ops.hcat(columns)
+
+    def initial_guess(  # noqa: D102
+        self, signals: Signals, residual: FloatArray | None = None
+    ) -> FloatArray:
+        # For a fixed Stribeck velocity the term is linear in (c, s, b): scan v on a log grid,
+        # solve least squares for the rest, start from the best (the fit is multimodal in v).
+        lower, _ = self.bounds()
+        guess: list[float] = []
+        for j in self.channels:
+            w = signals.qd[:, j]
+            sign = np.tanh(w / self.eps)
+            v_low, v_high = float(lower[2]), self.max_stribeck_velocity
+            best = (np.inf, [0.0, 0.0, float(np.sqrt(v_low * v_high))] + [0.0] * self.viscous)
+            if residual is not None:
+                for v in np.geomspace(v_low, v_high, 40):
+                    bump = np.exp(-((w / v) ** 2)) * sign
+                    columns = [sign - bump, bump] + ([w] if self.viscous else [])
+                    A = np.stack(columns, axis=1)
+                    x, *_ = np.linalg.lstsq(A, residual[:, j], rcond=None)
+                    cost = float(np.sum((A @ x - residual[:, j]) ** 2))
+                    if cost < best[0]:
+                        best = (cost, [x[0], x[1], v] + ([x[2]] if self.viscous else []))
+            guess += best[1]
+        return np.asarray(guess, dtype=float)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        lower = [0.0, 0.0, 1e-3 * self.max_stribeck_velocity]
+        upper = [np.inf, np.inf, self.max_stribeck_velocity]
+        if self.viscous:
+            lower.append(-np.inf)
+            upper.append(np.inf)
+        k = len(self.channels)
+        return np.tile(lower, k), np.tile(upper, k)
+
+
+# --------------------------------------------------------------------------- cable friction
+@register
+class CableCapstanFriction(CandidateEffect):
+    """Sheath (capstan) friction of the cables, load-dependent, with posture-dependent wrap.
+
+    The tension reaching a cable's insertion is ``F exp(-mu Theta(q) s)``, ``s =
+    tanh(-ldot / eps)`` (``s > 0`` while the motor pulls the cable in: less tension arrives;
+    ``s < 0`` while the cable is paid out: more arrives). The residual is then
+
+    ``r = -J_c^T F + J_c^T F exp(-mu Theta s) = J_c^T (F (exp(-mu Theta s) - 1))``
+
+    (the brief's ``-J_c^T (F (exp(-mu Theta s) - 1))`` is the change of the *delivered* torque,
+    ``-r``). Parameter: one friction coefficient ``mu`` [-] shared by all cables, or one per cable
+    (``per_cable``). With ``linearised`` the term is its first order in ``mu``,
+    ``r = mu * J_c^T (-F Theta s)``, and is fitted by least squares.
+    """
+
+    name = "capstan"
+    description = (
+        "r = J_c^T (F (exp(-mu Theta s) - 1)), s = tanh(-ldot/eps): sheath friction with "
+        "wrap angle Theta(q) reduces the tension of a cable pulled in (mu shared or per cable)"
+    )
+    linear = False
+
+    def __init__(
+        self,
+        n_cables: int = 9,
+        n_joints: int = 4,
+        eps: float = 1e-3,
+        per_cable: bool = False,
+        linearised: bool = False,
+        max_mu: float = 2.0,
+    ) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+            n_joints: Number of joints ``n``.
+            eps: Cable-velocity scale of the smoothed sign [m/s].
+            per_cable: One ``mu`` per cable instead of one shared.
+            linearised: Use the first-order (linear) term.
+            max_mu: Upper bound of ``mu`` in the nonlinear fit.
+        """
+        self.n_cables, self.n_joints = int(n_cables), int(n_joints)
+        self.channels = tuple(range(self.n_joints))
+        self.eps = _positive("eps", eps)
+        self.per_cable = bool(per_cable)
+        self.max_mu = _positive("max_mu", max_mu)
+        self.parameter_names = (
+            tuple(f"mu[{c}]" for c in range(self.n_cables)) if per_cable else ("mu",)
+        )
+        # Instance attribute shadows the class default: the linearised term is linear.
+        self.linear = bool(linearised)  # type: ignore[misc]
+
+    def _direction(self, signals: Signals) -> FloatArray:
+        return np.tanh(-signals.cable_velocity / self.eps)
+
+    def check(self, signals: Signals) -> None:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        self._check_cables(signals, self.n_cables)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        if not self.linear:
+            return super().design(signals)
+        self.check(signals)
+        g = -signals.tension * signals.wrap * self._direction(signals)  # (T, m)
+        per_cable = signals.jacobian * g[:, :, None]  # J_c[c, :] g_c, (T, m, n)
+        if self.per_cable:
+            return np.transpose(per_cable, (0, 2, 1))
+        return per_cable.sum(axis=1)[:, :, None]
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
+        if self.linear:
+            return super().torque(signals, theta, ops)
+        self.check(signals)
+        if isinstance(ops, NumpyOps):
+            theta = self._check_theta(theta)
+        T, m = signals.n_samples, signals.n_cables
+        mu = ops.row(theta, 0, m, T) if self.per_cable else theta[0]
+        exponent = ops.const(-signals.wrap * self._direction(signals))
+        g = ops.const(signals.tension) * (ops.exp(mu * exponent) - 1.0)
+        return ops.cable_to_joint(signals.jacobian, g)
+
+    def initial_guess(  # noqa: D102
+        self, signals: Signals, residual: FloatArray | None = None
+    ) -> FloatArray:
+        return np.full(self.n_parameters, 0.05)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        return np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_mu)
+
+
+# --------------------------------------------------------------------------- motor cogging
+@register
+class MotorCogging(CandidateEffect):
+    """Motor cogging: a torque periodic in the motor angle, seen by the cable through the drum.
+
+    The motor of cable ``c`` has a cogging torque ``A_c sin(N theta_c + phi_c)`` [N m]; the
+    cable's tension differs from the logged one by ``dF_c = A_c sin(N theta_c + phi_c) / rho``
+    (``rho`` the drum radius [m]), so ``r = -J_c^T dF``. Linear in ``a_c = A_c cos(phi_c)`` and
+    ``b_c = A_c sin(phi_c)`` [N m] (``dF_c = (a_c sin(N theta_c) + b_c cos(N theta_c)) / rho``)
+    for a known number ``N`` of cogging periods per motor revolution. One pair per cable, or
+    one pair shared by all motors (``shared``: identical motors mounted in phase).
+    """
+
+    name = "cogging"
+    description = (
+        "r = -J_c^T dF, dF_c = A_c sin(N theta_c + phi_c) / rho: motor cogging torque "
+        "periodic in the motor angle theta_c, through the drum radius rho"
+    )
+    linear = True
+
+    def __init__(
+        self,
+        n_periods: int,
+        drum_radius: float | Sequence[float],
+        n_cables: int = 9,
+        n_joints: int = 4,
+        shared: bool = False,
+    ) -> None:
+        """Build the term.
+
+        Args:
+            n_periods: Cogging periods per motor revolution ``N``.
+            drum_radius: Drum radius ``rho`` [m], one or per cable ``(m,)``.
+            n_cables: Number of cables ``m``.
+            n_joints: Number of joints ``n``.
+            shared: One amplitude-phase pair for all motors instead of one per motor.
+        """
+        if int(n_periods) < 1:
+            raise InputError(f"n_periods: expected an integer >= 1, got {n_periods}")
+        self.n_periods = int(n_periods)
+        self.n_cables, self.n_joints = int(n_cables), int(n_joints)
+        radius = np.broadcast_to(np.asarray(drum_radius, dtype=float), (self.n_cables,))
+        if not np.all(np.isfinite(radius)) or np.any(radius <= 0):
+            raise InputError(f"drum_radius: expected values > 0 m, got {drum_radius}")
+        self.drum_radius = radius.copy()
+        self.shared = bool(shared)
+        self.channels = tuple(range(self.n_joints))
+        cables = ("all",) if shared else tuple(str(c) for c in range(self.n_cables))
+        self.parameter_names = tuple(f"cogging_{p}[{c}]" for c in cables for p in ("a", "b"))
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        self._check_cables(signals, self.n_cables)
+        angle = self.n_periods * signals.motor_angle
+        T, m, n = signals.jacobian.shape
+        out = np.empty((T, n, 2 * m))
+        for k, basis in enumerate((np.sin(angle), np.cos(angle))):
+            dF = basis / self.drum_radius  # (T, m) per unit parameter
+            out[:, :, k::2] = -np.transpose(signals.jacobian * dF[:, :, None], (0, 2, 1))
+        if self.shared:
+            return out.reshape(T, n, m, 2).sum(axis=2)
+        return out
+
+
+# --------------------------------------------------------------------------- sensors
+@register
+class SensorBiasScale(CandidateEffect):
+    """Load-cell bias and scale error.
+
+    A load cell reads ``F = F_true + b + (k - 1) F`` (bias ``b`` [N], scale ``k`` [-], to first
+    order in ``k - 1``), so the delivered tension is ``F - b - (k - 1) F`` and
+
+    ``r = -J_c^T (b + (k - 1) F)``.
+
+    Linear in ``b`` and ``g = k - 1``, per cable (``2 m`` parameters, default) or shared by all
+    cables (``shared``: 2 parameters). ``bias`` / ``scale`` switch either part off.
+    """
+
+    name = "sensor"
+    description = (
+        "r = -J_c^T (b + (k - 1) F): load-cell bias b [N] and scale k, per cable or shared"
+    )
+    linear = True
+
+    def __init__(
+        self,
+        n_cables: int = 9,
+        n_joints: int = 4,
+        shared: bool = False,
+        bias: bool = True,
+        scale: bool = True,
+    ) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+            n_joints: Number of joints ``n``.
+            shared: One bias and one scale for all cables.
+            bias: Fit the bias.
+            scale: Fit the scale.
+        """
+        if not (bias or scale):
+            raise InputError("SensorBiasScale: at least one of bias and scale must be fitted")
+        self.n_cables, self.n_joints = int(n_cables), int(n_joints)
+        self.shared, self.bias, self.scale = bool(shared), bool(bias), bool(scale)
+        self.channels = tuple(range(self.n_joints))
+        cables = ("all",) if shared else tuple(str(c) for c in range(self.n_cables))
+        kinds = (("bias",) if bias else ()) + (("scale_minus_1",) if scale else ())
+        self.parameter_names = tuple(f"{k}[{c}]" for k in kinds for c in cables)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        self._check_cables(signals, self.n_cables)
+        JT = -np.transpose(signals.jacobian, (0, 2, 1))  # (T, n, m)
+        blocks = []
+        if self.bias:
+            blocks.append(JT)
+        if self.scale:
+            blocks.append(JT * signals.tension[:, None, :])
+        if self.shared:
+            blocks = [b.sum(axis=2, keepdims=True) for b in blocks]
+        return np.concatenate(blocks, axis=2)
+
+
+@register
+class TensionDelay(CandidateEffect):
+    """A time offset of the logged tensions, to first order.
+
+    The load cells are logged ``d`` [s] late: the tension delivered at ``t`` is ``F(t + d)``,
+    so ``r = -J_c^T (F(t) - F(t + d)) ~= d J_c^T dF/dt`` (``dF/dt`` by central differences within
+    each run). Linear in ``d``; valid while ``d`` is small against the tensions' time scale
+    (a negative ``d``: the tensions lead).
+    """
+
+    name = "delay"
+    description = "r = d * J_c^T dF/dt: logged tensions late by d [s] (first order in d)"
+    linear = True
+
+    def __init__(self, n_cables: int = 9, n_joints: int = 4) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+            n_joints: Number of joints ``n``.
+        """
+        self.n_cables, self.n_joints = int(n_cables), int(n_joints)
+        self.channels = tuple(range(self.n_joints))
+        self.parameter_names = ("delay",)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        self._check_cables(signals, self.n_cables)
+        rate = signals.tension_rate()
+        return np.einsum("tmn,tm->tn", signals.jacobian, rate)[:, :, None]
+
+
+# --------------------------------------------------------------------------- inertia
+_INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
+
+
+@register
+class InertiaError(CandidateEffect):
+    """Mass and inertia error of the links, through Pinocchio's joint-torque regressor.
+
+    The true dynamics have inertial parameters ``pi + dpi``; inverse dynamics is linear in
+    them, so ``r = Y(q, qd, qdd) dpi`` with ``Y`` = ``pinocchio.computeJointTorqueRegressor``
+    (``n x 10 nbodies``; per body ``m`` [kg], ``m c`` [kg m], ``I`` [kg m^2] about the joint
+    frame, Pinocchio's order ``m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz``).
+
+    Parameter set: ``subset="mass"`` keeps each body's mass and first moments (4 per body);
+    ``subset="all"`` all 10. Either way, the kept columns are reduced to an identifiable set
+    (a *base* set): the regressor is evaluated on random states inside the joint limits (seeded)
+    and a rank-revealing QR with column pivoting keeps independent columns only (e.g. the mass of
+    the first body of a fixed-base arm has no effect and is dropped). A kept parameter's
+    estimate then also carries the dropped columns that depend on it.
+    """
+
+    name = "inertia"
+    description = (
+        "r = Y(q, qd, qdd) dpi: inertial parameter error dpi of the links through the "
+        "joint-torque regressor (base set of masses and first moments, or of all parameters)"
+    )
+    linear = True
+
+    def __init__(self, robot: Any, subset: str = "mass", n_probe: int = 200, seed: int = 0) -> None:
+        """Build the term.
+
+        Args:
+            robot: A :class:`msarm.model.RobotModel` (``pin_model``, ``pin_q_index``,
+                ``joint_lower``, ``joint_upper``).
+            subset: ``"mass"`` (mass and first moments) or ``"all"``.
+            n_probe: Random states used to find the identifiable columns.
+            seed: Seed of the random states.
+        """
+        if subset not in ("mass", "all"):
+            raise InputError(f"subset: expected 'mass' or 'all', got {subset!r}")
+        self.pin_model = robot.pin_model
+        self.pin_data = self.pin_model.createData()
+        self.index = np.asarray(robot.pin_q_index, dtype=np.intp)
+        self.inverse = np.argsort(self.index)
+        self.n_joints = len(self.index)
+        if self.pin_model.nq != self.n_joints or self.pin_model.nv != self.n_joints:
+            raise InputError(
+                f"robot: InertiaError needs nq == nv == {self.n_joints} joints, got "
+                f"nq={self.pin_model.nq}, nv={self.pin_model.nv}"
+            )
+        self.channels = tuple(range(self.n_joints))
+        bodies = [self.pin_model.names[i] for i in range(1, self.pin_model.njoints)]
+        per = 4 if subset == "mass" else 10
+        candidates = [10 * b + k for b in range(len(bodies)) for k in range(per)]
+        rng = np.random.default_rng(seed)
+        lower = np.where(np.isfinite(robot.joint_lower), robot.joint_lower, -np.pi)
+        upper = np.where(np.isfinite(robot.joint_upper), robot.joint_upper, np.pi)
+        rows = []
+        for _ in range(int(n_probe)):
+            q = rng.uniform(lower, upper)
+            qd, qdd = rng.normal(size=self.n_joints), rng.normal(size=self.n_joints)
+            rows.append(self._regressor(q, qd, qdd)[:, candidates])
+        stacked = np.vstack(rows)
+        stacked = stacked / np.maximum(np.linalg.norm(stacked, axis=0), 1e-300)
+        from scipy.linalg import qr
+
+        _, r_factor, pivot = qr(stacked, mode="economic", pivoting=True)
+        diagonal = np.abs(np.diag(r_factor))
+        rank = int(np.sum(diagonal > 1e-8 * diagonal[0])) if diagonal.size else 0
+        self.columns = np.sort(np.asarray(candidates)[pivot[:rank]])
+        self.parameter_names = tuple(
+            f"{bodies[c // 10]}.{_INERTIAL_NAMES[c % 10]}" for c in self.columns
+        )
+
+    def _regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        """Joint-torque regressor in msarm joint order, shape ``(n, 10 nbodies)``."""
+        Y = pinocchio.computeJointTorqueRegressor(
+            self.pin_model, self.pin_data, q[self.index], qd[self.index], qdd[self.index]
+        )
+        return np.asarray(Y)[self.inverse]
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        out = np.empty((signals.n_samples, self.n_joints, len(self.columns)))
+        for k in range(signals.n_samples):
+            out[k] = self._regressor(signals.q[k], signals.qd[k], signals.qdd[k])[:, self.columns]
+        return out
+
+
+#: Effects listed in the brief that are not implemented yet.
+NOT_IMPLEMENTED: tuple[str, ...] = (
+    "exact (nonlinear) tension delay",
+    "cable elasticity / slack dead zone",
+    "backlash",
+    "Dahl hysteresis",
+)

@@ -1,0 +1,380 @@
+"""Per-sample residuals of a log against the nominal model (issue 7, the "where" step's input).
+
+Three residuals say, sample by sample, how far the logged robot is from the nominal model:
+
+- ``joint_torque`` [N m], shape ``(T, n)``: ``T_f = -J_c^T F - ID(q, qd, qdd)``
+  (:func:`msarm.compensation.target.torque_error`): the torque the motor-side load cells
+  would deliver through ideal cables minus what the nominal inverse dynamics needs for the
+  logged motion (Savitzky-Golay derivatives of the joint encoders).
+- ``cable_length`` [m], shape ``(T, m)``: ``l_hat - l(q)``, the cable length the motor
+  encoders say (``l_hat = l(q_0) - r (theta - theta_0)``, drum radius ``r``, from the first
+  sample of each contiguous segment) minus the path length of the logged posture. Zero for
+  rigid cables; stretch, slack and drum slip make it differ.
+- ``replay`` [rad], shape ``(T, n)`` (optional): the nominal dynamics (Pinocchio ``aba``)
+  driven by the logged load-cell tensions through ideal cables (``tau = -J_c(q)^T F``, tension
+  held between samples), integrated (semi-implicit Euler) over short windows that restart from
+  the logged (filtered) state, minus the logged ``q``. It shows the gap as motion, the way a
+  simulator would miss it. A replay that drifts beyond pi rad is clipped there and restarted.
+
+Only the log is read -- never its ground-truth sidecar. A log whose ``model_sha256`` is not
+the nominal model's is refused. Time gaps (a step longer than 1.5 sample periods) split the
+log into contiguous segments that are processed separately; segments shorter than the filter
+window are dropped (their samples are marked invalid, with a warning naming the file).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio
+from numpy.typing import NDArray
+from scipy.signal import savgol_filter
+
+from msarm.compensation.target import TargetSpec, torque_error
+from msarm.errors import LogError
+from msarm.io.logs import TIME, RunLog, read_log
+from msarm.model import RobotModel
+from msarm.muscle.geometry import cable_kinematics
+
+__all__ = [
+    "RESIDUAL_UNITS",
+    "DiagnosisWarning",
+    "ResidualSpec",
+    "Residuals",
+    "residuals_from_log",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Unit of each residual kind.
+RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "replay": "rad"}
+
+#: A step of ``t`` longer than this many nominal sample periods is a gap.
+_GAP_FACTOR = 1.5
+#: The median step of ``t`` may differ from the nominal period by this fraction at most.
+_RATE_TOLERANCE = 0.05
+#: A replay error beyond this [rad] counts as diverged: it is clipped and the window restarts.
+_REPLAY_LIMIT = np.pi
+
+
+class DiagnosisWarning(UserWarning):
+    """Something in a log limits the diagnosis (a time gap, a dropped segment)."""
+
+
+@dataclass(frozen=True)
+class ResidualSpec:
+    """How the residuals are computed.
+
+    Attributes:
+        target: Savitzky-Golay filter of the joint encoders (window [samples], order).
+        drum_radius: Winch drum radius ``r`` [m] (motor angle to cable length).
+        replay: Also compute the replay residual.
+        replay_window: Length of one replay window [s]; each restarts from the logged state.
+        replay_substeps: Integration steps per sample period in the replay.
+    """
+
+    target: TargetSpec = TargetSpec()
+    drum_radius: float = 0.003
+    replay: bool = True
+    replay_window: float = 0.2
+    replay_substeps: int = 4
+
+    def __post_init__(self) -> None:
+        if not self.drum_radius > 0:
+            raise ValueError(f"drum_radius must be > 0 [m], got {self.drum_radius}")
+        if not self.replay_window > 0:
+            raise ValueError(f"replay_window must be > 0 [s], got {self.replay_window}")
+        if self.replay_substeps < 1:
+            raise ValueError(f"replay_substeps must be >= 1, got {self.replay_substeps}")
+
+
+@dataclass(frozen=True, eq=False)
+class Residuals:
+    """Residuals of one log against the nominal model, with per-sample context.
+
+    Arrays of invalid samples (in a dropped segment, see ``valid``) hold NaN.
+
+    Attributes:
+        source: Name of the log (its file, usually).
+        joint_names: Joint names, shape ``(n,)``.
+        cable_names: Cable names, shape ``(m,)``.
+        sample_rate_hz: Nominal sample rate [Hz].
+        t: Sample times [s], shape ``(T,)``.
+        valid: Whether each sample has residuals, shape ``(T,)``.
+        joint_torque: Joint-torque residual ``T_f`` [N m], shape ``(T, n)``.
+        cable_length: Cable length error ``l_hat - l`` [m], shape ``(T, m)``; None when the
+            log has no ``motor_angle`` channels.
+        replay: Replay residual ``q_replay - q`` [rad], shape ``(T, n)``; None if not computed.
+        q: Logged joint angles [rad], shape ``(T, n)``.
+        qd: Filtered joint velocities [rad/s], shape ``(T, n)``.
+        qdd: Filtered joint accelerations [rad/s^2], shape ``(T, n)``.
+        cable_velocity: Cable velocities ``J_c(q) qd`` [m/s], shape ``(T, m)``.
+        tension: Motor-side load-cell tensions [N], shape ``(T, m)``.
+    """
+
+    source: str
+    joint_names: tuple[str, ...]
+    cable_names: tuple[str, ...]
+    sample_rate_hz: float
+    t: FloatArray
+    valid: NDArray[np.bool_]
+    joint_torque: FloatArray
+    cable_length: FloatArray | None
+    replay: FloatArray | None
+    q: FloatArray
+    qd: FloatArray
+    qdd: FloatArray
+    cable_velocity: FloatArray
+    tension: FloatArray
+
+    def __len__(self) -> int:
+        """Number of samples ``T``."""
+        return len(self.t)
+
+    def kinds(self) -> list[str]:
+        """The residual kinds present (keys of :data:`RESIDUAL_UNITS`)."""
+        return [k for k in RESIDUAL_UNITS if getattr(self, k) is not None]
+
+    def get(self, kind: str) -> FloatArray:
+        """One residual by kind, shape ``(T, n)`` or ``(T, m)``.
+
+        Args:
+            kind: ``"joint_torque"``, ``"cable_length"`` or ``"replay"``.
+
+        Raises:
+            ValueError: Unknown kind, or a kind this log has none of.
+        """
+        if kind not in RESIDUAL_UNITS:
+            raise ValueError(f"unknown residual kind {kind!r}; kinds: {', '.join(RESIDUAL_UNITS)}")
+        value = getattr(self, kind)
+        if value is None:
+            raise ValueError(
+                f"{self.source}: no {kind} residual (kinds: {', '.join(self.kinds())})"
+            )
+        return value
+
+    def channel_names(self, kind: str) -> tuple[str, ...]:
+        """Channel names of a residual kind: the joints or the cables."""
+        return self.cable_names if kind == "cable_length" else self.joint_names
+
+
+def residuals_from_log(
+    model: RobotModel,
+    log: RunLog | str | Path,
+    source: str | None = None,
+    spec: ResidualSpec | None = None,
+) -> Residuals:
+    """Compute the residuals of one log against the nominal model.
+
+    Args:
+        model: The nominal robot model.
+        log: The log, or its Parquet file (read with :func:`msarm.io.logs.read_log`; the
+            sidecar is never opened).
+        source: Name of the log in messages; default the file name, or ``"log"``.
+        spec: Filter, drum radius and replay settings.
+
+    Returns:
+        The residuals and context of every sample.
+
+    Raises:
+        LogError: The log is of another model (file and both hashes named); a needed channel
+            is missing (file and column named); the sample times disagree with the nominal
+            rate; no segment is long enough for the filter.
+    """
+    spec = spec or ResidualSpec()
+    if not isinstance(log, RunLog):
+        source = source or str(log)
+        log = read_log(log)
+    source = source or "log"
+    if log.metadata.model_sha256 != model.sha256:
+        raise LogError(
+            f"{source}: the log is of another robot model: its model_sha256 is "
+            f"{log.metadata.model_sha256!r} (model {log.metadata.robot_model!r}), the nominal "
+            f"model {model.path} has {model.sha256!r}; diagnose it against the model it was "
+            "recorded with"
+        )
+    joints, cables = list(model.joint_names), list(model.cable_names)
+    for quantity, names in (("q", joints), ("tension_motor", cables)):
+        for name in names:
+            if f"{quantity}.{name}" not in log.columns:
+                raise LogError(
+                    f"{source}: column '{quantity}.{name}' is missing; the diagnosis needs "
+                    f"q.<joint> for every joint and tension_motor.<cable> for every cable"
+                )
+    has_motor = all(f"motor_angle.{c}" in log.columns for c in cables)
+    if not has_motor:
+        missing = next(c for c in cables if f"motor_angle.{c}" not in log.columns)
+        warnings.warn(
+            f"{source}: column 'motor_angle.{missing}' is missing: no cable-length residual; "
+            "the joint-torque and replay residuals are still computed",
+            DiagnosisWarning,
+            stacklevel=2,
+        )
+    segments = _segments(log, source, spec.target.window)
+
+    n_samples, n, m = len(log), len(joints), len(cables)
+    out = {
+        "joint_torque": np.full((n_samples, n), np.nan),
+        "cable_length": np.full((n_samples, m), np.nan) if has_motor else None,
+        "replay": np.full((n_samples, n), np.nan) if spec.replay else None,
+        "qd": np.full((n_samples, n), np.nan),
+        "qdd": np.full((n_samples, n), np.nan),
+        "cable_velocity": np.full((n_samples, m), np.nan),
+    }
+    valid = np.zeros(n_samples, dtype=bool)
+    q_all = log.matrix("q", joints)
+    tension_all = log.matrix("tension_motor", cables)
+    motor_all = log.matrix("motor_angle", cables) if has_motor else None
+    dt = 1.0 / log.metadata.sample_rate_hz
+    work = _Work(model)
+    for start, stop in segments:
+        part = slice(start, stop)
+        sub = RunLog({k: v[part] for k, v in log.columns.items()}, log.metadata)
+        out["joint_torque"][part] = torque_error(model, sub, spec.target, source)
+        q = q_all[part]
+        window, order = spec.target.window, spec.target.polyorder
+        q_f = savgol_filter(q, window, order, axis=0)
+        qd = savgol_filter(q, window, order, deriv=1, delta=dt, axis=0)
+        out["qd"][part] = qd
+        out["qdd"][part] = savgol_filter(q, window, order, deriv=2, delta=dt, axis=0)
+        lengths = np.empty((stop - start, m))
+        for k in range(stop - start):
+            lengths[k] = work.kinematics(q[k])
+            out["cable_velocity"][start + k] = work.jacobian @ qd[k]
+        if motor_all is not None:
+            motor = motor_all[part]
+            estimate = lengths[0] - spec.drum_radius * (motor - motor[0])
+            out["cable_length"][part] = estimate - lengths
+        if spec.replay:
+            out["replay"][part] = _replay(work, q, q_f, qd, tension_all[part], dt, spec)
+        valid[part] = True
+    return Residuals(
+        source=source,
+        joint_names=tuple(joints),
+        cable_names=tuple(cables),
+        sample_rate_hz=log.metadata.sample_rate_hz,
+        t=np.asarray(log.t, dtype=float).copy(),
+        valid=valid,
+        joint_torque=out["joint_torque"],
+        cable_length=out["cable_length"],
+        replay=out["replay"],
+        q=q_all,
+        qd=out["qd"],
+        qdd=out["qdd"],
+        cable_velocity=out["cable_velocity"],
+        tension=tension_all,
+    )
+
+
+def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
+    """Contiguous, uniformly sampled stretches ``[start, stop)`` of a log; warns about gaps.
+
+    Raises:
+        LogError: The median step disagrees with the nominal rate, or no stretch is long
+            enough for the filter.
+    """
+    t = log.t
+    period = 1.0 / log.metadata.sample_rate_hz
+    steps = np.diff(t)
+    if len(steps) and abs(np.median(steps) - period) > _RATE_TOLERANCE * period:
+        raise LogError(
+            f"{source}: column '{TIME}' has a median step of {np.median(steps):.6g} s, but the "
+            f"metadata's sample_rate_hz {log.metadata.sample_rate_hz:g} means {period:.6g} s; "
+            "resample the log or fix its sample rate"
+        )
+    gaps = np.flatnonzero(steps > _GAP_FACTOR * period) + 1
+    bounds = [0, *gaps.tolist(), len(t)]
+    segments = list(zip(bounds[:-1], bounds[1:], strict=True))
+    if len(gaps):
+        row = int(gaps[0])
+        warnings.warn(
+            f"{source}: column '{TIME}' has {len(gaps)} gap(s) longer than {_GAP_FACTOR:g} "
+            f"sample periods, the first at row {row} (t = {t[row - 1]!r} -> {t[row]!r} s); "
+            "the log is diagnosed as separate segments",
+            DiagnosisWarning,
+            stacklevel=3,
+        )
+    kept = [(a, b) for a, b in segments if b - a >= window]
+    dropped = len(segments) - len(kept)
+    if not kept:
+        raise LogError(
+            f"{source}: no contiguous stretch of column '{TIME}' has the filter's {window} "
+            "samples; nothing can be diagnosed (record longer stretches or use a shorter "
+            "filter window, ResidualSpec(target=TargetSpec(window=...)))"
+        )
+    if dropped:
+        warnings.warn(
+            f"{source}: {dropped} segment(s) shorter than the filter's {window} samples are "
+            "left out (marked invalid); the rest is diagnosed",
+            DiagnosisWarning,
+            stacklevel=3,
+        )
+    return kept
+
+
+class _Work:
+    """Work space: MuJoCo data for the cable kinematics, Pinocchio data for ``aba``."""
+
+    def __init__(self, model: RobotModel) -> None:
+        self.model = model
+        self.data = model.create_data()
+        self.jacobian = np.zeros((model.n_cables, model.n_joints))
+        self.index = np.asarray(model.pin_q_index)
+        self.inverse = np.argsort(self.index)
+
+    def kinematics(self, q: FloatArray) -> FloatArray:
+        """Cable lengths at ``q`` [m], shape ``(m,)``; fills :attr:`jacobian`."""
+        return cable_kinematics(self.model.mj_model, self.data.mj, q, self.jacobian)
+
+    def acceleration(self, q: FloatArray, qd: FloatArray, tension: FloatArray) -> FloatArray:
+        """Nominal ``qdd`` [rad/s^2] under ``tau = -J_c(q)^T F`` (ideal cables)."""
+        self.kinematics(q)
+        tau = -self.jacobian.T @ tension
+        i = self.index
+        qdd = pinocchio.aba(self.model.pin_model, self.data.pin, q[i], qd[i], tau[i])
+        return np.asarray(qdd)[self.inverse]
+
+
+def _replay(
+    work: _Work,
+    q_log: FloatArray,
+    q_start: FloatArray,
+    qd_start: FloatArray,
+    tension: FloatArray,
+    dt: float,
+    spec: ResidualSpec,
+) -> FloatArray:
+    """Replay residual of one segment [rad], shape ``(T, n)``.
+
+    Each window starts at the filtered state ``(q_start, qd_start)`` of its first sample and
+    runs the nominal dynamics under the logged tensions (held over each sample period). An
+    error beyond pi rad (a diverging replay) is clipped to +-pi and the window restarts.
+    """
+    n_samples = len(q_log)
+    per_window = max(1, round(spec.replay_window / dt))
+    h = dt / spec.replay_substeps
+    out = np.empty_like(q_log)
+    first = 0
+    q = v = q_start[0]
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k in range(n_samples):
+            if k == first:
+                q = q_start[k].copy()
+                v = qd_start[k].copy()
+            error = q - q_log[k]
+            if not np.all(np.abs(error) < _REPLAY_LIMIT):  # diverged (or NaN): clip, restart
+                error = np.clip(
+                    np.nan_to_num(error, nan=_REPLAY_LIMIT), -_REPLAY_LIMIT, _REPLAY_LIMIT
+                )
+                first = k + 1
+            elif k + 1 - first >= per_window:
+                first = k + 1
+            out[k] = error
+            if first != k + 1:
+                for _ in range(spec.replay_substeps):
+                    v = v + h * work.acceleration(q, v, tension[k])
+                    q = q + h * v
+    return out

@@ -1,0 +1,165 @@
+"""Per-sample signals a candidate effect may use to explain a joint-torque residual.
+
+A :class:`Signals` holds, for ``T`` samples of ``n`` joints and ``m`` cables, the measured
+motion, the motor-side cable tensions and the cable geometry at the measured posture. Sign
+conventions (as everywhere in msarm): ``J_c = dl/dq`` (``m x n``), the joint torque the cable
+tensions ``f`` deliver is ``tau = -J_c^T f``, the cable velocity is ``ldot = J_c qd`` (negative
+while the motor pulls the cable in).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.errors import InputError
+
+__all__ = ["Signals"]
+
+FloatArray = NDArray[np.float64]
+
+# field name -> shape pattern; "T", "n", "m" are the sizes every field must agree on.
+_SHAPES: dict[str, tuple[str, ...]] = {
+    "t": ("T",),
+    "q": ("T", "n"),
+    "qd": ("T", "n"),
+    "qdd": ("T", "n"),
+    "tension": ("T", "m"),
+    "lengths": ("T", "m"),
+    "cable_velocity": ("T", "m"),
+    "jacobian": ("T", "m", "n"),
+    "wrap": ("T", "m"),
+    "motor_angle": ("T", "m"),
+}
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Per-sample signals of one or several runs (immutable; arrays are copied read-only).
+
+    Attributes:
+        t: Sample times [s], shape ``(T,)``.
+        q: Joint positions [rad], shape ``(T, n)``.
+        qd: Joint velocities [rad/s], shape ``(T, n)``.
+        qdd: Joint accelerations [rad/s^2], shape ``(T, n)``.
+        tension: Motor-side cable tensions (load cells) [N], shape ``(T, m)``.
+        lengths: Cable path lengths ``l(q)`` [m], shape ``(T, m)``.
+        cable_velocity: ``ldot = J_c(q) qd`` [m/s], shape ``(T, m)``.
+        jacobian: Cable Jacobians ``J_c(q) = dl/dq`` [m/rad], shape ``(T, m, n)``.
+        wrap: Wrap angles ``Theta(q)`` of the cables' sheaths [rad], shape ``(T, m)``.
+        motor_angle: Motor (drum) angles [rad], shape ``(T, m)``.
+        dt: Sample period [s], > 0.
+        run: Integer label of the run each sample comes from, shape ``(T,)``; all zero when
+            omitted. Samples of one run are contiguous in time.
+
+    Raises:
+        InputError: A field has the wrong shape or type, a non-finite value, or ``dt <= 0``;
+            the message names the field and the expected shape.
+    """
+
+    t: FloatArray
+    q: FloatArray
+    qd: FloatArray
+    qdd: FloatArray
+    tension: FloatArray
+    lengths: FloatArray
+    cable_velocity: FloatArray
+    jacobian: FloatArray
+    wrap: FloatArray
+    motor_angle: FloatArray
+    dt: float
+    run: NDArray[np.int64] | None = None
+
+    def __post_init__(self) -> None:
+        sizes: dict[str, int] = {}
+        source: dict[str, str] = {}
+        for name, pattern in _SHAPES.items():
+            try:
+                value = np.array(getattr(self, name), dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"Signals.{name}: not a numeric array ({exc})") from exc
+            if value.ndim != len(pattern):
+                raise InputError(
+                    f"Signals.{name}: expected shape ({', '.join(pattern)}), "
+                    f"got {value.shape} ({value.ndim} dimensions)"
+                )
+            for axis, symbol in enumerate(pattern):
+                size = value.shape[axis]
+                if symbol not in sizes:
+                    sizes[symbol], source[symbol] = size, name
+                elif sizes[symbol] != size:
+                    raise InputError(
+                        f"Signals.{name}: expected shape ({', '.join(pattern)}) with "
+                        f"{symbol}={sizes[symbol]} (as in Signals.{source[symbol]}), "
+                        f"got {value.shape}"
+                    )
+            if not np.all(np.isfinite(value)):
+                bad = np.argwhere(~np.isfinite(value))[0]
+                raise InputError(
+                    f"Signals.{name}: non-finite value (NaN or inf) at index {tuple(bad)}"
+                )
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        if sizes["T"] == 0:
+            raise InputError("Signals.t: no samples")
+        dt = float(self.dt)
+        if not np.isfinite(dt) or dt <= 0.0:
+            raise InputError(f"Signals.dt: expected a finite sample period > 0 s, got {self.dt}")
+        object.__setattr__(self, "dt", dt)
+        run = np.zeros(sizes["T"], dtype=np.int64) if self.run is None else self.run
+        run_array = np.asarray(run)
+        if run_array.shape != (sizes["T"],):
+            raise InputError(
+                f"Signals.run: expected shape (T,) with T={sizes['T']}, got {run_array.shape}"
+            )
+        if run_array.dtype.kind not in "iu":
+            if run_array.dtype.kind == "f" and np.all(np.isfinite(run_array)):
+                if not np.all(run_array == np.round(run_array)):
+                    raise InputError("Signals.run: expected integer run labels")
+            else:
+                raise InputError(f"Signals.run: expected integer run labels, got {run_array.dtype}")
+        run_array = run_array.astype(np.int64)
+        run_array.setflags(write=False)
+        object.__setattr__(self, "run", run_array)
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples ``T``."""
+        return int(self.t.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        """Number of joints ``n``."""
+        return int(self.q.shape[1])
+
+    @property
+    def n_cables(self) -> int:
+        """Number of cables ``m``."""
+        return int(self.tension.shape[1])
+
+    def take(self, index: NDArray[np.bool_] | NDArray[np.intp]) -> Signals:
+        """The signals of some samples (a boolean mask of shape ``(T,)`` or an index array).
+
+        Raises:
+            InputError: A mask of the wrong length.
+        """
+        index = np.asarray(index)
+        if index.dtype == bool and index.shape != (self.n_samples,):
+            raise InputError(f"mask: expected shape ({self.n_samples},), got {index.shape}")
+        changes = {f.name: getattr(self, f.name)[index] for f in fields(self) if f.name != "dt"}
+        return replace(self, **changes)
+
+    def tension_rate(self) -> FloatArray:
+        """Time derivative of the tensions [N/s], shape ``(T, m)``.
+
+        Central differences within each run (one-sided at a run's ends; zero for a run of one
+        sample).
+        """
+        out = np.zeros_like(self.tension)
+        for label in np.unique(self.run):
+            index = np.flatnonzero(self.run == label)
+            if index.size >= 2:
+                out[index] = np.gradient(self.tension[index], self.t[index], axis=0)
+        return out

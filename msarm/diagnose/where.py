@@ -1,0 +1,520 @@
+"""Where the sim-to-real gap lies: the residual energy broken down by channel, phase, posture.
+
+The residual energy of a set of samples is the sum of squares of one residual kind
+(:mod:`msarm.diagnose.residuals`: ``joint_torque`` [N m], ``cable_length`` [m] or ``replay``
+[rad]) over those samples and the kind's channels. Several logs combine by summing over all
+their valid samples. The breakdown has four groups of rows; each group partitions the energy,
+so that its shares sum to 100 %:
+
+``channel``
+    Each joint (or each cable, for ``cable_length``): the channel's own sum of squares. Its
+    "time share" is an even split between the channels (100 % / number of channels).
+``motion``
+    Each sample is counted in exactly one motion phase, the first that matches in this
+    priority order (thresholds in :class:`PhaseSettings`; ``qd``, ``qdd`` are the filtered
+    joint velocities and accelerations):
+
+    1. ``reversal``: some joint's ``qd`` is above ``+reversal_speed`` and below
+       ``-reversal_speed`` within ``+-reversal_window`` of the sample (a velocity reversal);
+    2. ``acceleration``: some joint has ``|qdd| >= acceleration``;
+    3. ``hold``: every joint has ``|qd| < hold_speed``;
+    4. ``constant_velocity``: the rest (some ``|qd| >= hold_speed``, every
+       ``|qdd| < acceleration``).
+``load``
+    Likewise one load phase per sample, first match of:
+
+    1. ``low_tension``: some load cell reads below ``low_tension`` (slack or nearly);
+    2. ``high_load``: the largest tension of the sample is above the
+       ``high_load_percentile``-th percentile of that largest tension over all samples;
+    3. ``normal_load``: the rest.
+``posture``
+    The cells of a grid over two joints (default: the two that move most, i.e. with the
+    largest standard deviation of ``q``), ``bins`` equal bins over each joint's range in the
+    model (postures outside the range go into the edge bins). Only cells with samples are
+    rows.
+
+Each row has the share of the energy [%], the share of time (samples) [%] and the energy
+density: share of energy / share of time. A density above 1 means the gap concentrates there
+(for channels: above an even split between channels).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import maximum_filter1d
+
+from msarm.diagnose.residuals import RESIDUAL_UNITS, Residuals, ResidualSpec, residuals_from_log
+from msarm.model import RobotModel
+
+__all__ = [
+    "GROUPS",
+    "LOAD_PHASES",
+    "MOTION_PHASES",
+    "BreakdownRow",
+    "GapBreakdown",
+    "PhaseSettings",
+    "break_down",
+    "diagnose_where",
+    "load_phases",
+    "motion_phases",
+    "plot_heatmap",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Motion phases, in priority order (a sample is counted in the first that matches).
+MOTION_PHASES = ("reversal", "acceleration", "hold", "constant_velocity")
+#: Load phases, in priority order.
+LOAD_PHASES = ("low_tension", "high_load", "normal_load")
+#: Groups of rows of a breakdown, in display order.
+GROUPS = ("channel", "motion", "load", "posture")
+
+
+@dataclass(frozen=True)
+class PhaseSettings:
+    """Thresholds of the phases of motion and load.
+
+    Attributes:
+        hold_speed: Below this joint speed (every joint) the arm holds [rad/s].
+        reversal_speed: A joint reverses when its velocity passes from above this to below
+            its negative (or back) [rad/s].
+        reversal_window: Half width of the window around a sample in which a reversal counts
+            [s].
+        acceleration: Joint acceleration from which a sample is in the acceleration phase
+            [rad/s^2].
+        low_tension: Load-cell tension below which a cable is slack or nearly [N].
+        high_load_percentile: Percentile of the per-sample largest tension above which a
+            sample is under high load [%].
+    """
+
+    hold_speed: float = 0.05
+    reversal_speed: float = 0.05
+    reversal_window: float = 0.05
+    acceleration: float = 0.5
+    low_tension: float = 2.0
+    high_load_percentile: float = 90.0
+
+    def __post_init__(self) -> None:
+        for name in ("hold_speed", "reversal_speed", "reversal_window", "acceleration"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not 0 < self.high_load_percentile < 100:
+            raise ValueError(
+                f"high_load_percentile must be in (0, 100), got {self.high_load_percentile}"
+            )
+
+
+@dataclass(frozen=True)
+class BreakdownRow:
+    """One row of a breakdown.
+
+    Attributes:
+        group: ``"channel"``, ``"motion"``, ``"load"`` or ``"posture"``.
+        where: The channel, phase or posture cell.
+        energy: Residual energy (sum of squares) [unit^2].
+        share: Share of the total residual energy [%].
+        time_share: Share of the samples [%] (channels: an even split).
+        density: ``share / time_share`` (1: as much as the average).
+        samples: Number of samples (channels: all of them).
+    """
+
+    group: str
+    where: str
+    energy: float
+    share: float
+    time_share: float
+    density: float
+    samples: int
+
+
+@dataclass(frozen=True, eq=False)
+class GapBreakdown:
+    """Where the residual energy of one residual kind lies, over one or more logs.
+
+    Attributes:
+        kind: The residual kind (``joint_torque``, ``cable_length``, ``replay``).
+        unit: Its unit.
+        sources: The logs.
+        samples: Number of valid samples, all logs together.
+        total_energy: Sum of squares over all samples and channels [unit^2].
+        rms: Root mean square over samples and channels [unit].
+        rows: The rows, group by group (:data:`GROUPS` order), each group by share, largest
+            first.
+        posture_joints: The two joints of the posture grid.
+        posture_edges: Bin edges of the grid over each of the two joints [rad].
+        posture_rms: Residual RMS of each grid cell [unit], shape ``(bins, bins)``; NaN
+            where the cell has no samples. Axis 0 is the first joint.
+        posture_samples: Samples in each grid cell, shape ``(bins, bins)``.
+        settings: The phase thresholds used.
+    """
+
+    kind: str
+    unit: str
+    sources: tuple[str, ...]
+    samples: int
+    total_energy: float
+    rms: float
+    rows: tuple[BreakdownRow, ...]
+    posture_joints: tuple[str, str]
+    posture_edges: tuple[FloatArray, FloatArray]
+    posture_rms: FloatArray
+    posture_samples: NDArray[np.int64]
+    settings: PhaseSettings = field(default_factory=PhaseSettings)
+
+    def group(self, name: str) -> list[BreakdownRow]:
+        """The rows of one group, largest share first.
+
+        Args:
+            name: One of :data:`GROUPS`.
+        """
+        if name not in GROUPS:
+            raise ValueError(f"unknown group {name!r}; groups: {', '.join(GROUPS)}")
+        return [row for row in self.rows if row.group == name]
+
+    def share(self, group: str, where: str) -> float:
+        """Share of the energy [%] of one row (0 when the row does not exist)."""
+        return next((r.share for r in self.group(group) if r.where == where), 0.0)
+
+    def density(self, group: str, where: str) -> float:
+        """Energy density of one row (NaN when the row does not exist)."""
+        return next((r.density for r in self.group(group) if r.where == where), float("nan"))
+
+    def hot_spots(self, count: int = 5, min_time_share: float = 5.0) -> list[BreakdownRow]:
+        """Phases and posture cells where the gap concentrates most, densest first.
+
+        Args:
+            count: Number of rows at most.
+            min_time_share: Rows with less time share [%] are left out (too few samples).
+
+        Returns:
+            Rows of the ``motion``, ``load`` and ``posture`` groups with density > 1.
+        """
+        rows = [
+            r
+            for r in self.rows
+            if r.group != "channel" and r.time_share >= min_time_share and r.density > 1
+        ]
+        return sorted(rows, key=lambda r: r.density, reverse=True)[:count]
+
+    def to_markdown(self) -> str:
+        """The breakdown as Markdown: a summary, the hot spots, one table per group."""
+        s = self.settings
+        lines = [
+            f"## Where the gap lies: {self.kind} residual [{self.unit}]",
+            "",
+            f"{len(self.sources)} log(s), {self.samples} samples; residual RMS "
+            f"{self.rms:.4g} {self.unit}, energy {self.total_energy:.4g} {self.unit}^2.",
+            "",
+            "Density = share of energy / share of time (> 1: the gap concentrates there). "
+            "Each sample is counted in one motion phase and one load phase (first match of "
+            "reversal, acceleration, hold, constant velocity; low tension, high load, normal). "
+            f"Thresholds: hold |qd| < {s.hold_speed:g} rad/s, reversal |qd| > "
+            f"{s.reversal_speed:g} rad/s both ways within +-{s.reversal_window:g} s, "
+            f"acceleration |qdd| >= {s.acceleration:g} rad/s^2, low tension < "
+            f"{s.low_tension:g} N, high load > p{s.high_load_percentile:g} of the largest "
+            "tension.",
+            "",
+        ]
+        hot = self.hot_spots()
+        if hot:
+            lines.append(
+                "Hot spots: "
+                + "; ".join(
+                    f"{r.group} {r.where} (x{r.density:.2f}, {r.share:.1f} % of the energy)"
+                    for r in hot
+                )
+                + "."
+            )
+            lines.append("")
+        for name in GROUPS:
+            lines += [
+                f"### By {name}",
+                "",
+                "| where | energy share [%] | time share [%] | density | samples |",
+                "|---|---:|---:|---:|---:|",
+            ]
+            lines += [
+                f"| {r.where} | {r.share:.1f} | {r.time_share:.1f} | {r.density:.2f} | "
+                f"{r.samples} |"
+                for r in self.group(name)
+            ]
+            lines.append("")
+        return "\n".join(lines)
+
+
+def motion_phases(residuals: Residuals, settings: PhaseSettings | None = None) -> NDArray:
+    """The motion phase of every sample of one log (index into :data:`MOTION_PHASES`).
+
+    Args:
+        residuals: One log's residuals (its filtered ``qd`` and ``qdd``).
+        settings: Thresholds.
+
+    Returns:
+        Phase index of each sample, shape ``(T,)`` (invalid samples: ``hold``).
+    """
+    s = settings or PhaseSettings()
+    qd = np.nan_to_num(residuals.qd)
+    qdd = np.nan_to_num(residuals.qdd)
+    half = max(1, round(s.reversal_window * residuals.sample_rate_hz))
+    size = 2 * half + 1
+    positive = maximum_filter1d((qd > s.reversal_speed).astype(np.int8), size, axis=0)
+    negative = maximum_filter1d((qd < -s.reversal_speed).astype(np.int8), size, axis=0)
+    reversal = (positive & negative).astype(bool).any(axis=1)
+    accelerating = (np.abs(qdd) >= s.acceleration).any(axis=1)
+    holding = (np.abs(qd) < s.hold_speed).all(axis=1)
+    return np.select(
+        [reversal, accelerating, holding],
+        [0, 1, 2],
+        default=3,
+    )
+
+
+def load_phases(tension: FloatArray, settings: PhaseSettings | None = None) -> NDArray:
+    """The load phase of every sample (index into :data:`LOAD_PHASES`).
+
+    Args:
+        tension: Load-cell tensions [N], shape ``(T, m)`` (all logs together: the high-load
+            percentile is over these samples).
+        settings: Thresholds.
+
+    Returns:
+        Phase index of each sample, shape ``(T,)``.
+    """
+    s = settings or PhaseSettings()
+    largest = tension.max(axis=1)
+    high = np.percentile(largest, s.high_load_percentile)
+    low = (tension < s.low_tension).any(axis=1)
+    return np.select([low, largest > high], [0, 1], default=2)
+
+
+def break_down(
+    residuals: Residuals | Sequence[Residuals],
+    kind: str = "joint_torque",
+    settings: PhaseSettings | None = None,
+    posture_joints: tuple[str, str] | None = None,
+    bins: int = 5,
+    model: RobotModel | None = None,
+) -> GapBreakdown:
+    """Break the residual energy of one or more logs down by channel, phase and posture.
+
+    Args:
+        residuals: The residuals of each log (same robot).
+        kind: Which residual: ``"joint_torque"``, ``"cable_length"`` or ``"replay"``.
+        settings: Phase thresholds.
+        posture_joints: The two joints of the posture grid; default the two with the largest
+            standard deviation of ``q``.
+        bins: Bins over each joint of the grid.
+        model: The robot, for the joint ranges of the grid; without it the grid spans the
+            logged range.
+
+    Returns:
+        The breakdown.
+
+    Raises:
+        ValueError: No logs, logs of different robots, an unknown kind or joint, no valid
+            sample, or a residual that is zero everywhere.
+    """
+    runs = [residuals] if isinstance(residuals, Residuals) else list(residuals)
+    if not runs:
+        raise ValueError("break_down needs at least one log's residuals")
+    settings = settings or PhaseSettings()
+    if bins < 1:
+        raise ValueError(f"bins must be >= 1, got {bins}")
+    first = runs[0]
+    for run in runs[1:]:
+        if run.joint_names != first.joint_names or run.cable_names != first.cable_names:
+            raise ValueError(
+                f"{run.source} and {first.source} are logs of different robots (joint or cable "
+                "names differ)"
+            )
+    channels = first.channel_names(kind)
+    parts = []
+    for run in runs:
+        keep = run.valid
+        parts.append(
+            (
+                run.get(kind)[keep],
+                run.q[keep],
+                run.tension[keep],
+                motion_phases(run, settings)[keep],
+            )
+        )
+    residual = np.concatenate([p[0] for p in parts])
+    q = np.concatenate([p[1] for p in parts])
+    tension = np.concatenate([p[2] for p in parts])
+    motion = np.concatenate([p[3] for p in parts])
+    if len(residual) == 0:
+        raise ValueError("no valid sample in the logs")
+    energy = residual**2
+    per_sample = energy.sum(axis=1)
+    total = float(per_sample.sum())
+    if not total > 0:
+        raise ValueError(f"the {kind} residual is zero everywhere: nothing to break down")
+    n_samples = len(per_sample)
+
+    rows: list[BreakdownRow] = []
+
+    def add(group: str, where: str, value: float, count: int, time_share: float) -> None:
+        share = 100.0 * value / total
+        density = share / time_share if time_share > 0 else float("nan")
+        rows.append(BreakdownRow(group, where, value, share, time_share, density, count))
+
+    for j, name in enumerate(channels):
+        add("channel", name, float(energy[:, j].sum()), n_samples, 100.0 / len(channels))
+    load = load_phases(tension, settings)
+    for group, labels, index in (("motion", MOTION_PHASES, motion), ("load", LOAD_PHASES, load)):
+        for p, name in enumerate(labels):
+            mask = index == p
+            count = int(mask.sum())
+            if count:
+                add(group, name, float(per_sample[mask].sum()), count, 100.0 * count / n_samples)
+
+    joint_names = list(first.joint_names)
+    if posture_joints is None:
+        order = np.argsort(-q.std(axis=0), kind="stable")
+        pair = (int(order[0]), int(order[min(1, len(order) - 1)]))
+    else:
+        unknown = [j for j in posture_joints if j not in joint_names]
+        if unknown:
+            raise ValueError(f"unknown joint {unknown[0]!r}; joints: {', '.join(joint_names)}")
+        pair = (joint_names.index(posture_joints[0]), joint_names.index(posture_joints[1]))
+    edges = []
+    cells = []
+    for j in pair:
+        if model is not None:
+            lo, hi = float(model.joint_lower[j]), float(model.joint_upper[j])
+        else:
+            lo, hi = float(q[:, j].min()), float(q[:, j].max())
+            hi = hi if hi > lo else lo + 1e-9
+        e = np.linspace(lo, hi, bins + 1)
+        edges.append(e)
+        cells.append(np.clip(np.searchsorted(e, q[:, j], side="right") - 1, 0, bins - 1))
+    grid_energy = np.zeros((bins, bins))
+    grid_count = np.zeros((bins, bins), dtype=np.int64)
+    np.add.at(grid_energy, (cells[0], cells[1]), per_sample)
+    np.add.at(grid_count, (cells[0], cells[1]), 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        grid_rms = np.sqrt(grid_energy / (grid_count * len(channels)))
+    grid_rms[grid_count == 0] = np.nan
+    a, b = (joint_names[j] for j in pair)
+    for i in range(bins):
+        for k in range(bins):
+            if grid_count[i, k]:
+                where = (
+                    f"{a} [{edges[0][i]:.2f}, {edges[0][i + 1]:.2f}] x "
+                    f"{b} [{edges[1][k]:.2f}, {edges[1][k + 1]:.2f}]"
+                )
+                count = int(grid_count[i, k])
+                add("posture", where, float(grid_energy[i, k]), count, 100.0 * count / n_samples)
+
+    ordered = tuple(
+        row
+        for group in GROUPS
+        for row in sorted((r for r in rows if r.group == group), key=lambda r: -r.share)
+    )
+    return GapBreakdown(
+        kind=kind,
+        unit=RESIDUAL_UNITS[kind],
+        sources=tuple(run.source for run in runs),
+        samples=n_samples,
+        total_energy=total,
+        rms=float(np.sqrt(total / (n_samples * len(channels)))),
+        rows=ordered,
+        posture_joints=(a, b),
+        posture_edges=(edges[0], edges[1]),
+        posture_rms=grid_rms,
+        posture_samples=grid_count,
+        settings=settings,
+    )
+
+
+def diagnose_where(
+    model: RobotModel,
+    logs: Sequence[str | Path],
+    kind: str = "joint_torque",
+    settings: PhaseSettings | None = None,
+    spec: ResidualSpec | None = None,
+    posture_joints: tuple[str, str] | None = None,
+    bins: int = 5,
+) -> GapBreakdown:
+    """Residuals of log files against the nominal model, broken down (the logs combined).
+
+    Args:
+        model: The nominal robot model.
+        logs: Log files (their sidecars are never opened).
+        kind: Which residual to break down.
+        settings: Phase thresholds.
+        spec: Residual settings (the replay is computed only for ``kind="replay"``).
+        posture_joints: The two joints of the posture grid (default: those that move most).
+        bins: Bins over each joint of the grid.
+
+    Returns:
+        The breakdown.
+    """
+    spec = spec or ResidualSpec(replay=kind == "replay")
+    runs = [residuals_from_log(model, path, spec=spec) for path in logs]
+    return break_down(runs, kind, settings, posture_joints, bins, model)
+
+
+def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
+    """Plot the residual RMS over the posture grid and the channel and phase shares.
+
+    Args:
+        breakdown: The breakdown.
+        path: PNG file to write (atomically).
+
+    Returns:
+        The path written.
+    """
+    from msarm.plots import _save, plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), layout="constrained")
+    ax = axes[0]
+    ea, eb = breakdown.posture_edges
+    grid = np.ma.masked_invalid(breakdown.posture_rms)
+    mesh = ax.pcolormesh(eb, ea, grid, cmap="magma", shading="flat")
+    fig.colorbar(mesh, ax=ax, label=f"{breakdown.kind} RMS [{breakdown.unit}]")
+    for i in range(len(ea) - 1):
+        for k in range(len(eb) - 1):
+            count = breakdown.posture_samples[i, k]
+            if count:
+                ax.text(
+                    (eb[k] + eb[k + 1]) / 2,
+                    (ea[i] + ea[i + 1]) / 2,
+                    str(count),
+                    ha="center",
+                    va="center",
+                    fontsize=7,
+                    color="cyan",
+                )
+    ax.set_xlabel(f"{breakdown.posture_joints[1]} [rad]")
+    ax.set_ylabel(f"{breakdown.posture_joints[0]} [rad]")
+    ax.set_title("residual RMS over posture (numbers: samples)")
+
+    for ax, groups, title in (
+        (axes[1], ("channel",), "share of residual energy by channel"),
+        (axes[2], ("motion", "load"), "share by phase (bars) vs time (dots)"),
+    ):
+        rows = [r for g in groups for r in breakdown.group(g)]
+        y = np.arange(len(rows))
+        colours = ["tab:blue" if r.group in ("channel", "motion") else "tab:orange" for r in rows]
+        ax.barh(y, [r.share for r in rows], color=colours)
+        if "channel" not in groups:
+            ax.plot([r.time_share for r in rows], y, "k.", label="time share")
+            ax.legend(loc="lower right")
+        else:
+            ax.axvline(100.0 / max(1, len(rows)), color="k", lw=0.8, ls="--")
+        ax.set_yticks(y, [f"{r.where} ({r.group})" if len(groups) > 1 else r.where for r in rows])
+        ax.invert_yaxis()
+        ax.set_xlabel("%")
+        ax.set_title(title)
+    fig.suptitle(
+        f"Where the gap lies: {breakdown.kind} residual, {len(breakdown.sources)} log(s), "
+        f"{breakdown.samples} samples, RMS {breakdown.rms:.3g} {breakdown.unit}"
+    )
+    return _save(fig, path)

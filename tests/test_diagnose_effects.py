@@ -1,0 +1,365 @@
+"""Candidate effects of the gap diagnosis: each recovers its own parameters from its own data."""
+
+from __future__ import annotations
+
+import casadi
+import numpy as np
+import pytest
+
+from msarm.diagnose.effects import (
+    CANDIDATES,
+    CableCapstanFriction,
+    CandidateEffect,
+    CasadiOps,
+    CoulombFriction,
+    InertiaError,
+    MotorCogging,
+    SensorBiasScale,
+    StribeckFriction,
+    TensionDelay,
+    ViscousFriction,
+    create,
+    register,
+)
+from msarm.diagnose.fitting import bootstrap, fit
+from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
+from msarm.model import load_arm
+
+N_RUNS = 8
+PER_RUN = 150
+DT = 0.01
+DRUM = 0.012
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return load_arm()
+
+
+def _smooth(rng, t, n, mean, amplitude):
+    """Sum of 3 sinusoids per channel, with first and second derivatives."""
+    x = np.tile(mean, (len(t), 1)).astype(float)
+    xd = np.zeros_like(x)
+    xdd = np.zeros_like(x)
+    for _ in range(3):
+        w = rng.uniform(0.5, 3.0, size=n)
+        phase = rng.uniform(0, 2 * np.pi, size=n)
+        a = amplitude / 3 * rng.uniform(0.5, 1.0, size=n)
+        arg = np.outer(t, w) + phase
+        x += a * np.sin(arg)
+        xd += a * w * np.cos(arg)
+        xdd -= a * w**2 * np.sin(arg)
+    return x, xd, xdd
+
+
+def _make_signals(arm, seed: int = 0) -> Signals:
+    rng = np.random.default_rng(seed)
+    n, m = arm.n_joints, arm.n_cables
+    lo, hi = arm.joint_lower, arm.joint_upper
+    parts = {k: [] for k in ("t", "q", "qd", "qdd", "F", "run")}
+    for run in range(N_RUNS):
+        t = run * 100.0 + np.arange(PER_RUN) * DT
+        q, qd, qdd = _smooth(rng, t, n, 0.5 * (lo + hi), 0.3 * (hi - lo))
+        F, _, _ = _smooth(rng, t, m, np.full(m, 32.5), np.full(m, 27.0))
+        parts["t"].append(t)
+        parts["q"].append(q)
+        parts["qd"].append(qd)
+        parts["qdd"].append(qdd)
+        parts["F"].append(np.clip(F, 5.0, 60.0))
+        parts["run"].append(np.full(PER_RUN, run))
+    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    T = len(cat["t"])
+    lengths, jac, wrap = np.empty((T, m)), np.empty((T, m, n)), np.empty((T, m))
+    for k in range(T):
+        g = arm.geometry(cat["q"][k])
+        lengths[k], jac[k], wrap[k] = g.lengths, g.jacobian, g.wrap_angles
+    motor_angle = (lengths[0] - lengths) / DRUM + rng.uniform(0, 2 * np.pi, size=m)
+    return Signals(
+        t=cat["t"],
+        q=cat["q"],
+        qd=cat["qd"],
+        qdd=cat["qdd"],
+        tension=cat["F"],
+        lengths=lengths,
+        cable_velocity=np.einsum("tmn,tn->tm", jac, cat["qd"]),
+        jacobian=jac,
+        wrap=wrap,
+        motor_angle=motor_angle,
+        dt=DT,
+        run=cat["run"],
+    )
+
+
+@pytest.fixture(scope="module")
+def signals(arm):
+    return _make_signals(arm)
+
+
+def _cases(arm):
+    """(effect, true parameters) of every implemented candidate and option."""
+    rng = np.random.default_rng(1)
+    inertia_mass = InertiaError(arm, subset="mass")
+    inertia_all = InertiaError(arm, subset="all")
+    return [
+        (CoulombFriction(), np.array([0.3, 0.5, 0.2, 0.4])),
+        (CoulombFriction(joints=[3], eps=0.05), np.array([0.7])),
+        (ViscousFriction(), np.array([0.05, 0.1, 0.02, 0.08])),
+        (
+            StribeckFriction(joints=[0, 3], viscous=True),
+            np.array([0.3, 0.6, 0.15, 0.05, 0.2, 0.5, 0.25, 0.02]),
+        ),
+        (CableCapstanFriction(), np.array([0.12])),
+        (CableCapstanFriction(per_cable=True), rng.uniform(0.05, 0.3, size=9)),
+        (CableCapstanFriction(linearised=True), np.array([0.12])),
+        (MotorCogging(n_periods=6, drum_radius=DRUM), rng.normal(0, 0.02, size=18)),
+        (MotorCogging(n_periods=6, drum_radius=DRUM, shared=True), np.array([0.02, -0.01])),
+        (SensorBiasScale(), np.concatenate([rng.normal(0, 1.0, 9), rng.normal(0, 0.05, 9)])),
+        (SensorBiasScale(shared=True), np.array([0.8, 0.04])),
+        (SensorBiasScale(shared=True, scale=False), np.array([-1.2])),
+        (TensionDelay(), np.array([0.004])),
+        (inertia_mass, rng.normal(0, 0.2, size=inertia_mass.n_parameters)),
+        (inertia_all, rng.normal(0, 0.05, size=inertia_all.n_parameters)),
+    ]
+
+
+def _case_ids():
+    return [
+        "coulomb",
+        "coulomb_elbow",
+        "viscous",
+        "stribeck_viscous",
+        "capstan",
+        "capstan_per_cable",
+        "capstan_linearised",
+        "cogging",
+        "cogging_shared",
+        "sensor",
+        "sensor_shared",
+        "sensor_bias_only",
+        "delay",
+        "inertia_mass",
+        "inertia_all",
+    ]
+
+
+@pytest.mark.parametrize("case", range(len(_case_ids())), ids=_case_ids())
+def test_noise_free_recovery(arm, signals, case):
+    effect, truth = _cases(arm)[case]
+    residual = effect.torque(signals, truth)
+    assert np.std(residual) > 0
+    result = fit(effect, signals, residual)
+    assert result.success, result.message
+    np.testing.assert_allclose(result.parameters, truth, rtol=1e-6, atol=1e-9 * np.abs(truth).max())
+    assert result.reduction > 1 - 1e-9
+    assert result.predict(signals).shape == residual.shape
+
+
+@pytest.mark.parametrize(
+    "effect, truth",
+    [
+        (CoulombFriction(), np.array([0.3, 0.5, 0.2, 0.4])),
+        (CableCapstanFriction(), np.array([0.12])),
+        (StribeckFriction(joints=[1]), np.array([0.3, 0.6, 0.15])),
+        (SensorBiasScale(shared=True), np.array([0.8, 0.04])),
+    ],
+    ids=["coulomb", "capstan", "stribeck", "sensor_shared"],
+)
+def test_noisy_recovery_within_bootstrap_std(signals, effect, truth):
+    clean = effect.torque(signals, truth)
+    rng = np.random.default_rng(7)
+    residual = clean + rng.normal(0, 0.3 * np.std(clean), size=clean.shape)
+    result = fit(effect, signals, residual)
+    spread = bootstrap(effect, signals, residual, n_boot=30, seed=3)
+    assert spread.samples.shape == (30, effect.n_parameters)
+    assert np.all(spread.std > 0)
+    assert np.all(np.abs(result.parameters - truth) < 3 * spread.std), (
+        result.parameters,
+        truth,
+        spread.std,
+    )
+    # Same seed, same spread; different seed, different draws.
+    again = bootstrap(effect, signals, residual, n_boot=30, seed=3)
+    np.testing.assert_array_equal(again.samples, spread.samples)
+
+
+def test_explained_variance_held_out(arm, signals):
+    truth_effect, truth = CableCapstanFriction(), np.array([0.15])
+    clean = truth_effect.torque(signals, truth)
+    rng = np.random.default_rng(2)
+    residual = clean + rng.normal(0, 0.05 * np.std(clean), size=clean.shape)
+    train = signals.run < 6
+    test = ~train
+    right = fit(truth_effect, signals, residual, train)
+    assert right.explained_variance(signals, residual, test) > 0.99
+    per_joint = right.explained_variance(signals, residual, test, per_joint=True)
+    assert per_joint.shape == (arm.n_joints,)
+    wrong = fit(MotorCogging(n_periods=6, drum_radius=DRUM, shared=True), signals, residual, train)
+    assert wrong.explained_variance(signals, residual, test) < 0.1
+    unrelated = fit(InertiaError(arm), signals, residual, train)
+    assert unrelated.explained_variance(signals, residual, test) < 0.1
+
+
+def test_casadi_and_numpy_agree(arm, signals):
+    small = signals.take(np.arange(40))
+    for effect, truth in _cases(arm):
+        theta = casadi.SX.sym("theta", effect.n_parameters)
+        expression = effect.torque(small, theta, CasadiOps())
+        function = casadi.Function("f", [theta], [expression])
+        np.testing.assert_allclose(
+            np.asarray(function(truth)), effect.torque(small, truth), rtol=1e-12, atol=1e-12
+        )
+
+
+def test_capstan_sign_pulled_in_cable_delivers_less(signals):
+    effect = CableCapstanFriction()
+    r = effect.torque(signals, np.array([0.2]))
+    # Delivered torque -J^T F_insertion, with F_insertion < F on cables pulled in.
+    s = np.tanh(-signals.cable_velocity / effect.eps)
+    inserted = signals.tension * np.exp(-0.2 * signals.wrap * s)
+    delivered = -np.einsum("tmn,tm->tn", signals.jacobian, inserted)
+    tau_ms = -np.einsum("tmn,tm->tn", signals.jacobian, signals.tension)
+    np.testing.assert_allclose(r, tau_ms - delivered, atol=1e-12)
+    assert np.all(
+        inserted[signals.cable_velocity < -0.01] < signals.tension[signals.cable_velocity < -0.01]
+    )
+
+
+def test_coulomb_opposes_motion(signals):
+    r = CoulombFriction().torque(signals, np.full(4, 0.5))
+    moving = np.abs(signals.qd) > 0.1
+    assert np.all(np.sign(r[moving]) == np.sign(signals.qd[moving]))
+
+
+def test_inertia_matches_rnea_of_perturbed_model(arm, signals):
+    import pinocchio
+
+    effect = InertiaError(arm, subset="all")
+    model = arm.pin_model.copy()
+    body = model.nbodies - 1
+    model.inertias[body].mass = model.inertias[body].mass + 0.3
+    small = signals.take(np.arange(20))
+    data, data0 = model.createData(), arm.pin_model.createData()
+    full = np.zeros(10 * (model.njoints - 1))
+    dpi = (
+        model.inertias[body].toDynamicParameters()
+        - arm.pin_model.inertias[body].toDynamicParameters()
+    )
+    full[10 * (body - 1) : 10 * body] = dpi
+    for k in range(small.n_samples):
+        q, v, a = small.q[k], small.qd[k], small.qdd[k]
+        expected = pinocchio.rnea(model, data, q, v, a) - pinocchio.rnea(
+            arm.pin_model, data0, q, v, a
+        )
+        np.testing.assert_allclose(effect._regressor(q, v, a) @ full, expected, atol=1e-10)
+    assert effect.parameter_names[0].endswith(".mcx") or ".m" in effect.parameter_names[0]
+    assert all("." in name for name in effect.parameter_names)
+
+
+def test_registry_and_custom_effect(signals):
+    assert {
+        "coulomb",
+        "viscous",
+        "stribeck",
+        "capstan",
+        "cogging",
+        "sensor",
+        "delay",
+        "inertia",
+    } <= set(CANDIDATES)
+    assert isinstance(create("viscous"), ViscousFriction)
+    with pytest.raises(InputError, match="unknown candidate"):
+        create("nope")
+
+    @register
+    class ConstantOffset(CandidateEffect):
+        name = "test_constant_offset"
+        description = "r_j = c_j"
+        linear = True
+
+        def __init__(self, n_joints: int = 4) -> None:
+            self.channels = tuple(range(n_joints))
+            self.parameter_names = tuple(f"c[{j}]" for j in self.channels)
+
+        def design(self, signals):
+            T, n = signals.n_samples, signals.n_joints
+            return np.broadcast_to(np.eye(n)[None], (T, n, n)).copy()
+
+    try:
+        truth = np.array([1.0, -2.0, 0.5, 3.0])
+        effect = create("test_constant_offset")
+        result = fit(effect, signals, effect.torque(signals, truth))
+        np.testing.assert_allclose(result.parameters, truth, rtol=1e-10)
+        with pytest.raises(InputError, match="already registered"):
+
+            @register
+            class Clash(ConstantOffset):
+                name = "test_constant_offset"
+
+    finally:
+        CANDIDATES.pop("test_constant_offset", None)
+
+
+def _fields(signals):
+    return {
+        "t": signals.t,
+        "q": signals.q,
+        "qd": signals.qd,
+        "qdd": signals.qdd,
+        "tension": signals.tension,
+        "lengths": signals.lengths,
+        "cable_velocity": signals.cable_velocity,
+        "jacobian": signals.jacobian,
+        "wrap": signals.wrap,
+        "motor_angle": signals.motor_angle,
+        "dt": signals.dt,
+        "run": signals.run,
+    }
+
+
+@pytest.mark.parametrize("field", ["q", "qd", "tension", "jacobian", "wrap", "motor_angle", "t"])
+def test_signals_shape_mismatch_names_field(signals, field):
+    kwargs = _fields(signals)
+    kwargs[field] = kwargs[field][:-1]
+    with pytest.raises(InputError, match=rf"Signals\.{field}\b"):
+        Signals(**kwargs)
+
+
+@pytest.mark.parametrize("field", ["qdd", "tension", "cable_velocity", "lengths", "jacobian"])
+def test_signals_nan_names_field(signals, field):
+    kwargs = _fields(signals)
+    bad = np.array(kwargs[field])
+    bad.flat[5] = np.nan
+    kwargs[field] = bad
+    with pytest.raises(InputError, match=rf"Signals\.{field}: non-finite"):
+        Signals(**kwargs)
+
+
+def test_signals_other_bad_input(signals):
+    kwargs = _fields(signals)
+    with pytest.raises(InputError, match=r"Signals\.dt"):
+        Signals(**{**kwargs, "dt": 0.0})
+    with pytest.raises(InputError, match=r"Signals\.run"):
+        Signals(**{**kwargs, "run": kwargs["run"][:-1]})
+    with pytest.raises(InputError, match=r"Signals\.q"):
+        Signals(**{**kwargs, "q": kwargs["q"][:, :3]})
+    assert not signals.q.flags.writeable
+
+
+def test_fit_bad_input(signals):
+    effect = CoulombFriction()
+    good = effect.torque(signals, np.ones(4))
+    with pytest.raises(InputError, match="residual"):
+        fit(effect, signals, good[:, :3])
+    bad = good.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(InputError, match="residual"):
+        fit(effect, signals, bad)
+    with pytest.raises(InputError, match="train_mask"):
+        fit(effect, signals, good, np.ones(5, dtype=bool))
+    with pytest.raises(InputError, match="theta"):
+        effect.torque(signals, np.ones(3))
+    with pytest.raises(InputError, match="runs"):
+        bootstrap(effect, signals, good, runs=np.zeros(signals.n_samples, dtype=int))
+    with pytest.raises(InputError, match="cables"):
+        fit(CableCapstanFriction(n_cables=8), signals, good)

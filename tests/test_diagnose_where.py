@@ -1,0 +1,279 @@
+"""The "where" step of the gap diagnosis: residuals of a log and their breakdown."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from msarm.control import ArmControllerConfig
+from msarm.diagnose.residuals import DiagnosisWarning, Residuals, residuals_from_log
+from msarm.diagnose.where import (
+    GROUPS,
+    LOAD_PHASES,
+    MOTION_PHASES,
+    PhaseSettings,
+    break_down,
+    diagnose_where,
+    plot_heatmap,
+)
+from msarm.errors import LogError
+from msarm.io.logs import RunLog, read_log, sidecar_path, write_log
+from msarm.plant import IDEAL_PLANT
+from msarm.plant.config import JointFrictionConfig
+from msarm.tasks.track import TrackSettings, track
+from msarm.tasks.trajectories import hold_then_move
+
+HOME = np.array([0.0, 0.0, 0.0, -0.2])
+SHORT = hold_then_move(
+    "short", HOME, [0.15, 0.4, -0.3, -0.9], wait=0.5, move_time=1.5, duration=3.0
+)
+
+
+def _plant(name: str, **effects):
+    return replace(IDEAL_PLANT, name=name, effects=replace(IDEAL_PLANT.effects, **effects))
+
+
+@pytest.fixture(scope="module")
+def logs(arm, tmp_path_factory):
+    """Log files of the short task on the ideal plant and with joint friction alone."""
+    root = tmp_path_factory.mktemp("diagnose_where")
+    plants = {
+        "ideal": _plant("ideal"),
+        "joint_friction": _plant(
+            "joint_friction", joint_friction=JointFrictionConfig(enabled=True)
+        ),
+    }
+    out = {}
+    for name, plant in plants.items():
+        settings = TrackSettings("short", 1, plant, ArmControllerConfig())
+        result = track(arm, SHORT, settings, root / name, plots_too=False)
+        out[name] = result.files["log"]
+    return out
+
+
+@pytest.fixture(scope="module")
+def residuals(arm, logs):
+    return {name: residuals_from_log(arm, path) for name, path in logs.items()}
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2)))
+
+
+def test_ideal_plant_has_a_small_residual_and_joint_friction_not(residuals):
+    ideal, friction = residuals["ideal"], residuals["joint_friction"]
+    assert ideal.valid.all() and friction.valid.all()
+    assert ideal.joint_torque.shape == (len(ideal), 4)
+    assert ideal.cable_length.shape == (len(ideal), 9)
+    # ideal: filtering error only; joint friction: Coulomb 0.15 N m plus viscous
+    assert _rms(ideal.joint_torque) < 0.02
+    assert _rms(friction.joint_torque) > 0.08
+    assert _rms(friction.joint_torque) > 10 * _rms(ideal.joint_torque)
+    # the replay (nominal dynamics under the logged tensions) drifts away with friction
+    assert _rms(ideal.replay) < 1e-3
+    assert _rms(friction.replay) > 10 * _rms(ideal.replay)
+    # rigid cables: the motor encoders agree with the path lengths
+    assert np.abs(ideal.cable_length).max() < 2e-4
+    assert np.abs(friction.cable_length).max() < 2e-4
+
+
+def test_joint_friction_concentrates_in_motion_not_in_hold(residuals):
+    """Coulomb + viscous friction acts while the joints move; in hold only what stiction takes.
+
+    Checked: the acceleration and constant-velocity phases each have an energy density above
+    1, hold below 1, and the moving phases together carry most of the energy although the
+    arm holds more than half of the time.
+    """
+    breakdown = break_down(residuals["joint_friction"])
+    hold = breakdown.density("motion", "hold")
+    assert hold < 0.7
+    assert breakdown.density("motion", "acceleration") > 1.2
+    assert breakdown.density("motion", "constant_velocity") > 1.2
+    hold_row = next(r for r in breakdown.group("motion") if r.where == "hold")
+    assert hold_row.time_share > 50
+    moving = breakdown.share("motion", "acceleration") + breakdown.share(
+        "motion", "constant_velocity"
+    )
+    assert moving > 60
+    # joint friction is the same on every joint: no joint carries (nearly) all of it
+    assert max(r.share for r in breakdown.group("channel")) < 40
+
+
+def test_shares_sum_to_100_percent_and_logs_combine(residuals):
+    single = {name: break_down(r) for name, r in residuals.items()}
+    both = break_down(list(residuals.values()))
+    for breakdown in [*single.values(), both]:
+        for group in GROUPS:
+            rows = breakdown.group(group)
+            assert rows, group
+            assert sum(r.share for r in rows) == pytest.approx(100.0, abs=1e-9)
+            if group != "channel":
+                assert sum(r.time_share for r in rows) == pytest.approx(100.0, abs=1e-9)
+                assert sum(r.samples for r in rows) == breakdown.samples
+        assert np.nansum(breakdown.posture_samples) == breakdown.samples
+    assert both.samples == sum(b.samples for b in single.values())
+    assert both.total_energy == pytest.approx(sum(b.total_energy for b in single.values()))
+    assert both.sources == tuple(r.source for r in residuals.values())
+
+
+def _hand_residuals() -> Residuals:
+    """40 samples at 100 Hz, 2 joints and 2 cables, phases laid out by hand."""
+    t = np.arange(40) / 100.0
+    qd = np.zeros((40, 2))
+    qdd = np.zeros((40, 2))
+    qd[10:30, 0] = 0.3  # 10-19 constant velocity
+    qdd[20:30, 0] = 2.0  # 20-29 acceleration
+    qd[30:35, 1] = 0.3  # 30-39 reversal of joint 1 (also accelerating)
+    qd[35:40, 1] = -0.3
+    qdd[30:40, 1] = 5.0
+    tension = np.full((40, 2), 10.0)
+    tension[0:4] = [1.0, 100.0]  # low tension, also the highest load: counted as low
+    tension[4:8] = [10.0, 50.0]  # high load
+    torque = np.zeros((40, 2))
+    torque[:, 0] = 1.0
+    torque[30:40, 1] = 2.0
+    q = np.column_stack([np.linspace(0, 1, 40), np.linspace(-1, 0, 40)])
+    return Residuals(
+        source="hand",
+        joint_names=("a", "b"),
+        cable_names=("c1", "c2"),
+        sample_rate_hz=100.0,
+        t=t,
+        valid=np.ones(40, dtype=bool),
+        joint_torque=torque,
+        cable_length=None,
+        replay=None,
+        q=q,
+        qd=qd,
+        qdd=qdd,
+        cable_velocity=np.zeros((40, 2)),
+        tension=tension,
+    )
+
+
+def test_each_sample_counts_in_the_first_matching_phase():
+    breakdown = break_down(
+        _hand_residuals(), settings=PhaseSettings(high_load_percentile=80.0), bins=2
+    )
+    motion = {r.where: r for r in breakdown.group("motion")}
+    assert {k: r.samples for k, r in motion.items()} == {
+        "hold": 10,
+        "constant_velocity": 10,
+        "acceleration": 10,
+        "reversal": 10,
+    }
+    assert set(motion) == set(MOTION_PHASES)
+    # energy: joint a 1 per sample (40), joint b 4 per reversal sample (40): total 80
+    assert breakdown.total_energy == pytest.approx(80.0)
+    assert motion["reversal"].share == pytest.approx(62.5)
+    assert motion["hold"].share == pytest.approx(12.5)
+    assert motion["hold"].density == pytest.approx(0.5)
+    assert motion["reversal"].density == pytest.approx(2.5)
+    load = {r.where: r.samples for r in breakdown.group("load")}
+    assert load == {"low_tension": 4, "high_load": 4, "normal_load": 32}
+    assert set(load) == set(LOAD_PHASES)
+    channel = {r.where: r.share for r in breakdown.group("channel")}
+    assert channel == pytest.approx({"a": 50.0, "b": 50.0})
+    # the posture grid: 2 x 2 bins over the logged range, the samples on its diagonal
+    assert breakdown.posture_samples.tolist() == [[20, 0], [0, 20]]
+    assert np.isnan(breakdown.posture_rms[0, 1])
+    assert breakdown.posture_rms[1, 1] == pytest.approx(np.sqrt(60 / (20 * 2)))
+
+
+def test_cable_residual_is_the_motor_length_minus_the_path_length(arm, logs):
+    log = read_log(logs["ideal"])
+    columns = dict(log.columns)
+    cable = arm.cable_names[0]
+    extra = 0.5 * log.t  # the motor turns on by 0.5 rad/s more than the cable needs
+    columns[f"motor_angle.{cable}"] = columns[f"motor_angle.{cable}"] + extra
+    shifted = RunLog(columns, log.metadata)
+    before = residuals_from_log(arm, log)
+    after = residuals_from_log(arm, shifted)
+    # winding the drum shortens the cable the encoder reckons: l_hat = l0 - r (theta - theta0)
+    np.testing.assert_allclose(
+        after.cable_length[:, 0] - before.cable_length[:, 0],
+        -0.003 * (extra - extra[0]),
+        atol=1e-12,
+    )
+    np.testing.assert_array_equal(after.cable_length[:, 1:], before.cable_length[:, 1:])
+
+
+def test_a_log_of_another_model_is_refused(arm, logs, tmp_path):
+    log = read_log(logs["ideal"])
+    other = "0" * 64
+    path = write_log(
+        tmp_path / "other.parquet", RunLog(log.columns, replace(log.metadata, model_sha256=other))
+    )
+    with pytest.raises(LogError) as info:
+        residuals_from_log(arm, path)
+    message = str(info.value)
+    assert str(path) in message and other in message and arm.sha256 in message
+
+
+def test_a_missing_channel_is_named(arm, logs, tmp_path):
+    log = read_log(logs["ideal"])
+    column = f"tension_motor.{arm.cable_names[-1]}"
+    columns = {k: v for k, v in log.columns.items() if k != column}
+    path = write_log(tmp_path / "missing.parquet", RunLog(columns, log.metadata))
+    with pytest.raises(LogError, match=f"{path}.*{column}"):
+        residuals_from_log(arm, path)
+    # without motor encoders the cable residual is skipped, with a warning
+    columns = {k: v for k, v in log.columns.items() if not k.startswith("motor_angle.")}
+    path = write_log(tmp_path / "no_motor.parquet", RunLog(columns, log.metadata))
+    with pytest.warns(DiagnosisWarning, match="motor_angle"):
+        result = residuals_from_log(arm, path)
+    assert result.cable_length is None and result.kinds() == ["joint_torque", "replay"]
+
+
+def test_time_gaps_split_the_log_and_warn(arm, logs, residuals, tmp_path):
+    log = read_log(logs["ideal"])
+    keep = np.ones(len(log), dtype=bool)
+    keep[10:13] = False  # leaves a 10-sample head, too short for the filter
+    keep[300:310] = False
+    path = write_log(
+        tmp_path / "gaps.parquet",
+        RunLog({k: v[keep] for k, v in log.columns.items()}, log.metadata),
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = residuals_from_log(arm, path)
+    messages = [str(w.message) for w in caught if issubclass(w.category, DiagnosisWarning)]
+    assert any(str(path) in m and "'t'" in m and "gap" in m for m in messages)
+    assert any("left out" in m for m in messages)
+    assert not result.valid[:10].any() and result.valid[10:].all()
+    assert np.isnan(result.joint_torque[:10]).all()
+    assert _rms(result.joint_torque[result.valid]) < 0.02
+    breakdown = break_down(result)
+    assert breakdown.samples == int(result.valid.sum())
+
+
+def test_the_diagnosis_never_opens_the_sidecar(arm, logs, tmp_path):
+    log = read_log(logs["joint_friction"])
+    path = write_log(tmp_path / "log.parquet", log)
+    sidecar = sidecar_path(logs["joint_friction"])
+    assert sidecar.is_file()
+    sidecar_path(path).write_bytes(sidecar.read_bytes())
+    with_sidecar = diagnose_where(arm, [path])
+    sidecar_path(path).unlink()
+    without = diagnose_where(arm, [path])
+    assert with_sidecar.to_markdown() == without.to_markdown()
+    assert with_sidecar.rows == without.rows
+
+
+def test_markdown_and_heat_map(arm, residuals, tmp_path):
+    breakdown = break_down(list(residuals.values()), model=arm)
+    text = breakdown.to_markdown()
+    for group in GROUPS:
+        assert f"### By {group}" in text
+    assert "| hold |" in text
+    png = plot_heatmap(breakdown, tmp_path / "where.png")
+    assert png.is_file() and png.read_bytes()[:4] == b"\x89PNG"
+    assert breakdown.posture_rms.shape == (5, 5)
+    # the grid spans the model's range of the posture joints
+    j = arm.joint_names.index(breakdown.posture_joints[0])
+    assert breakdown.posture_edges[0][0] == arm.joint_lower[j]
+    for kind in ("cable_length", "replay"):
+        assert break_down(residuals["joint_friction"], kind=kind).unit in ("m", "rad")
