@@ -12,6 +12,7 @@ from msarm.cli.arm import arm_command
 from msarm.cli.bench import bench_app
 from msarm.cli.cdpr import cdpr_app
 from msarm.cli.compensator import compare_command, train_command
+from msarm.cli.diagnose import diagnose_command
 from msarm.cli.track import track_command
 
 app = typer.Typer(
@@ -25,6 +26,7 @@ app.command("arm")(arm_command)
 app.command("track")(track_command)
 app.command("train")(train_command)
 app.command("compare")(compare_command)
+app.command("diagnose")(diagnose_command)
 app.add_typer(bench_app, name="bench")
 app.add_typer(cdpr_app, name="cdpr")
 

@@ -12,6 +12,12 @@ Modules so far:
   error through Pinocchio's regressor), each a parametric term fitted by least squares or
   IPOPT (casadi), scored on held-out samples, with bootstrap over runs.
 
-Still to come (issue 7): forward selection by held-out score, "how far" (the gap before and
-after adding the selected effects), the report, ``msarm diagnose`` and its benchmark.
+- ``builder``: the signals and the residual of several logs, with run labels.
+- ``select``: forward selection of candidate effects by the share of held-out residual
+  variance they explain (a term is added while it gains more than 0.02), and the gap before
+  and after on the held-out runs (``msarm diagnose``).
+
+Still to come (issue 7): plausibility of the fitted parameters (later picks can compensate
+each other), the phase and posture breakdown in the report, the withheld-effect benchmark
+with a PySINDy baseline, users' effects example.
 """

@@ -1,0 +1,135 @@
+"""Build the fitting input of the gap diagnosis from log files.
+
+:func:`signals_from_logs` reads each log with :func:`msarm.diagnose.residuals.residuals_from_log`
+(which never opens the ground-truth sidecar), keeps its valid samples, adds what the candidate
+effects need (cable lengths, Jacobian and wrap angles of the nominal model at each logged
+posture, the logged motor angles) and concatenates the runs, each labelled by its index.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.diagnose.residuals import ResidualSpec, residuals_from_log
+from msarm.diagnose.signals import Signals
+from msarm.errors import InputError, LogError
+from msarm.io.logs import read_log
+from msarm.model import RobotModel
+from msarm.muscle.geometry import cable_geometry
+
+__all__ = ["signals_from_logs"]
+
+FloatArray = NDArray[np.float64]
+
+
+def _one_run(
+    model: RobotModel, path: Path, spec: ResidualSpec
+) -> tuple[dict[str, FloatArray], FloatArray, float]:
+    """Signal arrays (valid samples only), residual ``(T, n)`` and sample period of one log."""
+    source = str(path)
+    if not path.is_file():
+        raise InputError(f"{source}: no such log file")
+    log = read_log(path)
+    residuals = residuals_from_log(model, log, source=source, spec=spec)
+    valid = residuals.valid
+    if not valid.any():
+        raise LogError(f"{source}: no valid sample to diagnose")
+    cables = list(model.cable_names)
+    missing = [c for c in cables if f"motor_angle.{c}" not in log.columns]
+    if missing:
+        warnings.warn(
+            f"{source}: column 'motor_angle.{missing[0]}' is missing; motor angles are taken as "
+            "zero (the cogging candidate cannot explain anything in this run)",
+            stacklevel=3,
+        )
+        motor = np.zeros((len(log), len(cables)))
+    else:
+        motor = log.matrix("motor_angle", cables)
+    q = residuals.q[valid]
+    T, m, n = q.shape[0], model.n_cables, model.n_joints
+    lengths, wrap = np.empty((T, m)), np.empty((T, m))
+    jacobian = np.empty((T, m, n))
+    data = model.create_data()
+    for k in range(T):
+        geometry = cable_geometry(model, data, q[k], with_wrap_angles=True)
+        lengths[k], jacobian[k], wrap[k] = (
+            geometry.lengths,
+            geometry.jacobian,
+            geometry.wrap_angles,
+        )
+    arrays = {
+        "t": residuals.t[valid],
+        "q": q,
+        "qd": residuals.qd[valid],
+        "qdd": residuals.qdd[valid],
+        "tension": residuals.tension[valid],
+        "lengths": lengths,
+        "cable_velocity": residuals.cable_velocity[valid],
+        "jacobian": jacobian,
+        "wrap": wrap,
+        "motor_angle": motor[valid],
+    }
+    for name, value in arrays.items():
+        if not np.all(np.isfinite(value)):
+            row = int(np.argwhere(~np.isfinite(value))[0][0])
+            raise LogError(f"{source}: non-finite {name} at valid sample {row}")
+    residual = residuals.joint_torque[valid]
+    if not np.all(np.isfinite(residual)):
+        row = int(np.argwhere(~np.isfinite(residual))[0][0])
+        raise LogError(f"{source}: non-finite joint-torque residual at valid sample {row}")
+    return arrays, residual, 1.0 / residuals.sample_rate_hz
+
+
+def signals_from_logs(
+    model: RobotModel,
+    paths: Sequence[str | Path],
+    spec: ResidualSpec | None = None,
+) -> tuple[Signals, FloatArray, tuple[str, ...]]:
+    """Signals and joint-torque residual of several logs, concatenated with run labels.
+
+    Args:
+        model: The nominal robot model the logs were recorded with.
+        paths: Log files (Parquet), at least one. Their ground-truth sidecars are never read.
+        spec: Residual settings (filter, drum radius); the replay is never computed here.
+
+    Returns:
+        ``(signals, residual, runs)``: the :class:`Signals` of all valid samples (``T`` in
+        total, ``signals.run[k]`` the index in ``paths`` of sample ``k``'s log), the residual
+        ``r = tau_MS - ID`` [N m] of shape ``(T, n)``, and the log names (``str`` of each path),
+        indexed by run label.
+
+    Raises:
+        InputError: No paths, or a file that does not exist (named).
+        LogError: A log that cannot be diagnosed (file and reason named; see
+            :func:`~msarm.diagnose.residuals.residuals_from_log`), or logs of different sample
+            rates.
+    """
+    if not paths:
+        raise InputError("paths: no log files given")
+    base = spec or ResidualSpec()
+    if base.replay:
+        base = ResidualSpec(target=base.target, drum_radius=base.drum_radius, replay=False)
+    parts, residuals, names = [], [], []
+    dt = None
+    for label, path in enumerate(paths):
+        path = Path(path)
+        arrays, residual, period = _one_run(model, path, base)
+        if dt is None:
+            dt = period
+        elif abs(period - dt) > 1e-9 * dt:
+            raise LogError(
+                f"{path}: sample period {period:g} s differs from {dt:g} s of {paths[0]}; "
+                "diagnose logs of one sample rate together"
+            )
+        arrays["run"] = np.full(arrays["t"].shape[0], label, dtype=np.int64)
+        parts.append(arrays)
+        residuals.append(residual)
+        names.append(str(path))
+    joined = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    signals = Signals(dt=float(dt), **joined)
+    return signals, np.concatenate(residuals), tuple(names)

@@ -1,0 +1,135 @@
+"""Forward selection of candidate effects, scored on held-out runs (issue 7, "which")."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from msarm.cli.diagnose import diagnose_command, split_runs
+from msarm.control import ArmControllerConfig
+from msarm.diagnose.builder import signals_from_logs
+from msarm.diagnose.select import DEFAULT_THRESHOLD, diagnose
+from msarm.errors import InputError
+from msarm.io.logs import sidecar_path
+from msarm.plant import IDEAL_PLANT
+from msarm.plant.config import JointFrictionConfig, SensorNoiseConfig
+from msarm.tasks.track import TrackSettings, track
+from msarm.tasks.trajectories import hold_then_move
+
+# the slow nonlinear Stribeck term is left out to keep the tests short
+CANDIDATES = ["coulomb", "viscous", "capstan", "cogging", "sensor", "delay", "inertia"]
+N_RUNS = 4
+
+
+def only(**effects):
+    """The ideal plant with the given effects switched on."""
+    return replace(IDEAL_PLANT, name="test", effects=replace(IDEAL_PLANT.effects, **effects))
+
+
+def _task(arm, seed: int):
+    rng = np.random.default_rng(seed)
+    lower, upper = np.asarray(arm.joint_lower), np.asarray(arm.joint_upper)
+    width = upper - lower
+    start, target = (rng.uniform(lower + 0.25 * width, upper - 0.25 * width) for _ in range(2))
+    return hold_then_move(f"move{seed}", start, target, wait=0.5, move_time=2.0, duration=4.0)
+
+
+def _logs(arm, root, plant):
+    paths = []
+    for seed in range(N_RUNS):
+        settings = TrackSettings(f"move{seed}", seed, plant, ArmControllerConfig())
+        result = track(arm, _task(arm, seed), settings, root / f"run{seed}", plots_too=False)
+        paths.append(result.files["log"])
+    return paths
+
+
+@pytest.fixture(scope="module")
+def friction_logs(arm, tmp_path_factory):
+    plant = only(joint_friction=JointFrictionConfig(enabled=True))
+    return _logs(arm, tmp_path_factory.mktemp("select_friction"), plant)
+
+
+@pytest.fixture(scope="module")
+def noise_logs(arm, tmp_path_factory):
+    plant = only(sensor_noise=SensorNoiseConfig(enabled=True))
+    return _logs(arm, tmp_path_factory.mktemp("select_noise"), plant)
+
+
+def test_signals_from_logs_concatenates_runs(arm, noise_logs):
+    signals, residual, names = signals_from_logs(arm, noise_logs[:2])
+    assert names == tuple(str(p) for p in noise_logs[:2])
+    assert residual.shape == (signals.n_samples, arm.n_joints)
+    assert set(np.unique(signals.run)) == {0, 1}
+    assert signals.jacobian.shape == (signals.n_samples, arm.n_cables, arm.n_joints)
+    assert np.all(signals.wrap > 0)
+    # the Jacobian agrees with the nominal model at a sample
+    k = signals.n_samples // 3
+    np.testing.assert_allclose(signals.jacobian[k], arm.geometry(signals.q[k]).jacobian)
+
+
+def test_joint_friction_is_found_and_the_gap_shrinks(arm, friction_logs):
+    result = diagnose(arm, friction_logs[:-1], friction_logs[-1:], candidates=CANDIDATES)
+    print(result.to_markdown())
+    assert result.names, "nothing selected"
+    assert result.names[0] in ("coulomb", "viscous")
+    assert result.explained_variance[1] > 0.3
+    assert np.all(np.diff(result.explained_variance) > DEFAULT_THRESHOLD)
+    assert result.total_shrink > 0.3
+    assert np.all(result.shrink > 0.3)
+    assert np.all(result.gap_after < result.gap_before)
+    first = result.selected[0]
+    assert first.parameters.shape == (arm.n_joints,)
+    assert np.all(first.parameters > 0)  # friction opposes motion: r > 0 for qd > 0
+    assert np.all(np.isfinite(first.std))
+    payload = json.loads(json.dumps(result.as_dict()))
+    assert payload["selected"][0]["name"] == first.name
+    assert "| joint | before [N m]" in result.to_markdown()
+
+
+def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs):
+    result = diagnose(arm, noise_logs[:-1], noise_logs[-1:], candidates=CANDIDATES, n_boot=0)
+    assert result.names == ()
+    assert result.explained_variance == (0.0,)
+    assert max(result.step_scores[0].values()) < DEFAULT_THRESHOLD
+    np.testing.assert_array_equal(result.gap_after, result.gap_before)
+    assert "None: no candidate" in result.to_markdown()
+    # remove every sidecar: the same diagnosis, bit for bit
+    removed = 0
+    for path in noise_logs:
+        side = sidecar_path(path)
+        if side.exists():
+            side.unlink()
+            removed += 1
+    assert removed == len(noise_logs)
+    again = diagnose(arm, noise_logs[:-1], noise_logs[-1:], candidates=CANDIDATES, n_boot=0)
+    assert again.as_dict() == result.as_dict()
+
+
+def test_too_few_runs_and_bad_input_are_refused(arm, noise_logs, tmp_path):
+    with pytest.raises(InputError, match="too few runs to hold any out"):
+        split_runs(noise_logs[:1], None)
+    with pytest.raises(InputError, match="too few runs to hold any out"):
+        diagnose_command(noise_logs[:1], None, False, None)
+    train, held = split_runs(list(noise_logs), None)
+    assert held == noise_logs[-1:] and train == noise_logs[:-1]
+    with pytest.raises(InputError, match="holdout_paths"):
+        diagnose(arm, noise_logs, [])
+    with pytest.raises(InputError, match="also used for training"):
+        diagnose(arm, noise_logs[:2], noise_logs[1:2])
+    with pytest.raises(InputError, match="unknown name"):
+        diagnose(arm, noise_logs[:1], noise_logs[1:2], candidates=["no_such_effect"])
+    missing = tmp_path / "missing.parquet"
+    with pytest.raises(InputError, match="missing.parquet"):
+        signals_from_logs(arm, [missing])
+
+
+def test_cli_writes_the_report(arm, noise_logs, tmp_path, capsys):
+    out = tmp_path / "report"
+    diagnose_command(noise_logs[:2], noise_logs[2:3], True, out)
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["selected"] == [] or isinstance(printed["selected"], list)
+    assert (out / "diagnosis.md").read_text().startswith("# Sim-to-real gap diagnosis")
+    assert json.loads((out / "diagnosis.json").read_text()) == printed
