@@ -10,21 +10,20 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from msarm.io.atomic import atomic_path  # noqa: E402
 from msarm.model import RobotModel  # noqa: E402
 from msarm.muscle import curves  # noqa: E402
 from msarm.muscle.geometry import positive_spanning_margin  # noqa: E402
 
-__all__ = ["plot_controllability", "plot_hill_curves", "plot_moment_arms"]
+__all__ = ["save_figure", "plot_controllability", "plot_hill_curves", "plot_moment_arms"]
 
 
-def _save(fig: plt.Figure, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=110)
+def save_figure(fig: plt.Figure, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG to ``path`` atomically, close it and return the path."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
-    tmp.replace(path)
-    return path
+    return Path(path)
 
 
 def plot_moment_arms(
@@ -67,7 +66,7 @@ def plot_moment_arms(
     for ax in axes.flat[model.n_joints :]:
         ax.set_visible(False)
     fig.suptitle(f"{model.name}: moment arms (positive: pulling turns the joint positively)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_hill_curves(path: str | Path) -> Path:
@@ -92,7 +91,7 @@ def plot_hill_curves(path: str | Path) -> Path:
     ax_v.set_xlabel("normalised fibre velocity v_M / v_max (negative: shortening)")
     ax_v.set_ylabel("f_v")
     fig.suptitle("Hill-type muscle curves (De Groote et al. 2016)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_controllability(
@@ -122,7 +121,7 @@ def plot_controllability(
     ax.set_xlabel(f"{model.joint_names[a]} [deg]")
     ax.set_ylabel(f"{model.joint_names[b]} [deg]")
     ax.set_title(f"min {margin.min():.3f}")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_joint_tracking(
@@ -154,7 +153,7 @@ def plot_joint_tracking(
     axes[0].legend(fontsize=8, ncol=3)
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(title or "joint angles")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_cable_tensions(
@@ -202,4 +201,4 @@ def plot_cable_tensions(
         ax.set_visible(False)
     axes.flat[0].legend(fontsize=7)
     fig.suptitle(title or "cable tensions (motor side)")
-    return _save(fig, path)
+    return save_figure(fig, path)

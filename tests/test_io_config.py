@@ -178,7 +178,7 @@ def test_write_leaves_old_file_when_rename_fails(tmp_path, monkeypatch):
     def fail(*args):
         raise OSError("disk full")
 
-    monkeypatch.setattr("msarm.io.config.os.replace", fail)
+    monkeypatch.setattr("msarm.io.atomic.os.replace", fail)
     with pytest.raises(OSError, match="disk full"):
         write_config(Limits(), path)
     assert path.read_text() == "old: 1\n"

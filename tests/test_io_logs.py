@@ -223,7 +223,7 @@ def test_write_is_atomic(tmp_path, monkeypatch):
     def fail(*args):
         raise OSError("disk full")
 
-    monkeypatch.setattr("msarm.io.logs.os.replace", fail)
+    monkeypatch.setattr("msarm.io.atomic.os.replace", fail)
     with pytest.raises(OSError, match="disk full"):
         write_log(path, _log(1))
     monkeypatch.undo()

@@ -86,11 +86,11 @@ def run_command(
     from rich.progress import Progress
 
     from msarm.cdpr.robot_model import load_cable_robot
+    from msarm.io.atomic import write_json_atomic
     from msarm.io.logs import LogMetadata, RunLog, write_log, write_sidecar
     from msarm.tasks.cdpr_compare import plot_forces
     from msarm.tasks.cdpr_runner import run_cdpr
     from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory
-    from msarm.tasks.track import write_json_atomic
 
     model = load_cable_robot()
     path = get_cdpr_trajectory(trajectory)

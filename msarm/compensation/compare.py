@@ -27,12 +27,13 @@ import numpy as np  # noqa: E402
 
 from msarm import plots  # noqa: E402
 from msarm.control import ArmControllerConfig  # noqa: E402
+from msarm.io.atomic import write_json_atomic  # noqa: E402
 from msarm.model import RobotModel  # noqa: E402
 from msarm.plant import PlantConfig  # noqa: E402
 from msarm.tasks.evaluate import TrackingMetrics  # noqa: E402
 from msarm.tasks.registry import get_task  # noqa: E402
 from msarm.tasks.runner import Feedforward  # noqa: E402
-from msarm.tasks.track import TrackSettings, track, write_json_atomic  # noqa: E402
+from msarm.tasks.track import TrackSettings, track  # noqa: E402
 
 __all__ = ["Comparison", "compare_feedforward"]
 
@@ -164,4 +165,4 @@ def _plot_error_statistics(
     ax_cable.set_title("mean ± std over the tasks", fontsize=9)
     ax_cable.legend()
     fig.suptitle("error statistics without and with feedforward (paper 003 Fig. 9)")
-    return plots._save(fig, path)
+    return plots.save_figure(fig, path)

@@ -33,8 +33,6 @@ import copy
 import dataclasses
 import hashlib
 import math
-import os
-import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -46,6 +44,7 @@ import torch
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError
+from msarm.io.atomic import atomic_path
 from msarm.io.config import config_to_dict
 
 if TYPE_CHECKING:
@@ -694,18 +693,9 @@ def _plain_copy(value: Any, key: str) -> Any:
 
 
 def _atomic_torch_save(payload: Mapping[str, Any], path: Path) -> None:
-    """``torch.save`` to a temporary file in the same folder, fsync, then ``os.replace``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            torch.save(dict(payload), fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """``torch.save`` to ``path`` atomically (:func:`msarm.io.atomic.atomic_path`)."""
+    with atomic_path(path) as tmp:
+        torch.save(dict(payload), tmp)
 
 
 def _read_training_checkpoint(path: Path, error: type[Exception]) -> dict[str, Any]:

@@ -471,7 +471,7 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
     Returns:
         The path written.
     """
-    from msarm.plots import _save, plt
+    from msarm.plots import plt, save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), layout="constrained")
     ax = axes[0]
@@ -517,4 +517,4 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
         f"Where the gap lies: {breakdown.kind} residual, {len(breakdown.sources)} log(s), "
         f"{breakdown.samples} samples, RMS {breakdown.rms:.3g} {breakdown.unit}"
     )
-    return _save(fig, path)
+    return save_figure(fig, path)

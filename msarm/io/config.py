@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import os
 import re
-import tempfile
 import types
 import typing
 from collections.abc import Mapping
@@ -38,6 +36,7 @@ import numpy as np
 import yaml
 
 from msarm.errors import ConfigError
+from msarm.io.atomic import write_bytes_atomic
 
 __all__ = ["config_to_dict", "dump_config", "load_config", "write_config"]
 
@@ -158,23 +157,8 @@ def write_config(obj: Any, path: str | Path) -> Path:
         The path written.
     """
     path = Path(path)
-    _atomic_write_bytes(path, dump_config(obj).encode("utf-8"))
+    write_bytes_atomic(path, dump_config(obj).encode("utf-8"))
     return path
-
-
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and os.replace."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 # --- building -------------------------------------------------------------------------------

@@ -51,9 +51,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -65,6 +63,7 @@ import pyarrow.parquet as pq
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError, LogError
+from msarm.io.atomic import atomic_path
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -511,17 +510,8 @@ def _table(columns: Mapping[str, FloatArray], kv: Mapping[str, str]) -> pa.Table
 
 
 def _write_parquet_atomic(path: Path, table: pa.Table) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         pq.write_table(table, tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _read_parquet(path: Path) -> tuple[dict[str, FloatArray], dict[str, str]]:

@@ -34,10 +34,10 @@ import numpy as np  # noqa: E402
 
 from msarm import plots  # noqa: E402
 from msarm.cdpr.robot_model import CableRobotModel  # noqa: E402
+from msarm.io.atomic import write_json_atomic  # noqa: E402
 from msarm.plant.cdpr_config import CdprPlantConfig  # noqa: E402
 from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun, run_cdpr  # noqa: E402
 from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory  # noqa: E402
-from msarm.tasks.track import write_json_atomic  # noqa: E402
 
 __all__ = ["CONTROLLERS", "TRAJECTORIES", "CdprComparison", "compare_cdpr", "plot_forces"]
 
@@ -217,7 +217,7 @@ def plot_forces(run: CdprRun, model: CableRobotModel, path: Path, title: str = "
     fig.suptitle(
         f"{title}: {run.controller} on {run.trajectory} (bounds dotted, force control shaded)"
     )
-    return plots._save(fig, path)
+    return plots.save_figure(fig, path)
 
 
 def plot_switching(runs: dict[float, CdprRun], path: Path) -> Path:
@@ -242,7 +242,7 @@ def plot_switching(runs: dict[float, CdprRun], path: Path) -> Path:
     axes[1, 0].set_ylabel("position error [mm]")
     axes[0, 0].legend(fontsize=7)
     fig.suptitle("switching the force-controlled pair on the rectangle (HC-e, paper 000 Fig. 13)")
-    return plots._save(fig, path)
+    return plots.save_figure(fig, path)
 
 
 def plot_sensitivity(model: CableRobotModel, path: Path, points: int = 41) -> Path:
@@ -281,4 +281,4 @@ def plot_sensitivity(model: CableRobotModel, path: Path, points: int = 41) -> Pa
         ax.set_aspect("equal")
         fig.colorbar(mesh, ax=ax, label="sigma [N] (white: 1.5 N)")
     fig.suptitle(f"sensitivity index at z = {MAP_HEIGHT} m, R = I (paper 000 Fig. 7)")
-    return plots._save(fig, path)
+    return plots.save_figure(fig, path)

@@ -14,9 +14,6 @@ A run that diverges keeps its partial log and reports the divergence in ``metric
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +22,7 @@ import numpy as np
 
 from msarm import plots
 from msarm.control import ArmControllerConfig, MuscleSpaceController
+from msarm.io.atomic import write_json_atomic
 from msarm.io.config import config_to_dict, write_config
 from msarm.io.logs import LogMetadata, RunLog, write_log, write_sidecar
 from msarm.model import RobotModel
@@ -32,7 +30,7 @@ from msarm.plant import ArmPlant, PlantConfig
 from msarm.tasks.evaluate import TrackingMetrics, evaluate_run
 from msarm.tasks.runner import LOG_UNITS, TRUTH_UNITS, Feedforward, TrackingRun, run_tracking
 
-__all__ = ["TrackResult", "TrackSettings", "track", "write_json_atomic"]
+__all__ = ["TrackResult", "TrackSettings", "track"]
 
 
 @dataclass(frozen=True)
@@ -68,17 +66,6 @@ class TrackResult:
     run: TrackingRun
     metrics: TrackingMetrics
     files: dict[str, Path]
-
-
-def write_json_atomic(path: Path, payload: dict) -> Path:
-    """Write ``payload`` as JSON to ``path`` atomically (temporary file, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(handle, "w") as stream:
-        json.dump(payload, stream, indent=2)
-        stream.write("\n")
-    os.replace(tmp, path)
-    return path
 
 
 def track(
