@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console
+from msarm.cli.common import console, resolve_config
 
 cdpr_app = typer.Typer(
     help="The IPAnema 3 Mini cable robot: hybrid position-force controllers (paper 000).",
@@ -32,18 +32,11 @@ CDPR_UNITS = {
 
 
 def _plant(name: str):
-    from msarm.errors import InputError
-    from msarm.io.config import load_config
+    """The cable-robot plant from a preset name (``default``, ``ideal``) or a YAML file."""
     from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, IDEAL_CDPR_PLANT, CdprPlantConfig
 
     presets = {"default": DEFAULT_CDPR_PLANT, "ideal": IDEAL_CDPR_PLANT}
-    if name in presets:
-        return presets[name]
-    if not Path(name).is_file():
-        raise InputError(
-            f"unknown plant {name!r}: expected one of {', '.join(presets)} or a YAML file"
-        )
-    return load_config(Path(name), CdprPlantConfig)
+    return resolve_config(name, presets, CdprPlantConfig, "plant")
 
 
 def _metric_cells(m) -> list[str]:
