@@ -70,6 +70,7 @@ __all__ = [
     "SIDECAR_SCHEMA_VERSION",
     "STANDARD_UNITS",
     "LogMetadata",
+    "columns_from_quantities",
     "RunLog",
     "TruthSidecar",
     "read_log",
@@ -377,7 +378,7 @@ class RunLog(_Channels):
         Returns:
             The log, columns ``t`` then each quantity's channels in the order given.
         """
-        return cls(_columns_from_quantities(t, channels), metadata)
+        return cls(columns_from_quantities(t, channels), metadata)
 
 
 @dataclass(frozen=True, eq=False)
@@ -419,10 +420,21 @@ class TruthSidecar(_Channels):
 # --- checks ---------------------------------------------------------------------------------
 
 
-def _columns_from_quantities(
+def columns_from_quantities(
     t: ArrayLike, channels: Mapping[str, tuple[Sequence[str], ArrayLike]]
 ) -> dict[str, FloatArray]:
-    columns: dict[str, FloatArray] = {TIME: np.asarray(t, dtype=np.float64)}
+    """Log columns from one matrix per quantity.
+
+    Args:
+        t: Sample times [s], shape ``(T,)``.
+        channels: quantity -> (names, values of shape ``(T, k)``), e.g.
+            ``{"q": (model.joint_names, Q)}``.
+
+    Returns:
+        ``t`` then ``<quantity>.<name>`` for each quantity's channels in the order given, each
+        a contiguous float64 array of shape ``(T,)``.
+    """
+    columns: dict[str, FloatArray] = {TIME: np.array(t, dtype=np.float64)}
     for quantity, (names, values) in channels.items():
         values = np.asarray(values, dtype=np.float64)
         if values.ndim != 2 or values.shape[1] != len(names):
@@ -431,7 +443,7 @@ def _columns_from_quantities(
                 f"{len(names)} names, got {values.shape}"
             )
         for j, name in enumerate(names):
-            columns[f"{quantity}.{name}"] = values[:, j]
+            columns[f"{quantity}.{name}"] = np.ascontiguousarray(values[:, j])
     return columns
 
 

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from msarm.cdpr.forward_kinematics import platform_wrench
 from msarm.cdpr.robot_model import CableRobotModel
 from msarm.control.cdpr_controllers import make_cdpr_controller
+from msarm.io.logs import columns_from_quantities
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import CdprPlantConfig
 from msarm.plant.cdpr_plant import CdprPlant
@@ -187,16 +188,14 @@ def run_cdpr(
     if progress is not None:
         progress(1.0)
 
-    columns: dict[str, FloatArray] = {"t": trajectory.t[:done].copy()}
-    for axis, label in enumerate("xyz"):
-        columns[f"r_ref.{label}"] = trajectory.position[:done, axis].copy()
-        columns[f"marker.{label}"] = marker[:done, axis].copy()
-    for quantity, values in log.items():
-        for i, name in enumerate(names):
-            columns[f"{quantity}.{name}"] = values[:done, i].copy()
-    truth_columns = {"t": trajectory.t[:done].copy()}
-    for i, name in enumerate(names):
-        truth_columns[f"tension.{name}"] = force[:done, i].copy()
+    axes = ("x", "y", "z")
+    channels = {
+        "r_ref": (axes, trajectory.position[:done]),
+        "marker": (axes, marker[:done]),
+        **{quantity: (names, values[:done]) for quantity, values in log.items()},
+    }
+    columns = columns_from_quantities(trajectory.t[:done], channels)
+    truth_columns = columns_from_quantities(trajectory.t[:done], {"tension": (names, force[:done])})
     metrics = _metrics(
         model,
         trajectory,

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from msarm.control.arm_controller import ControlOutput, MuscleSpaceController
 from msarm.errors import InputError
+from msarm.io.logs import columns_from_quantities
 from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.effects import SensorReadings
 
@@ -212,17 +213,19 @@ def run_tracking(
     if progress is not None:
         progress(1.0)
 
-    columns: dict[str, FloatArray] = {"t": times[:done].copy()}
-    joint_quantities = {"q_ref", "qd_ref", "q", "qdot_est", "tau_cmd", "tau_ff"}
-    for key, values in log.items():
-        names = model.joint_names if key in joint_quantities else model.cable_names
-        for column, name in enumerate(names):
-            columns[f"{key}.{name}"] = values[:done, column].copy()
-    truth_columns: dict[str, FloatArray] = {"t": times[:done].copy()}
-    for key, values in truth.items():
-        names = model.joint_names if key in {"q", "qdot"} else model.cable_names
-        for column, name in enumerate(names):
-            truth_columns[f"{key}.{name}"] = values[:done, column].copy()
+    joint_quantities = {"q_ref", "qd_ref", "q", "qdot_est", "tau_cmd", "tau_ff", "qdot"}
+
+    def named(arrays: dict[str, FloatArray]) -> dict[str, FloatArray]:
+        channels = {
+            key: (
+                model.joint_names if key in joint_quantities else model.cable_names,
+                values[:done],
+            )
+            for key, values in arrays.items()
+        }
+        return columns_from_quantities(times[:done], channels)
+
+    columns, truth_columns = named(log), named(truth)
     return TrackingRun(
         task_name=task.name,
         columns=columns,
