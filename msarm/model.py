@@ -137,19 +137,25 @@ class RobotModel:
         """Map MuJoCo joint coordinates, shape ``(..., n)``, to Pinocchio's order."""
         return np.asarray(q, dtype=float)[..., self.pin_q_index]
 
-    def geometry(self, q: NDArray[np.float64], qdot: NDArray[np.float64] | None = None):
+    def geometry(
+        self,
+        q: NDArray[np.float64],
+        qdot: NDArray[np.float64] | None = None,
+        with_wrap_angles: bool = True,
+    ):
         """Cable lengths, muscle Jacobian and wrap angles at posture ``q`` (scratch data).
 
         Args:
             q: Joint coordinates [rad], shape ``(n,)``.
             qdot: Joint velocities [rad/s], shape ``(n,)``; zero if omitted.
+            with_wrap_angles: Compute the wrap angles (NaN if False; about 3/4 of the cost).
 
         Returns:
             A :class:`msarm.muscle.geometry.CableGeometry`.
         """
         from msarm.muscle.geometry import cable_geometry
 
-        return cable_geometry(self, self.scratch_data(), q, qdot)
+        return cable_geometry(self, self.scratch_data(), q, qdot, with_wrap_angles)
 
 
 def load_arm(path: str | Path | None = None) -> RobotModel:

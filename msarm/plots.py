@@ -53,7 +53,7 @@ def plot_moment_arms(
         for angle in angles:
             q = home.copy()
             q[k] = angle
-            arms.append(model.geometry(q).moment_arms[:, k])
+            arms.append(model.geometry(q, with_wrap_angles=False).moment_arms[:, k])
         arms = 100 * np.array(arms)
         for i, cable in enumerate(model.cable_names):
             if np.abs(arms[:, i]).max() > 1e-9:
@@ -114,7 +114,9 @@ def plot_controllability(
         for j, x in enumerate(xs):
             q = home.copy()
             q[a], q[b] = x, y
-            margin[i, j] = positive_spanning_margin(model.geometry(q).jacobian)
+            margin[i, j] = positive_spanning_margin(
+                model.geometry(q, with_wrap_angles=False).jacobian
+            )
     fig, ax = plt.subplots(figsize=(6, 5), layout="constrained")
     mesh = ax.pcolormesh(np.degrees(xs), np.degrees(ys), margin, shading="auto", cmap="viridis")
     fig.colorbar(mesh, ax=ax, label="positive-spanning margin (> 0: controllable)")

@@ -162,7 +162,7 @@ def arm_problems(n_problems: int, rng: np.random.Generator) -> BenchProblems:
         q = rng.uniform(lower, upper)
         qd = rng.uniform(-1.0, 1.0, n)
         try:
-            geo = arm.geometry(q)
+            geo = arm.geometry(q, with_wrap_angles=False)
             lo, hi = muscles.force_capacity(geo.lengths, geo.jacobian @ qd)
         except Exception:  # noqa: BLE001 - a posture outside the model's range: draw again
             continue

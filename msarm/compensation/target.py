@@ -84,7 +84,7 @@ def torque_error(
     index = model.pin_q_index
     inverse = np.argsort(index)
     for k in range(len(q)):
-        geometry_jacobian = model.geometry(q_raw[k]).jacobian
+        geometry_jacobian = model.geometry(q_raw[k], with_wrap_angles=False).jacobian
         delivered = -geometry_jacobian.T @ tension[k]
         needed = pinocchio.rnea(
             model.pin_model, data.pin, q[k][index], qd[k][index], qdd[k][index]

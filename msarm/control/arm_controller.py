@@ -125,6 +125,9 @@ class MuscleSpaceController:
         self._kp = np.asarray(self.config.kp, dtype=float)
         self._ki = np.asarray(self.config.ki, dtype=float)
         self._kd = np.asarray(self.config.kd, dtype=float)
+        # the integral state is bounded so that Ki * integral stays within the integral limit
+        self._integral_bound = self.config.integral_limit / np.maximum(self._ki, 1e-12)
+        self._from_pinocchio = np.argsort(model.pin_q_index)
         self._data = model.create_data()
         self._muscles = model.muscles
         self._hill = FastHill(model.muscles)
@@ -185,11 +188,8 @@ class MuscleSpaceController:
         qdot = state.qdot
 
         error = np.asarray(q_ref, dtype=float) - q
-        limit = cfg.integral_limit
         state.integral = np.clip(
-            state.integral + error * self.period,
-            -limit / np.maximum(self._ki, 1e-12),
-            limit / np.maximum(self._ki, 1e-12),
+            state.integral + error * self.period, -self._integral_bound, self._integral_bound
         )
         tau = pinocchio.rnea(
             model.pin_model,
@@ -197,7 +197,7 @@ class MuscleSpaceController:
             model.to_pinocchio(np.asarray(q_ref, dtype=float)),
             model.to_pinocchio(np.asarray(qd_ref, dtype=float)),
             model.to_pinocchio(np.asarray(qdd_ref, dtype=float)),
-        )[np.argsort(model.pin_q_index)]
+        )[self._from_pinocchio]
         tau = tau + self._kp * error + self._ki * state.integral
         tau += self._kd * (np.asarray(qd_ref, dtype=float) - qdot)
         if callable(feedforward):

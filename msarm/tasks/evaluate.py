@@ -90,7 +90,7 @@ def cable_travel(model: RobotModel) -> FloatArray:
     """
     if model.sha256 not in _TRAVEL_CACHE:
         grid = joint_grid(model.joint_lower, model.joint_upper, 7)
-        lengths = np.array([model.geometry(q).lengths for q in grid])
+        lengths = np.array([model.geometry(q, with_wrap_angles=False).lengths for q in grid])
         _TRAVEL_CACHE[model.sha256] = lengths.max(axis=0) - lengths.min(axis=0)
     return _TRAVEL_CACHE[model.sha256].copy()
 
@@ -128,7 +128,7 @@ def evaluate_run(
     q_ref = _matrix(columns, "q_ref", joints)
     p_final, p_target, p_start = hand_position(model, np.stack([q[-1], target, home]))
     error_m, percent = metrics.final_position_error(p_final, p_target, p_start)
-    theory = np.array([model.geometry(posture).lengths for posture in q])
+    theory = np.array([model.geometry(posture, with_wrap_angles=False).lengths for posture in q])
     motor = _matrix(columns, "motor_angle", cables)
     valid = theory[0] - drum_radius * (motor - motor[0])
     _, length_percent = metrics.cable_length_error(valid, theory, cable_travel(model))
