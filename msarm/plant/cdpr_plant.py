@@ -678,6 +678,22 @@ class CdprPlant:
             load_cell=load,
         )
 
+    @property
+    def true_platform_position(self) -> FloatArray:
+        """Simulation-only truth: the platform position r in K_0 [m], shape (3,).
+
+        The ``position`` of :meth:`ground_truth`, without building the rest.
+        """
+        return self.mj_data.qpos[:3].copy()
+
+    @property
+    def true_cable_tension(self) -> FloatArray:
+        """Simulation-only truth: platform-side cable tensions [N], shape (m,).
+
+        The ``tension`` of :meth:`ground_truth`, without building the rest.
+        """
+        return self._st[_S_TENSION].copy()
+
     def ground_truth(self) -> dict[str, Any]:
         """Simulation-only truth at the current step (never available to a controller).
 

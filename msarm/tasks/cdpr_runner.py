@@ -175,9 +175,8 @@ def run_cdpr(
         log["f_desired"][k] = command.f_desired
         log["h"][k] = command.h
         controlled[k] = command.h > 0.5
-        truth = plant.ground_truth()
-        marker[k] = truth["position"]
-        force[k] = truth["tension"]
+        marker[k] = plant.true_platform_position
+        force[k] = plant.true_cable_tension
         try:
             plant.step(1)
         except SimulationDivergedError as exc:
