@@ -152,7 +152,7 @@ class NumpyOps(Ops):
 
 
 class CasadiOps(Ops):
-    """:class:`Ops` on casadi matrices (data as ``DM``, parameters as ``SX`` symbols)."""
+    """:class:`Ops` on casadi matrices (data as ``DM``, parameters as ``MX`` symbols)."""
 
     def const(self, a: FloatArray) -> casadi.DM:  # noqa: D102
         return casadi.DM(np.asarray(a, dtype=float))

@@ -169,8 +169,8 @@ class _NonlinearProblem:
     def __init__(self, effect: CandidateEffect, signals: Signals, residual: FloatArray) -> None:
         self.effect, self.signals, self.residual = effect, signals, residual
         p, T = effect.n_parameters, signals.n_samples
-        theta = casadi.SX.sym("theta", p)
-        weights = casadi.SX.sym("w", T)
+        theta = casadi.MX.sym("theta", p)
+        weights = casadi.MX.sym("w", T)
         error = casadi.DM(residual) - effect.torque(signals, theta, CasadiOps())
         squared = casadi.sum2(error * error)
         reference = casadi.DM(np.sum(residual**2, axis=1))
