@@ -76,17 +76,25 @@ def test_joint_friction_is_found_and_the_gap_shrinks(arm, friction_logs):
     assert result.names, "nothing selected"
     assert result.names[0] in ("coulomb", "viscous")
     assert result.explained_variance[1] > 0.3
-    assert np.all(np.diff(result.explained_variance) > DEFAULT_THRESHOLD)
+    assert all(s.gain > DEFAULT_THRESHOLD for s in result.selected)
+    assert np.all(np.diff(result.explained_variance) > 0)
     assert result.total_shrink > 0.3
-    assert np.all(result.shrink > 0.3)
-    assert np.all(result.gap_after < result.gap_before)
+    assert np.all(result.shrink("joint") > 0.1)
+    assert result.group_shrink("joint") > 0.3
+    assert np.all(result.gap_after["joint"] < result.gap_before["joint"])
+    assert result.acted_groups == ("joint",)
+    # each waterfall step lowers the joint gap, ending at the final model's gap
+    steps = [w["joint"] for w in result.waterfall]
+    assert np.all(np.diff(steps) < 0)
+    assert steps[-1] == pytest.approx(np.sqrt(np.mean(result.gap_after["joint"] ** 2)))
     first = result.selected[0]
     assert first.parameters.shape == (arm.n_joints,)
     assert np.all(first.parameters > 0)  # friction opposes motion: r > 0 for qd > 0
     assert np.all(np.isfinite(first.std))
+    assert 0.5 < first.confidence <= 1.0
     payload = json.loads(json.dumps(result.as_dict()))
     assert payload["selected"][0]["name"] == first.name
-    assert "| joint | before [N m]" in result.to_markdown()
+    assert "| joint | shoulder_abduction |" in result.to_markdown()
 
 
 def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs):
@@ -94,7 +102,9 @@ def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs):
     assert result.names == ()
     assert result.explained_variance == (0.0,)
     assert max(result.step_scores[0].values()) < DEFAULT_THRESHOLD
-    np.testing.assert_array_equal(result.gap_after, result.gap_before)
+    for group in result.groups:
+        np.testing.assert_array_equal(result.gap_after[group], result.gap_before[group])
+    assert result.total_shrink == 0.0
     assert "None: no candidate" in result.to_markdown()
     # remove every sidecar: the same diagnosis, bit for bit
     removed = 0

@@ -145,6 +145,7 @@ def _hand_residuals() -> Residuals:
         valid=np.ones(40, dtype=bool),
         joint_torque=torque,
         cable_length=None,
+        drive=None,
         replay=None,
         q=q,
         qd=qd,
@@ -225,7 +226,7 @@ def test_a_missing_channel_is_named(arm, logs, tmp_path):
     path = write_log(tmp_path / "no_motor.parquet", RunLog(columns, log.metadata))
     with pytest.warns(DiagnosisWarning, match="motor_angle"):
         result = residuals_from_log(arm, path)
-    assert result.cable_length is None and result.kinds() == ["joint_torque", "replay"]
+    assert result.cable_length is None and result.kinds() == ["joint_torque", "drive", "replay"]
 
 
 def test_time_gaps_split_the_log_and_warn(arm, logs, residuals, tmp_path):

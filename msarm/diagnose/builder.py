@@ -1,15 +1,21 @@
 """Build the fitting input of the gap diagnosis from log files.
 
-:func:`signals_from_logs` reads each log with :func:`msarm.diagnose.residuals.residuals_from_log`
+:func:`channels_from_logs` reads each log with :func:`msarm.diagnose.residuals.residuals_from_log`
 (which never opens the ground-truth sidecar), keeps its valid samples, adds what the candidate
 effects need (cable lengths, Jacobian and wrap angles of the nominal model at each logged
-posture, the logged motor angles) and concatenates the runs, each labelled by its index.
+posture, the logged motor angles and speeds, the aligned tension commands) and concatenates the
+runs, each labelled by its index. It returns the residual of each channel group
+(:data:`GROUPS`): ``"joint"`` the joint-torque residual [N m], ``"drive"`` the load-cell
+tension minus its command [N], ``"length"`` the cable length error [m] minus its mean over each
+run (the motor encoders give lengths up to an unknown offset per run).
+:func:`signals_from_logs` is the joint group alone.
 """
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,15 +28,20 @@ from msarm.io.logs import read_log
 from msarm.model import RobotModel
 from msarm.muscle.geometry import cable_geometry
 
-__all__ = ["signals_from_logs"]
+__all__ = ["GROUPS", "GROUP_UNITS", "channels_from_logs", "signals_from_logs"]
 
 FloatArray = NDArray[np.float64]
+
+#: The channel groups of the diagnosis, in the order they are stacked.
+GROUPS = ("joint", "drive", "length")
+#: Unit of each group's residual.
+GROUP_UNITS = {"joint": "N m", "drive": "N", "length": "m"}
 
 
 def _one_run(
     model: RobotModel, path: Path, spec: ResidualSpec
-) -> tuple[dict[str, FloatArray], FloatArray, float]:
-    """Signal arrays (valid samples only), residual ``(T, n)`` and sample period of one log."""
+) -> tuple[dict[str, FloatArray], dict[str, FloatArray], float]:
+    """Signal arrays and group residuals (valid samples only) and sample period of one log."""
     source = str(path)
     if not path.is_file():
         raise InputError(f"{source}: no such log file")
@@ -74,15 +85,25 @@ def _one_run(
         "wrap": wrap,
         "motor_angle": motor[valid],
     }
+    if residuals.tension_cmd is not None:
+        arrays["tension_cmd"] = residuals.tension_cmd[valid]
+    if residuals.motor_speed is not None:
+        arrays["motor_speed"] = residuals.motor_speed[valid]
     for name, value in arrays.items():
         if not np.all(np.isfinite(value)):
             row = int(np.argwhere(~np.isfinite(value))[0][0])
             raise LogError(f"{source}: non-finite {name} at valid sample {row}")
-    residual = residuals.joint_torque[valid]
-    if not np.all(np.isfinite(residual)):
-        row = int(np.argwhere(~np.isfinite(residual))[0][0])
-        raise LogError(f"{source}: non-finite joint-torque residual at valid sample {row}")
-    return arrays, residual, 1.0 / residuals.sample_rate_hz
+    groups = {"joint": residuals.joint_torque[valid]}
+    if residuals.drive is not None:
+        groups["drive"] = residuals.drive[valid]
+    if residuals.cable_length is not None:
+        length = residuals.cable_length[valid]
+        groups["length"] = length - length.mean(axis=0)
+    for group, residual in groups.items():
+        if not np.all(np.isfinite(residual)):
+            row = int(np.argwhere(~np.isfinite(residual))[0][0])
+            raise LogError(f"{source}: non-finite {group} residual at valid sample {row}")
+    return arrays, groups, 1.0 / residuals.sample_rate_hz
 
 
 def signals_from_logs(
@@ -90,7 +111,21 @@ def signals_from_logs(
     paths: Sequence[str | Path],
     spec: ResidualSpec | None = None,
 ) -> tuple[Signals, FloatArray, tuple[str, ...]]:
-    """Signals and joint-torque residual of several logs, concatenated with run labels.
+    """Signals and joint-torque residual of several logs (see :func:`channels_from_logs`).
+
+    Returns:
+        ``(signals, residual, runs)`` with ``residual`` the joint group ``(T, n)`` [N m].
+    """
+    signals, groups, names = channels_from_logs(model, paths, spec)
+    return signals, groups["joint"], names
+
+
+def channels_from_logs(
+    model: RobotModel,
+    paths: Sequence[str | Path],
+    spec: ResidualSpec | None = None,
+) -> tuple[Signals, dict[str, FloatArray], tuple[str, ...]]:
+    """Signals and group residuals of several logs, concatenated with run labels.
 
     Args:
         model: The nominal robot model the logs were recorded with.
@@ -98,10 +133,11 @@ def signals_from_logs(
         spec: Residual settings (filter, drum radius); the replay is never computed here.
 
     Returns:
-        ``(signals, residual, runs)``: the :class:`Signals` of all valid samples (``T`` in
-        total, ``signals.run[k]`` the index in ``paths`` of sample ``k``'s log), the residual
-        ``r = tau_MS - ID`` [N m] of shape ``(T, n)``, and the log names (``str`` of each path),
-        indexed by run label.
+        ``(signals, groups, runs)``: the :class:`Signals` of all valid samples (``T`` in
+        total, ``signals.run[k]`` the index in ``paths`` of sample ``k``'s log), the residual of
+        each group present in every log (``groups["joint"]`` ``(T, n)`` always; ``"drive"`` and
+        ``"length"`` ``(T, m)`` when every log has the channels they need), and the log names
+        (``str`` of each path), indexed by run label.
 
     Raises:
         InputError: No paths, or a file that does not exist (named).
@@ -113,7 +149,7 @@ def signals_from_logs(
         raise InputError("paths: no log files given")
     base = spec or ResidualSpec()
     if base.replay:
-        base = ResidualSpec(target=base.target, drum_radius=base.drum_radius, replay=False)
+        base = replace(base, replay=False)
     parts, residuals, names = [], [], []
     dt = None
     for label, path in enumerate(paths):
@@ -130,6 +166,9 @@ def signals_from_logs(
         parts.append(arrays)
         residuals.append(residual)
         names.append(str(path))
-    joined = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    keys = set.intersection(*(set(p) for p in parts))
+    joined = {key: np.concatenate([p[key] for p in parts]) for key in parts[0] if key in keys}
     signals = Signals(dt=float(dt), **joined)
-    return signals, np.concatenate(residuals), tuple(names)
+    present = [g for g in GROUPS if all(g in r for r in residuals)]
+    groups = {g: np.concatenate([r[g] for r in residuals]) for g in present}
+    return signals, groups, tuple(names)

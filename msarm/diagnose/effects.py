@@ -191,6 +191,7 @@ class CandidateEffect(ABC):
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
     linear: ClassVar[bool] = True
+    groups: tuple[str, ...] = ("joint",)
     parameter_names: tuple[str, ...]
     channels: tuple[int, ...]
 
@@ -199,8 +200,21 @@ class CandidateEffect(ABC):
         """Number of parameters ``p``."""
         return len(self.parameter_names)
 
+    def width(self, signals: Signals) -> int:
+        """Number of residual columns the term predicts: its groups' channels side by side.
+
+        The channel groups (see :mod:`msarm.diagnose.builder`) are ``"joint"`` (``n``
+        joint-torque columns [N m]), ``"drive"`` (``m`` load-cell-minus-command columns [N])
+        and ``"length"`` (``m`` cable length error columns [m]); a term's prediction holds the
+        columns of its ``groups`` in that order.
+        """
+        sizes = {"joint": signals.n_joints, "drive": signals.n_cables, "length": signals.n_cables}
+        return sum(sizes[g] for g in self.groups)
+
     def design(self, signals: Signals) -> FloatArray:
-        """The regressor of a linear term [N m per parameter unit], shape ``(T, n, p)``.
+        """The regressor of a linear term [residual unit per parameter unit], ``(T, W, p)``.
+
+        ``W`` is :meth:`width` (``n`` for a joint-torque term).
 
         Raises:
             NotImplementedError: The term is nonlinear.
@@ -208,7 +222,9 @@ class CandidateEffect(ABC):
         raise NotImplementedError(f"{self.name} is nonlinear: it has no design matrix")
 
     def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:
-        """The predicted residual [N m], shape ``(T, n)``, for parameters ``theta`` ``(p,)``.
+        """The predicted residual, shape ``(T, W)`` (:meth:`width`), for ``theta`` ``(p,)``.
+
+        For a joint-torque term this is ``(T, n)`` [N m]; the name is historical.
 
         Linear terms evaluate ``design @ theta`` (numpy only); nonlinear terms override this
         with code written in ``ops`` so that it works with numpy and casadi.
@@ -237,6 +253,14 @@ class CandidateEffect(ABC):
 
     def check(self, signals: Signals) -> None:
         """Raise :class:`InputError` when ``signals`` do not fit this term (sizes)."""
+        return None
+
+    def restricted(self, groups: Sequence[str]) -> CandidateEffect | None:
+        """The same effect predicting only ``groups`` (a subset of its own), if it can.
+
+        The diagnosis asks this when the logs lack one of the term's groups. Default: None
+        (the term needs all its groups).
+        """
         return None
 
     def _check_theta(self, theta: Any) -> FloatArray:
@@ -638,6 +662,10 @@ class SensorBiasScale(CandidateEffect):
 
     Linear in ``b`` and ``g = k - 1``, per cable (``2 m`` parameters, default) or shared by all
     cables (``shared``: 2 parameters). ``bias`` / ``scale`` switch either part off.
+
+    With ``drive`` the term also predicts the drive residual (groups ``joint`` and ``drive``):
+    a drive that closes its loop on the true tension makes the reading differ from the
+    command by ``e = b + (k - 1) F``.
     """
 
     name = "sensor"
@@ -653,6 +681,7 @@ class SensorBiasScale(CandidateEffect):
         shared: bool = False,
         bias: bool = True,
         scale: bool = True,
+        drive: bool = False,
     ) -> None:
         """Build the term.
 
@@ -662,6 +691,7 @@ class SensorBiasScale(CandidateEffect):
             shared: One bias and one scale for all cables.
             bias: Fit the bias.
             scale: Fit the scale.
+            drive: Also predict the drive residual (groups ``joint`` and ``drive``).
         """
         if not (bias or scale):
             raise InputError("SensorBiasScale: at least one of bias and scale must be fitted")
@@ -671,19 +701,34 @@ class SensorBiasScale(CandidateEffect):
         cables = ("all",) if shared else tuple(str(c) for c in range(self.n_cables))
         kinds = (("bias",) if bias else ()) + (("scale_minus_1",) if scale else ())
         self.parameter_names = tuple(f"{k}[{c}]" for k in kinds for c in cables)
+        self.groups = ("joint", "drive") if drive else ("joint",)
+
+    def restricted(self, groups: Sequence[str]) -> CandidateEffect | None:  # noqa: D102
+        if "joint" not in groups:
+            return None
+        return SensorBiasScale(
+            self.n_cables, self.n_joints, self.shared, self.bias, self.scale, drive=False
+        )
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)
         self._check_cables(signals, self.n_cables)
         JT = -np.transpose(signals.jacobian, (0, 2, 1))  # (T, n, m)
+        eye = np.broadcast_to(np.eye(self.n_cables), (signals.n_samples,) + JT.shape[2:] * 2)
         blocks = []
         if self.bias:
-            blocks.append(JT)
+            blocks.append((JT, eye))
         if self.scale:
-            blocks.append(JT * signals.tension[:, None, :])
+            blocks.append((JT * signals.tension[:, None, :], eye * signals.tension[:, None, :]))
         if self.shared:
-            blocks = [b.sum(axis=2, keepdims=True) for b in blocks]
-        return np.concatenate(blocks, axis=2)
+            blocks = [
+                (j.sum(axis=2, keepdims=True), d.sum(axis=2, keepdims=True)) for j, d in blocks
+            ]
+        joint = np.concatenate([j for j, _ in blocks], axis=2)
+        if "drive" not in self.groups:
+            return joint
+        drive = np.concatenate([d for _, d in blocks], axis=2)
+        return np.concatenate([joint, drive], axis=1)
 
 
 @register
@@ -801,9 +846,18 @@ class InertiaError(CandidateEffect):
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)
+        # Signals are immutable: the regressor of the last few is kept (forward selection
+        # asks for the same signals at every step).
+        cache = self.__dict__.setdefault("_cache", [])
+        for seen, design in cache:
+            if seen is signals:
+                return design
         out = np.empty((signals.n_samples, self.n_joints, len(self.columns)))
         for k in range(signals.n_samples):
             out[k] = self._regressor(signals.q[k], signals.qd[k], signals.qdd[k])[:, self.columns]
+        out.setflags(write=False)
+        cache.append((signals, out))
+        del cache[:-4]
         return out
 
 

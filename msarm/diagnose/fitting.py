@@ -90,7 +90,7 @@ class FitResult:
             InputError: Wrong shapes, non-finite residual, an empty mask, or a residual
                 without variance.
         """
-        residual = _check_residual(signals, residual)
+        residual = _check_residual(signals, residual, self.effect)
         mask = _check_mask(signals, mask, "mask")
         if not mask.any():
             raise InputError("mask: selects no samples")
@@ -125,11 +125,18 @@ class BootstrapResult:
     n_runs: int
 
 
-def _check_residual(signals: Signals, residual: FloatArray) -> FloatArray:
+def _check_residual(
+    signals: Signals, residual: FloatArray, effect: CandidateEffect | None = None
+) -> FloatArray:
     residual = np.asarray(residual, dtype=float)
-    expected = (signals.n_samples, signals.n_joints)
+    width = signals.n_joints if effect is None else effect.width(signals)
+    expected = (signals.n_samples, width)
     if residual.shape != expected:
-        raise InputError(f"residual: expected shape (T, n) = {expected}, got {residual.shape}")
+        groups = "joint" if effect is None else "+".join(effect.groups)
+        raise InputError(
+            f"residual: expected shape (T, W) = {expected} (groups {groups}), "
+            f"got {residual.shape}"
+        )
     if not np.all(np.isfinite(residual)):
         bad = np.argwhere(~np.isfinite(residual))[0]
         raise InputError(f"residual: non-finite value (NaN or inf) at index {tuple(bad)}")
@@ -239,11 +246,11 @@ def fit(
         InputError: Wrong shapes, non-finite values, or fewer training samples than
             parameters.
     """
-    residual = _check_residual(signals, residual)
+    residual = _check_residual(signals, residual, effect)
     mask = _check_mask(signals, train_mask, "train_mask")
     effect.check(signals)
     n_train = int(mask.sum())
-    if n_train * signals.n_joints < effect.n_parameters:
+    if n_train * effect.width(signals) < effect.n_parameters:
         raise InputError(
             f"train_mask: {n_train} samples for {effect.n_parameters} parameters of {effect.name}"
         )
@@ -296,7 +303,7 @@ def bootstrap(
     Raises:
         InputError: Fewer than two runs, ``n_boot < 2``, or bad shapes.
     """
-    residual = _check_residual(signals, residual)
+    residual = _check_residual(signals, residual, effect)
     mask = _check_mask(signals, train_mask, "train_mask")
     labels = signals.run if runs is None else np.asarray(runs)
     if labels.shape != (signals.n_samples,):

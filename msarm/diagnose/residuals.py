@@ -10,6 +10,10 @@ Three residuals say, sample by sample, how far the logged robot is from the nomi
   encoders say (``l_hat = l(q_0) - r (theta - theta_0)``, drum radius ``r``, from the first
   sample of each contiguous segment) minus the path length of the logged posture. Zero for
   rigid cables; stretch, slack and drum slip make it differ.
+- ``drive`` [N], shape ``(T, m)``: ``F - F_cmd``, the load-cell tension minus the tension the
+  controller commanded one sample earlier (the nominal drive renders each command exactly by
+  the next sample: on the ideal plant this residual is zero). Winch friction, cogging, a drive
+  delay and load-cell errors show here; None when the log has no ``tension_cmd`` channels.
 - ``replay`` [rad], shape ``(T, n)`` (optional): the nominal dynamics (Pinocchio ``aba``)
   driven by the logged load-cell tensions through ideal cables (``tau = -J_c(q)^T F``, tension
   held between samples), integrated (semi-implicit Euler) over short windows that restart from
@@ -50,7 +54,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 #: Unit of each residual kind.
-RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "replay": "rad"}
+RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "drive": "N", "replay": "rad"}
 
 #: A step of ``t`` longer than this many nominal sample periods is a gap.
 _GAP_FACTOR = 1.5
@@ -71,6 +75,8 @@ class ResidualSpec:
     Attributes:
         target: Savitzky-Golay filter of the joint encoders (window [samples], order).
         drum_radius: Winch drum radius ``r`` [m] (motor angle to cable length).
+        drive_gain: Gain ``K`` of the drives' tension loop [-] (winch torque to tension error,
+            for the drive-side terms' parameters in N m).
         replay: Also compute the replay residual.
         replay_window: Length of one replay window [s]; each restarts from the logged state.
         replay_substeps: Integration steps per sample period in the replay.
@@ -78,6 +84,7 @@ class ResidualSpec:
 
     target: TargetSpec = TargetSpec()
     drum_radius: float = 0.003
+    drive_gain: float = 4.0
     replay: bool = True
     replay_window: float = 0.2
     replay_substeps: int = 4
@@ -85,6 +92,8 @@ class ResidualSpec:
     def __post_init__(self) -> None:
         if not self.drum_radius > 0:
             raise ValueError(f"drum_radius must be > 0 [m], got {self.drum_radius}")
+        if not self.drive_gain >= 0:
+            raise ValueError(f"drive_gain must be >= 0, got {self.drive_gain}")
         if not self.replay_window > 0:
             raise ValueError(f"replay_window must be > 0 [s], got {self.replay_window}")
         if self.replay_substeps < 1:
@@ -107,12 +116,18 @@ class Residuals:
         joint_torque: Joint-torque residual ``T_f`` [N m], shape ``(T, n)``.
         cable_length: Cable length error ``l_hat - l`` [m], shape ``(T, m)``; None when the
             log has no ``motor_angle`` channels.
+        drive: Drive residual ``F - F_cmd`` [N], shape ``(T, m)``; None when the log has no
+            ``tension_cmd`` channels.
         replay: Replay residual ``q_replay - q`` [rad], shape ``(T, n)``; None if not computed.
         q: Logged joint angles [rad], shape ``(T, n)``.
         qd: Filtered joint velocities [rad/s], shape ``(T, n)``.
         qdd: Filtered joint accelerations [rad/s^2], shape ``(T, n)``.
         cable_velocity: Cable velocities ``J_c(q) qd`` [m/s], shape ``(T, m)``.
         tension: Motor-side load-cell tensions [N], shape ``(T, m)``.
+        tension_cmd: The command each tension answers (the previous sample's; the first of a
+            segment takes its own) [N], shape ``(T, m)``; None without ``tension_cmd``.
+        motor_speed: Filtered motor speeds [rad/s], shape ``(T, m)``; None without
+            ``motor_angle``.
     """
 
     source: str
@@ -123,12 +138,15 @@ class Residuals:
     valid: NDArray[np.bool_]
     joint_torque: FloatArray
     cable_length: FloatArray | None
+    drive: FloatArray | None
     replay: FloatArray | None
     q: FloatArray
     qd: FloatArray
     qdd: FloatArray
     cable_velocity: FloatArray
     tension: FloatArray
+    tension_cmd: FloatArray | None = None
+    motor_speed: FloatArray | None = None
 
     def __len__(self) -> int:
         """Number of samples ``T``."""
@@ -142,7 +160,7 @@ class Residuals:
         """One residual by kind, shape ``(T, n)`` or ``(T, m)``.
 
         Args:
-            kind: ``"joint_torque"``, ``"cable_length"`` or ``"replay"``.
+            kind: ``"joint_torque"``, ``"cable_length"``, ``"drive"`` or ``"replay"``.
 
         Raises:
             ValueError: Unknown kind, or a kind this log has none of.
@@ -158,7 +176,7 @@ class Residuals:
 
     def channel_names(self, kind: str) -> tuple[str, ...]:
         """Channel names of a residual kind: the joints or the cables."""
-        return self.cable_names if kind == "cable_length" else self.joint_names
+        return self.cable_names if kind in ("cable_length", "drive") else self.joint_names
 
 
 def residuals_from_log(
@@ -213,12 +231,25 @@ def residuals_from_log(
             DiagnosisWarning,
             stacklevel=2,
         )
+    has_command = all(f"tension_cmd.{c}" in log.columns for c in cables)
+    if not has_command:
+        missing = next(c for c in cables if f"tension_cmd.{c}" not in log.columns)
+        warnings.warn(
+            f"{source}: column 'tension_cmd.{missing}' is missing: no drive residual (the "
+            "winch-friction, motor-cogging and command-delay terms cannot be fitted); the "
+            "joint-torque and cable-length residuals are still computed",
+            DiagnosisWarning,
+            stacklevel=2,
+        )
     segments = _segments(log, source, spec.target.window)
 
     n_samples, n, m = len(log), len(joints), len(cables)
     out = {
         "joint_torque": np.full((n_samples, n), np.nan),
         "cable_length": np.full((n_samples, m), np.nan) if has_motor else None,
+        "drive": np.full((n_samples, m), np.nan) if has_command else None,
+        "tension_cmd": np.full((n_samples, m), np.nan) if has_command else None,
+        "motor_speed": np.full((n_samples, m), np.nan) if has_motor else None,
         "replay": np.full((n_samples, n), np.nan) if spec.replay else None,
         "qd": np.full((n_samples, n), np.nan),
         "qdd": np.full((n_samples, n), np.nan),
@@ -228,6 +259,7 @@ def residuals_from_log(
     q_all = log.matrix("q", joints)
     tension_all = log.matrix("tension_motor", cables)
     motor_all = log.matrix("motor_angle", cables) if has_motor else None
+    command_all = log.matrix("tension_cmd", cables) if has_command else None
     dt = 1.0 / log.metadata.sample_rate_hz
     work = _Work(model)
     for start, stop in segments:
@@ -248,6 +280,14 @@ def residuals_from_log(
             motor = motor_all[part]
             estimate = lengths[0] - spec.drum_radius * (motor - motor[0])
             out["cable_length"][part] = estimate - lengths
+            out["motor_speed"][part] = savgol_filter(
+                motor, window, order, deriv=1, delta=dt, axis=0
+            )
+        if command_all is not None:
+            command = command_all[part]
+            aligned = np.concatenate([command[:1], command[:-1]])
+            out["tension_cmd"][part] = aligned
+            out["drive"][part] = tension_all[part] - aligned
         if spec.replay:
             out["replay"][part] = _replay(work, q, q_f, qd, tension_all[part], dt, spec)
         valid[part] = True
@@ -260,12 +300,15 @@ def residuals_from_log(
         valid=valid,
         joint_torque=out["joint_torque"],
         cable_length=out["cable_length"],
+        drive=out["drive"],
         replay=out["replay"],
         q=q_all,
         qd=out["qd"],
         qdd=out["qdd"],
         cable_velocity=out["cable_velocity"],
         tension=tension_all,
+        tension_cmd=out["tension_cmd"],
+        motor_speed=out["motor_speed"],
     )
 
 

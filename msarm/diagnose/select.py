@@ -1,31 +1,46 @@
 """Which unmodelled effect explains the gap: forward selection scored on held-out runs.
 
-:func:`diagnose` starts from the nominal model (no term: the whole joint-torque residual
-``r = tau_MS - ID`` is unexplained) and, step by step, tries each remaining candidate together
-with the terms already selected:
+The residuals of the logs come in channel groups (:data:`msarm.diagnose.builder.GROUPS`): the
+joint-torque residual [N m], the drive residual (load cell minus command) [N] and the cable
+length error [m]. Each candidate predicts the columns of one or more groups. So that the groups
+weigh alike whatever their units, each group is divided by its training residual's spread
+(the root of its summed column mean squares) before fitting.
+
+:func:`diagnose` starts from the nominal model (no term: every residual is unexplained) and,
+step by step, tries each remaining candidate together with the terms already selected:
 
 - **Joint fit.** All linear terms (the selected ones and the candidate, if linear) are fitted
-  together by one least-squares problem on their stacked design matrices. Nonlinear terms are
-  then fitted one after another (in the order they were selected, the candidate last) by IPOPT,
-  each on the residual left by the linear block and the nonlinear terms before it (one pass; the
-  linear block is not refitted afterwards). Fits use the training runs only.
-- **Score.** The share of the held-out residual's variance the fitted model explains,
-  ``1 - sum_j var(r_j - pred_j) / sum_j var(r_j)`` over the held-out samples (variances about
-  each joint's mean, pooled over joints): a term earns its place by predicting runs it was not
-  fitted on, not by fitting noise.
-- **Rule.** The best candidate is added when it raises the held-out explained variance by more
-  than ``threshold`` (:data:`DEFAULT_THRESHOLD` = 0.02, two percentage points of the residual's
-  variance); otherwise the selection stops. A null plant (only sensor noise) leaves nothing a
-  term can predict on held-out runs, so nothing is selected.
+  together by one least-squares problem on their stacked, group-normalised design matrices.
+  Nonlinear terms are then fitted one after another (in the order they were selected, the
+  candidate last) by IPOPT, each on the residual left by the linear block and the nonlinear
+  terms before it (one pass). Fits use the training runs only.
+- **Score.** The held-out explained share of the residual: per group, ``1 - sum (r -
+  pred)^2 / sum r^2`` over the held-out samples and the group's columns (energy about zero,
+  so that a constant offset such as a load-cell bias counts as gap), then the mean over the
+  groups. A term earns its place by predicting runs it was not fitted on.
+- **Rule.** A candidate's gain is the rise of the explained share averaged over the groups
+  it acts on (so that a term is not diluted by groups it cannot touch). The candidate with the
+  largest gain is added when that gain exceeds ``threshold`` (:data:`DEFAULT_THRESHOLD` =
+  0.02); otherwise the selection stops. A null plant (only
+  sensor noise) leaves nothing a term can predict on held-out runs, so nothing is selected.
 
-The result, a :class:`Diagnosis`, names the selected effects in order with their parameters
-(and their bootstrap standard deviation over the training runs), the held-out explained
-variance after each step, and the gap per joint: the held-out RMSE of the residual before and
-after subtracting the selected terms' prediction, and the share it shrank.
+**Confidence.** The final model is refitted on ``n_boot`` bootstrap draws of the training runs
+(the parameters' standard deviation comes from the same draws). An effect's confidence is the
+share of (draw, held-out run) pairs in which leaving that effect out of the refitted model
+lowers the run's explained share on the effect's groups by more than the threshold: 1 when
+every resample of the training runs and every held-out run needs it, near 0 for a term that
+only helps by chance.
+
+The result, a :class:`Diagnosis`, names the selected effects in order with their parameters,
+bootstrap standard deviations and confidence, the held-out explained variance after each step,
+and the gap per channel: the held-out RMSE of the residual before and after subtracting the
+selected terms' prediction, and the share it shrank, group by group and effect by effect (the
+waterfall of :mod:`msarm.diagnose.report`).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,29 +49,40 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.builder import signals_from_logs
+from msarm.diagnose.builder import GROUP_UNITS, GROUPS, channels_from_logs
+from msarm.diagnose.cable_effects import (
+    CableElasticity,
+    CommandDelay,
+    DriveCogging,
+    WinchFriction,
+)
 from msarm.diagnose.effects import (
+    NUMPY_OPS,
     CableCapstanFriction,
     CandidateEffect,
     CoulombFriction,
     InertiaError,
     MotorCogging,
+    NumpyOps,
+    Ops,
     SensorBiasScale,
     StribeckFriction,
     TensionDelay,
     ViscousFriction,
 )
-from msarm.diagnose.fitting import bootstrap, fit
-from msarm.diagnose.residuals import ResidualSpec
+from msarm.diagnose.fitting import _NonlinearProblem, _solve_linear, fit
+from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 from msarm.model import RobotModel
 
 __all__ = [
+    "DEFAULT_CANDIDATES",
     "DEFAULT_COGGING_PERIODS",
     "DEFAULT_THRESHOLD",
     "Diagnosis",
     "SelectedEffect",
+    "available_candidates",
     "default_candidates",
     "diagnose",
 ]
@@ -65,23 +91,40 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
-#: Cogging periods per motor revolution of the default cogging candidate (motor datasheet).
+#: Cogging periods per motor revolution of the default cogging candidates (motor datasheet).
 DEFAULT_COGGING_PERIODS = 24
+#: The candidates tried by default, by name (see :func:`available_candidates`).
+DEFAULT_CANDIDATES = (
+    "coulomb",
+    "viscous",
+    "stribeck",
+    "capstan",
+    "sensor",
+    "inertia",
+    "winch_friction",
+    "motor_cogging",
+    "command_delay",
+    "elasticity",
+)
 
 
-def default_candidates(
+def available_candidates(
     model: RobotModel, spec: ResidualSpec | None = None
 ) -> dict[str, CandidateEffect]:
-    """The candidate effects tried by default, by name.
+    """Every built-in candidate, configured for ``model``, by name.
 
-    Coulomb and viscous joint friction, Stribeck friction (nonlinear), capstan sheath friction
-    (one shared ``mu``, nonlinear), motor cogging (:data:`DEFAULT_COGGING_PERIODS` periods per
-    revolution, the drum radius of ``spec``), load-cell bias and scale (shared by all cables),
-    a tension delay and the links' mass error (base set of masses and first moments).
+    Joint-torque terms: Coulomb and viscous joint friction, Stribeck friction (nonlinear),
+    capstan sheath friction (one shared ``mu``, nonlinear), the links' mass error (base set of
+    masses and first moments), and two terms that act on the joints through the load cells'
+    reading: ``cogging`` (a cogging force behind the load cell) and ``delay`` (tensions logged
+    late against the encoders, first order). Joint and drive: ``sensor`` (load-cell bias and
+    scale shared by all cables). Drive terms: ``winch_friction``, ``motor_cogging``
+    (:data:`DEFAULT_COGGING_PERIODS` periods per revolution) and ``command_delay``. Cable
+    length: ``elasticity``. Drive terms use ``spec.drum_radius`` and ``spec.drive_gain``.
 
     Args:
         model: The nominal robot model.
-        spec: Residual settings; its ``drum_radius`` [m] is the cogging term's.
+        spec: Residual settings (drum radius, drive gain).
     """
     spec = spec or ResidualSpec()
     n, m = model.n_joints, model.n_cables
@@ -90,12 +133,116 @@ def default_candidates(
         ViscousFriction(n_joints=n),
         StribeckFriction(n_joints=n),
         CableCapstanFriction(n_cables=m, n_joints=n),
-        MotorCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, n_cables=m, n_joints=n),
-        SensorBiasScale(n_cables=m, n_joints=n, shared=True),
-        TensionDelay(n_cables=m, n_joints=n),
+        SensorBiasScale(n_cables=m, n_joints=n, shared=True, drive=True),
         InertiaError(model, subset="mass"),
+        WinchFriction(spec.drum_radius, spec.drive_gain, n_cables=m),
+        DriveCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, spec.drive_gain, n_cables=m),
+        CommandDelay(n_cables=m),
+        CableElasticity(n_cables=m),
+        MotorCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, n_cables=m, n_joints=n),
+        TensionDelay(n_cables=m, n_joints=n),
     ]
     return {e.name: e for e in effects}
+
+
+def default_candidates(
+    model: RobotModel, spec: ResidualSpec | None = None
+) -> dict[str, CandidateEffect]:
+    """The candidates tried by default (:data:`DEFAULT_CANDIDATES`), by name.
+
+    Args:
+        model: The nominal robot model.
+        spec: Residual settings (drum radius, drive gain).
+    """
+    every = available_candidates(model, spec)
+    return {name: every[name] for name in DEFAULT_CANDIDATES}
+
+
+class _Layout:
+    """Where each group's columns sit in the stacked residual, and its normalising spread."""
+
+    def __init__(self, groups: dict[str, FloatArray]) -> None:
+        self.groups = tuple(g for g in GROUPS if g in groups)
+        self.slices: dict[str, slice] = {}
+        self.spread: dict[str, float] = {}
+        start = 0
+        for g in self.groups:
+            r = groups[g]
+            self.slices[g] = slice(start, start + r.shape[1])
+            start += r.shape[1]
+            spread = float(np.sqrt(np.sum(r**2) / max(len(r), 1)))
+            self.spread[g] = spread if spread > 0 else 1.0
+        self.width = start
+
+    def stack(self, groups: dict[str, FloatArray]) -> FloatArray:
+        """Group residuals ``{g: (T, k_g)}`` -> the normalised stack ``(T, W)``."""
+        return np.concatenate([groups[g] / self.spread[g] for g in self.groups], axis=1)
+
+    def unstack(self, stacked: FloatArray) -> dict[str, FloatArray]:
+        """The normalised stack ``(T, W)`` -> group residuals in their units."""
+        return {g: stacked[:, self.slices[g]] * self.spread[g] for g in self.groups}
+
+
+class _Embedded(CandidateEffect):
+    """A term's prediction placed in its groups' columns of the normalised stack."""
+
+    def __init__(self, term: CandidateEffect, layout: _Layout) -> None:
+        self.term, self.layout = term, layout
+        self.name = term.name  # type: ignore[misc]
+        self.description = term.description  # type: ignore[misc]
+        self.linear = term.linear  # type: ignore[misc]
+        self.parameter_names = term.parameter_names
+        self.channels = tuple(range(layout.width))
+        self.groups = layout.groups
+
+    def width(self, signals: Signals) -> int:  # noqa: D102
+        return self.layout.width
+
+    def check(self, signals: Signals) -> None:  # noqa: D102
+        self.term.check(signals)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        inner = self.term.design(signals)
+        out = np.zeros((inner.shape[0], self.layout.width, inner.shape[2]))
+        start = 0
+        for g in self.term.groups:
+            cols = self.layout.slices[g]
+            size = cols.stop - cols.start
+            out[:, cols, :] = inner[:, start : start + size, :] / self.layout.spread[g]
+            start += size
+        return out
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
+        if self.linear and isinstance(ops, NumpyOps):
+            return np.einsum("tnp,p->tn", self.design(signals), np.asarray(theta, dtype=float))
+        inner = self.term.torque(signals, theta, ops)
+        T = signals.n_samples
+        blocks, start = [], 0
+        placed = {}
+        for g in self.term.groups:
+            cols = self.layout.slices[g]
+            size = cols.stop - cols.start
+            placed[g] = inner[:, start : start + size] * (1.0 / self.layout.spread[g])
+            start += size
+        for g in self.layout.groups:
+            if g in placed:
+                blocks.append(placed[g])
+            else:
+                cols = self.layout.slices[g]
+                blocks.append(ops.const(np.zeros((T, cols.stop - cols.start))))
+        return ops.hcat(blocks)
+
+    def initial_guess(  # noqa: D102
+        self, signals: Signals, residual: FloatArray | None = None
+    ) -> FloatArray:
+        if residual is None:
+            return self.term.initial_guess(signals)
+        parts = self.layout.unstack(residual)
+        own = np.concatenate([parts[g] for g in self.term.groups], axis=1)
+        return self.term.initial_guess(signals, own)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        return self.term.bounds()
 
 
 class _Stacked(CandidateEffect):
@@ -110,6 +257,9 @@ class _Stacked(CandidateEffect):
         self.parameter_names = tuple(f"{t.name}:{p}" for t in self.terms for p in t.parameter_names)
         self.channels = tuple(sorted({c for t in self.terms for c in t.channels}))
         self.sizes = [t.n_parameters for t in self.terms]
+
+    def width(self, signals: Signals) -> int:  # noqa: D102
+        return self.terms[0].width(signals)
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         return np.concatenate([t.design(signals) for t in self.terms], axis=2)
@@ -132,7 +282,8 @@ class _Model:
     messages: tuple[str, ...]
 
     def predict(self, signals: Signals) -> FloatArray:
-        out = np.zeros((signals.n_samples, signals.n_joints))
+        width = self.terms[0].width(signals) if self.terms else signals.n_joints
+        out = np.zeros((signals.n_samples, width))
         for term, theta in zip(self.terms, self.parameters, strict=True):
             out += np.asarray(term.torque(signals, theta), dtype=float)
         return out
@@ -165,16 +316,38 @@ def _fit_together(
     )
 
 
-def _explained(residual: FloatArray, prediction: FloatArray) -> float:
-    """Pooled explained variance ``1 - sum var(r - pred) / sum var(r)`` [-]."""
-    error = residual - prediction
-    var_r = np.sum((residual - residual.mean(axis=0)) ** 2)
-    var_e = np.sum((error - error.mean(axis=0)) ** 2)
-    return float(1.0 - var_e / var_r)
+def _group_scores(
+    layout: _Layout, residual: FloatArray, prediction: FloatArray
+) -> dict[str, float]:
+    """Explained energy of each group, ``1 - sum (r - pred)^2 / sum r^2`` [-].
+
+    About zero, not about the mean: a constant offset (a load-cell bias) is part of the gap.
+    """
+    out = {}
+    for g in layout.groups:
+        r = residual[:, layout.slices[g]]
+        e = r - prediction[:, layout.slices[g]]
+        energy = float(np.sum(r**2))
+        out[g] = 1.0 - float(np.sum(e**2)) / energy if energy > 0 else 0.0
+    return out
+
+
+def _own_gain(groups: Sequence[str], before: dict[str, float], after: dict[str, float]) -> float:
+    """Gain of the explained share, averaged over the groups a term acts on [-]."""
+    return float(np.mean([after[g] - before[g] for g in groups]))
+
+
+def _score(layout: _Layout, residual: FloatArray, prediction: FloatArray) -> float:
+    """The selection score: the mean over groups of their explained variance [-]."""
+    return float(np.mean(list(_group_scores(layout, residual, prediction).values())))
 
 
 def _rmse(values: FloatArray) -> FloatArray:
     return np.sqrt(np.mean(values**2, axis=0))
+
+
+def _pooled(values: FloatArray) -> float:
+    return float(np.sqrt(np.mean(values**2)))
 
 
 @dataclass(frozen=True)
@@ -184,22 +357,27 @@ class SelectedEffect:
     Attributes:
         name: Candidate name (registry name, see :mod:`msarm.diagnose.effects`).
         description: The term's equation.
+        groups: The channel groups it acts on (``"joint"``, ``"drive"``, ``"length"``).
         parameter_names: Names of its ``p`` parameters.
         parameters: Fitted parameters (training runs, joint fit of the final model), ``(p,)``.
         std: Bootstrap standard deviation over training runs, ``(p,)``; NaN when not computed
-            (fewer than 2 training runs, or ``n_boot = 0``).
-        explained_variance: Held-out explained variance after adding this term [-].
-        gain: Increase of the held-out explained variance this term brought [-].
+            (fewer than 2 training runs, or ``n_boot < 2``).
+        explained_variance: Held-out score (mean over all groups) after adding this term [-].
+        gain: Rise of the held-out explained share on its own groups it brought [-].
+        confidence: Share of (bootstrap draw, held-out run) pairs that need the term (see the
+            module docstring) [-]; NaN when not computed.
         message: Solver status of its fit.
     """
 
     name: str
     description: str
+    groups: tuple[str, ...]
     parameter_names: tuple[str, ...]
     parameters: FloatArray
     std: FloatArray
     explained_variance: float
     gain: float
+    confidence: float
     message: str
 
     def as_dict(self) -> dict[str, Any]:
@@ -207,6 +385,7 @@ class SelectedEffect:
         return {
             "name": self.name,
             "description": self.description,
+            "groups": list(self.groups),
             "parameters": dict(zip(self.parameter_names, map(float, self.parameters), strict=True)),
             "std": {
                 k: (None if not np.isfinite(v) else float(v))
@@ -214,6 +393,7 @@ class SelectedEffect:
             },
             "explained_variance": self.explained_variance,
             "gain": self.gain,
+            "confidence": None if not np.isfinite(self.confidence) else self.confidence,
             "message": self.message,
         }
 
@@ -224,32 +404,39 @@ class Diagnosis:
 
     Attributes:
         selected: The selected effects, in the order they were added.
-        explained_variance: Held-out explained variance after each step [-], starting with the
-            nominal model's 0.0; length ``len(selected) + 1``.
-        step_scores: Per step, the held-out explained variance of every candidate tried
-            (with the terms selected before), by name.
-        joint_names: Joint names, ``(n,)``.
-        gap_before: Held-out RMSE of the residual per joint, nominal model [N m], ``(n,)``.
-        gap_after: Held-out RMSE of the residual minus the selected terms' prediction [N m],
-            ``(n,)``.
+        explained_variance: Held-out score after each step [-], starting with the nominal
+            model's 0.0; length ``len(selected) + 1``.
+        step_scores: Per step, the gain (on its own groups) of every candidate tried with the
+            terms selected before, by name.
+        groups: The channel groups diagnosed, in stack order.
+        channel_names: Channel names of each group (joints or cables).
+        gap_before: Held-out RMSE per channel of each group, nominal model, in the group's
+            unit (:data:`msarm.diagnose.builder.GROUP_UNITS`).
+        gap_after: The same after subtracting the selected terms' prediction.
+        waterfall: Pooled held-out RMSE of each group after each step (the final model's
+            terms added one by one in selection order); ``len(selected) + 1`` entries.
         threshold: The selection threshold [-].
         train_runs: The training logs.
         holdout_runs: The held-out logs.
         n_train: Training samples.
         n_holdout: Held-out samples.
+        skipped: Candidates not tried, with the reason (a channel group the logs lack).
     """
 
     selected: tuple[SelectedEffect, ...]
     explained_variance: tuple[float, ...]
     step_scores: tuple[dict[str, float], ...]
-    joint_names: tuple[str, ...]
-    gap_before: FloatArray
-    gap_after: FloatArray
+    groups: tuple[str, ...]
+    channel_names: dict[str, tuple[str, ...]]
+    gap_before: dict[str, FloatArray]
+    gap_after: dict[str, FloatArray]
+    waterfall: tuple[dict[str, float], ...]
     threshold: float
     train_runs: tuple[str, ...]
     holdout_runs: tuple[str, ...]
     n_train: int
     n_holdout: int
+    skipped: dict[str, str]
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -257,51 +444,79 @@ class Diagnosis:
         return tuple(s.name for s in self.selected)
 
     @property
-    def shrink(self) -> FloatArray:
-        """Share of each joint's held-out gap removed, ``1 - after / before`` [-], ``(n,)``."""
+    def joint_names(self) -> tuple[str, ...]:
+        """Joint names, ``(n,)``."""
+        return self.channel_names["joint"]
+
+    def shrink(self, group: str = "joint") -> FloatArray:
+        """Share of each channel's held-out gap removed, ``1 - after / before`` [-]."""
+        before, after = self.gap_before[group], self.gap_after[group]
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.gap_before > 0, 1.0 - self.gap_after / self.gap_before, 0.0)
+            return np.where(before > 0, 1.0 - after / before, 0.0)
+
+    def group_shrink(self, group: str) -> float:
+        """``1 - RMSE_after / RMSE_before`` of one group, pooled over its channels [-]."""
+        before = float(np.sqrt(np.mean(self.gap_before[group] ** 2)))
+        after = float(np.sqrt(np.mean(self.gap_after[group] ** 2)))
+        return 0.0 if before == 0.0 else 1.0 - after / before
+
+    @property
+    def acted_groups(self) -> tuple[str, ...]:
+        """The groups at least one selected effect acts on, in stack order."""
+        used = {g for s in self.selected for g in s.groups}
+        return tuple(g for g in self.groups if g in used)
 
     @property
     def total_shrink(self) -> float:
-        """``1 - RMSE_after / RMSE_before`` pooled over joints [-]."""
-        before = float(np.sqrt(np.mean(self.gap_before**2)))
-        after = float(np.sqrt(np.mean(self.gap_after**2)))
-        return 0.0 if before == 0.0 else 1.0 - after / before
+        """Mean group shrink over the groups the selected effects act on (0 if none) [-]."""
+        acted = self.acted_groups
+        return float(np.mean([self.group_shrink(g) for g in acted])) if acted else 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dict of the whole diagnosis."""
+        gap = {
+            g: {
+                "unit": GROUP_UNITS[g],
+                "shrink": self.group_shrink(g),
+                "channels": {
+                    name: {"before": float(b), "after": float(a), "shrink": float(s)}
+                    for name, b, a, s in zip(
+                        self.channel_names[g],
+                        self.gap_before[g],
+                        self.gap_after[g],
+                        self.shrink(g),
+                        strict=True,
+                    )
+                },
+            }
+            for g in self.groups
+        }
         return {
             "selected": [s.as_dict() for s in self.selected],
             "explained_variance": list(self.explained_variance),
             "step_scores": [dict(s) for s in self.step_scores],
-            "gap": {
-                name: {
-                    "before_Nm": float(b),
-                    "after_Nm": float(a),
-                    "shrink": float(s),
-                }
-                for name, b, a, s in zip(
-                    self.joint_names, self.gap_before, self.gap_after, self.shrink, strict=True
-                )
-            },
+            "groups": list(self.groups),
+            "gap": gap,
+            "waterfall": [dict(w) for w in self.waterfall],
             "total_shrink": self.total_shrink,
             "threshold": self.threshold,
             "train_runs": list(self.train_runs),
             "holdout_runs": list(self.holdout_runs),
             "n_train": self.n_train,
             "n_holdout": self.n_holdout,
+            "skipped": dict(self.skipped),
         }
 
     def to_markdown(self) -> str:
-        """The diagnosis as a Markdown report."""
+        """The diagnosis as Markdown (tables only; :mod:`msarm.diagnose.report` adds plots)."""
         lines = ["# Sim-to-real gap diagnosis", ""]
         lines.append(
             f"Training runs: {len(self.train_runs)} ({self.n_train} samples); held-out runs: "
-            f"{len(self.holdout_runs)} ({self.n_holdout} samples). A term is added when it "
-            f"raises the held-out explained variance by more than {self.threshold:.3g}."
+            f"{len(self.holdout_runs)} ({self.n_holdout} samples); channel groups: "
+            f"{', '.join(self.groups)}. A term is added when it raises the held-out score "
+            f"(explained variance, mean over groups) by more than {self.threshold:.3g}."
         )
-        lines += ["", "## Selected effects", ""]
+        lines += ["", "## Which: the selected effects", ""]
         if not self.selected:
             lines.append(
                 "None: no candidate explains the held-out residual better than the nominal "
@@ -309,25 +524,46 @@ class Diagnosis:
             )
         else:
             lines += [
-                "| step | effect | parameters | held-out explained variance | gain |",
-                "|---|---|---|---|---|",
+                "| step | effect | acts on | parameters (± bootstrap std) | held-out score | "
+                "gain | confidence |",
+                "|---|---|---|---|---|---|---|",
             ]
             for k, s in enumerate(self.selected, start=1):
+                confidence = f"{s.confidence:.2f}" if np.isfinite(s.confidence) else "n/a"
                 lines.append(
-                    f"| {k} | {s.name} | {_format_parameters(s)} | "
-                    f"{s.explained_variance:.3f} | {s.gain:+.3f} |"
+                    f"| {k} | {s.name} | {', '.join(s.groups)} | {_format_parameters(s)} | "
+                    f"{s.explained_variance:.3f} | {s.gain:+.3f} | {confidence} |"
                 )
-        lines += ["", "## Gap per joint (held-out RMSE of the joint-torque residual)", ""]
-        lines += ["| joint | before [N m] | after [N m] | shrink |", "|---|---|---|---|"]
-        for name, b, a, s in zip(
-            self.joint_names, self.gap_before, self.gap_after, self.shrink, strict=True
-        ):
-            lines.append(f"| {name} | {b:.4g} | {a:.4g} | {100 * s:.1f} % |")
-        lines.append(f"| all | | | {100 * self.total_shrink:.1f} % |")
-        lines += ["", "## Candidates tried at each step (held-out explained variance)", ""]
+        lines += ["", "## How far: the held-out gap before and after", ""]
+        lines += ["| group | channel | before | after | shrink |", "|---|---|---|---|---|"]
+        for g in self.groups:
+            unit = GROUP_UNITS[g]
+            for name, b, a, s in zip(
+                self.channel_names[g],
+                self.gap_before[g],
+                self.gap_after[g],
+                self.shrink(g),
+                strict=True,
+            ):
+                lines.append(
+                    f"| {g} | {name} | {b:.4g} {unit} | {a:.4g} {unit} | {100 * s:.1f} % |"
+                )
+            lines.append(f"| {g} | all | | | {100 * self.group_shrink(g):.1f} % |")
+        if self.selected:
+            lines += ["", "Effect by effect (pooled held-out RMSE of each group):", ""]
+            lines.append("| after | " + " | ".join(self.groups) + " |")
+            lines.append("|---|" + "---|" * len(self.groups))
+            steps = ["nominal model", *(f"+ {s.name}" for s in self.selected)]
+            for step, values in zip(steps, self.waterfall, strict=True):
+                cells = " | ".join(f"{values[g]:.4g} {GROUP_UNITS[g]}" for g in self.groups)
+                lines.append(f"| {step} | {cells} |")
+        lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
         for k, scores in enumerate(self.step_scores, start=1):
             ranked = sorted(scores.items(), key=lambda kv: -kv[1])
-            lines.append(f"{k}. " + ", ".join(f"{n} {v:.3f}" for n, v in ranked))
+            lines.append(f"{k}. " + ", ".join(f"{n} {v:+.3f}" for n, v in ranked))
+        if self.skipped:
+            lines += ["", "## Candidates not tried", ""]
+            lines += [f"- {name}: {why}" for name, why in self.skipped.items()]
         return "\n".join(lines) + "\n"
 
 
@@ -347,51 +583,129 @@ def _resolve(
     model: RobotModel,
     candidates: Sequence[CandidateEffect | str] | None,
     spec: ResidualSpec | None,
-) -> list[CandidateEffect]:
-    defaults = default_candidates(model, spec)
+) -> tuple[list[CandidateEffect], bool]:
+    """The candidates to try, and whether the user named them (else the defaults)."""
     if candidates is None:
-        return list(defaults.values())
+        return list(default_candidates(model, spec).values()), False
+    every = available_candidates(model, spec)
     out: list[CandidateEffect] = []
     for c in candidates:
         if isinstance(c, str):
-            if c not in defaults:
+            if c not in every:
                 raise InputError(
-                    f"candidates: unknown name {c!r}; known: {', '.join(defaults)} "
+                    f"candidates: unknown name {c!r}; known: {', '.join(every)} "
                     "(or pass a CandidateEffect instance)"
                 )
-            c = defaults[c]
+            c = every[c]
         if not isinstance(c, CandidateEffect):
             raise InputError(f"candidates: expected a name or a CandidateEffect, got {c!r}")
         out.append(c)
     names = [c.name for c in out]
     if len(set(names)) != len(names):
         raise InputError(f"candidates: names must be unique, got {names}")
-    return out
+    return out, True
 
 
-def _bootstrap_std(
-    model: _Model, signals: Signals, residual: FloatArray, n_boot: int, seed: int
-) -> list[FloatArray]:
-    """Bootstrap std over runs: the linear block jointly, nonlinear terms on what is left."""
-    stds = {id(t): np.full(t.n_parameters, np.nan) for t in model.terms}
-    if n_boot < 2 or np.unique(signals.run).size < 2:
-        return [stds[id(t)] for t in model.terms]
-    linear = [t for t in model.terms if t.linear]
-    left = residual
+def _usable(
+    pool: list[CandidateEffect], layout: _Layout, signals: Signals, named: bool
+) -> tuple[list[CandidateEffect], dict[str, str]]:
+    """Drop candidates whose groups or signals the logs lack (an error if the user named them)."""
+    usable, skipped = [], {}
+    for term in pool:
+        missing = [g for g in term.groups if g not in layout.groups]
+        if missing:
+            smaller = term.restricted([g for g in term.groups if g in layout.groups])
+            if smaller is not None:
+                term, missing = smaller, []
+        reason = ""
+        if missing:
+            reason = (
+                f"needs the {', '.join(missing)} residual, which the logs lack or which has "
+                "no variance (drive: tension_cmd.<cable> columns; length: motor_angle.<cable>)"
+            )
+        else:
+            try:
+                term.check(signals)
+                if term.linear:
+                    term.design(signals.take(np.arange(min(signals.n_samples, 8))))
+            except InputError as exc:
+                reason = str(exc)
+        if not reason:
+            usable.append(term)
+        elif named:
+            raise InputError(f"candidates: {term.name} cannot be fitted to these logs: {reason}")
+        else:
+            skipped[term.name] = reason
+    if skipped:
+        warnings.warn(
+            "candidates not tried: "
+            + "; ".join(f"{name} ({why})" for name, why in skipped.items()),
+            DiagnosisWarning,
+            stacklevel=3,
+        )
+    return usable, skipped
+
+
+def _bootstrap(
+    model: _Model,
+    train: Signals,
+    r_train: FloatArray,
+    hold: Signals,
+    r_hold: FloatArray,
+    layout: _Layout,
+    n_boot: int,
+    threshold: float,
+    seed: int,
+) -> tuple[list[FloatArray], list[float]]:
+    """Bootstrap over training runs: each term's parameter std and its confidence."""
+    terms = model.terms
+    nan_std = [np.full(t.n_parameters, np.nan) for t in terms]
+    labels = np.unique(train.run)
+    if n_boot < 2 or labels.size < 2 or not terms:
+        return nan_std, [float("nan")] * len(terms)
+    rng = np.random.default_rng(seed)
+    members = [np.flatnonzero(train.run == label) for label in labels]
+    linear = [k for k, t in enumerate(terms) if t.linear]
+    nonlinear = [k for k, t in enumerate(terms) if not t.linear]
     if linear:
-        stacked = _Stacked(linear)
-        result = bootstrap(stacked, signals, residual, n_boot=n_boot, seed=seed)
-        for term, std in zip(linear, stacked.split(result.std), strict=True):
-            stds[id(term)] = std
-        for term, theta in zip(model.terms, model.parameters, strict=True):
+        stacked = _Stacked([terms[k] for k in linear])
+        design = stacked.design(train)
+        hold_design = {k: terms[k].design(hold) for k in linear}
+    left = r_train
+    for k in linear:
+        left = left - np.asarray(terms[k].torque(train, model.parameters[k]), dtype=float)
+    problems = {}
+    for k in nonlinear:
+        problems[k] = _NonlinearProblem(terms[k], train, left)
+        left = left - np.asarray(terms[k].torque(train, model.parameters[k]), dtype=float)
+    hold_runs = [hold.run == label for label in np.unique(hold.run)]
+    samples = [np.empty((n_boot, t.n_parameters)) for t in terms]
+    needed = np.zeros(len(terms))
+    for b in range(n_boot):
+        weights = np.zeros(train.n_samples)
+        for k in rng.integers(0, labels.size, size=labels.size):
+            weights[members[k]] += 1.0
+        if linear:
+            root = np.sqrt(weights)
+            theta = _solve_linear(design * root[:, None, None], r_train * root[:, None])
+            for k, part in zip(linear, stacked.split(theta), strict=True):
+                samples[k][b] = part
+        for k in nonlinear:
+            samples[k][b], *_ = problems[k].solve(model.parameters[k], weights)
+        parts = []
+        for k, term in enumerate(terms):
             if term.linear:
-                left = left - np.asarray(term.torque(signals, theta), dtype=float)
-    for term, theta in zip(model.terms, model.parameters, strict=True):
-        if not term.linear:
-            result = bootstrap(term, signals, left, n_boot=n_boot, seed=seed)
-            stds[id(term)] = result.std
-            left = left - np.asarray(term.torque(signals, theta), dtype=float)
-    return [stds[id(t)] for t in model.terms]
+                parts.append(np.einsum("tnp,p->tn", hold_design[k], samples[k][b]))
+            else:
+                parts.append(np.asarray(term.torque(hold, samples[k][b]), dtype=float))
+        full = np.sum(parts, axis=0)
+        for mask in hold_runs:
+            with_all = _group_scores(layout, r_hold[mask], full[mask])
+            for k, term in enumerate(terms):
+                without = _group_scores(layout, r_hold[mask], (full - parts[k])[mask])
+                needed[k] += _own_gain(term.term.groups, without, with_all) > threshold
+    stds = [s.std(axis=0, ddof=1) for s in samples]
+    return stds, [float(n / (n_boot * len(hold_runs))) for n in needed]
 
 
 def diagnose(
@@ -401,31 +715,35 @@ def diagnose(
     candidates: Sequence[CandidateEffect | str] | None = None,
     threshold: float = DEFAULT_THRESHOLD,
     spec: ResidualSpec | None = None,
-    n_boot: int = 30,
+    n_boot: int = 20,
     seed: int = 0,
+    groups: Sequence[str] | None = None,
 ) -> Diagnosis:
     """Find which candidate effects explain the gap, by forward selection on held-out runs.
 
-    See the module docstring for the joint fit, the score and the stopping rule. Only the logs
-    are read, never their ground-truth sidecars.
+    See the module docstring for the groups, the joint fit, the score, the stopping rule and
+    the confidence. Only the logs are read, never their ground-truth sidecars.
 
     Args:
         model: The nominal robot model the logs were recorded with.
         train_paths: Logs the terms are fitted on (at least one).
         holdout_paths: Logs the terms are scored on (at least one, none of the training ones).
-        candidates: Candidate effects (instances, or names of :func:`default_candidates`);
-            all defaults when ``None``.
-        threshold: Least gain of held-out explained variance for a term to be added [-].
-        spec: Residual settings (filter, drum radius).
-        n_boot: Bootstrap refits over training runs for the parameters' std (0: none).
+        candidates: Candidate effects (instances, or names of :func:`available_candidates`);
+            :data:`DEFAULT_CANDIDATES` when ``None`` (those the logs cannot support are
+            skipped with a warning; a named one that cannot be fitted is an error).
+        threshold: Least gain of the held-out score for a term to be added [-].
+        spec: Residual settings (filter, drum radius, drive gain).
+        n_boot: Bootstrap refits over training runs for the std and confidence (< 2: none).
         seed: Seed of the bootstrap draws.
+        groups: Channel groups to diagnose (default all the logs have).
 
     Returns:
         The :class:`Diagnosis`.
 
     Raises:
-        InputError: No training or held-out logs, a log in both, a bad candidate or
-            threshold, or a held-out residual without variance.
+        InputError: No training or held-out logs, a log in both, a bad candidate, group or
+            threshold, a named candidate the logs cannot support, or no group with
+            variance on both training and held-out runs.
         LogError: A log that cannot be diagnosed (file named).
     """
     if not train_paths:
@@ -440,44 +758,80 @@ def diagnose(
     threshold = float(threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
-    pool = _resolve(model, candidates, spec)
-    train, r_train, train_names = signals_from_logs(model, train_paths, spec)
-    hold, r_hold, hold_names = signals_from_logs(model, holdout_paths, spec)
-    if np.sum((r_hold - r_hold.mean(axis=0)) ** 2) <= 0:
-        raise InputError("holdout_paths: the held-out residual has no variance")
+    wanted = tuple(GROUPS if groups is None else groups)
+    unknown = [g for g in wanted if g not in GROUPS]
+    if unknown or not wanted:
+        raise InputError(f"groups: expected some of {', '.join(GROUPS)}, got {list(wanted)}")
+    pool, named = _resolve(model, candidates, spec)
+    train, g_train, train_names = channels_from_logs(model, train_paths, spec)
+    hold, g_hold, hold_names = channels_from_logs(model, holdout_paths, spec)
+
+    def varies(r: FloatArray) -> bool:
+        return bool(np.sum(r**2) > 0)
+
+    present = {
+        g: g_train[g]
+        for g in wanted
+        if g in g_train and g in g_hold and varies(g_train[g]) and varies(g_hold[g])
+    }
+    if not present:
+        raise InputError(
+            "holdout_paths: no residual group has variance on both training and held-out runs"
+        )
+    layout = _Layout(present)
+    r_train = layout.stack(g_train)
+    r_hold = layout.stack(g_hold)
+    usable, skipped = _usable(pool, layout, train, named)
+    embedded = [_Embedded(t, layout) for t in usable]
 
     chosen: list[CandidateEffect] = []
     scores_per_step: list[dict[str, float]] = []
+    current = dict.fromkeys(layout.groups, 0.0)
     explained = [0.0]
     gains: list[float] = []
-    remaining = list(pool)
+    remaining = list(embedded)
     while remaining:
-        scores: dict[str, float] = {}
+        gain_of: dict[str, float] = {}
+        after: dict[str, dict[str, float]] = {}
         for candidate in remaining:
             fitted = _fit_together([*chosen, candidate], train, r_train)
-            scores[candidate.name] = _explained(r_hold, fitted.predict(hold))
-        scores_per_step.append(scores)
-        best = max(remaining, key=lambda c: scores[c.name])
-        gain = scores[best.name] - explained[-1]
-        if not gain > threshold:
+            after[candidate.name] = _group_scores(layout, r_hold, fitted.predict(hold))
+            gain_of[candidate.name] = _own_gain(
+                candidate.term.groups, current, after[candidate.name]
+            )
+        scores_per_step.append(gain_of)
+        best = max(remaining, key=lambda c: gain_of[c.name])
+        if not gain_of[best.name] > threshold:
             break
         chosen.append(best)
         remaining.remove(best)
-        explained.append(scores[best.name])
-        gains.append(gain)
+        current = after[best.name]
+        explained.append(float(np.mean(list(current.values()))))
+        gains.append(gain_of[best.name])
 
     final = _fit_together(chosen, train, r_train)
-    stds = _bootstrap_std(final, train, r_train, int(n_boot), seed)
-    prediction = final.predict(hold)
+    stds, confidence = _bootstrap(
+        final, train, r_train, hold, r_hold, layout, int(n_boot), threshold, seed
+    )
+    cumulative = np.zeros_like(r_hold)
+    waterfall = [{g: _pooled(v) for g, v in layout.unstack(r_hold).items()}]
+    for term, theta in zip(final.terms, final.parameters, strict=True):
+        cumulative = cumulative + np.asarray(term.torque(hold, theta), dtype=float)
+        waterfall.append({g: _pooled(v) for g, v in layout.unstack(r_hold - cumulative).items()})
+    before, after = layout.unstack(r_hold), layout.unstack(r_hold - cumulative)
+    names = {"joint": tuple(model.joint_names)}
+    names.update({g: tuple(model.cable_names) for g in ("drive", "length")})
     selected = tuple(
         SelectedEffect(
             name=term.name,
             description=term.description,
+            groups=term.term.groups,
             parameter_names=term.parameter_names,
             parameters=theta,
             std=std,
             explained_variance=explained[k + 1],
             gain=gains[k],
+            confidence=confidence[k],
             message=message,
         )
         for k, (term, theta, std, message) in enumerate(
@@ -488,12 +842,15 @@ def diagnose(
         selected=selected,
         explained_variance=tuple(explained),
         step_scores=tuple(scores_per_step),
-        joint_names=tuple(model.joint_names),
-        gap_before=_rmse(r_hold),
-        gap_after=_rmse(r_hold - prediction),
+        groups=layout.groups,
+        channel_names={g: names[g] for g in layout.groups},
+        gap_before={g: _rmse(v) for g, v in before.items()},
+        gap_after={g: _rmse(v) for g, v in after.items()},
+        waterfall=tuple(waterfall),
         threshold=threshold,
         train_runs=train_names,
         holdout_runs=hold_names,
         n_train=train.n_samples,
         n_holdout=hold.n_samples,
+        skipped=skipped,
     )

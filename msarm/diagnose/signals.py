@@ -33,6 +33,11 @@ _SHAPES: dict[str, tuple[str, ...]] = {
     "wrap": ("T", "m"),
     "motor_angle": ("T", "m"),
 }
+# Optional fields (None when a log lacks the channels): what the drive-side terms need.
+_OPTIONAL_SHAPES: dict[str, tuple[str, ...]] = {
+    "tension_cmd": ("T", "m"),
+    "motor_speed": ("T", "m"),
+}
 
 
 @dataclass(frozen=True)
@@ -53,6 +58,10 @@ class Signals:
         dt: Sample period [s], > 0.
         run: Integer label of the run each sample comes from, shape ``(T,)``; all zero when
             omitted. Samples of one run are contiguous in time.
+        tension_cmd: Tension commands sent to the drives, aligned with the tension they
+            produce (the command of the previous sample) [N], shape ``(T, m)``; optional.
+        motor_speed: Motor (drum) speeds, filtered derivative of ``motor_angle`` [rad/s],
+            shape ``(T, m)``; optional.
 
     Raises:
         InputError: A field has the wrong shape or type, a non-finite value, or ``dt <= 0``;
@@ -71,11 +80,17 @@ class Signals:
     motor_angle: FloatArray
     dt: float
     run: NDArray[np.int64] | None = None
+    tension_cmd: FloatArray | None = None
+    motor_speed: FloatArray | None = None
 
     def __post_init__(self) -> None:
         sizes: dict[str, int] = {}
         source: dict[str, str] = {}
-        for name, pattern in _SHAPES.items():
+        shapes = {
+            **_SHAPES,
+            **{k: v for k, v in _OPTIONAL_SHAPES.items() if getattr(self, k) is not None},
+        }
+        for name, pattern in shapes.items():
             try:
                 value = np.array(getattr(self, name), dtype=float)
             except (TypeError, ValueError) as exc:
@@ -148,8 +163,39 @@ class Signals:
         index = np.asarray(index)
         if index.dtype == bool and index.shape != (self.n_samples,):
             raise InputError(f"mask: expected shape ({self.n_samples},), got {index.shape}")
-        changes = {f.name: getattr(self, f.name)[index] for f in fields(self) if f.name != "dt"}
+        changes = {
+            f.name: getattr(self, f.name)[index]
+            for f in fields(self)
+            if f.name != "dt" and getattr(self, f.name) is not None
+        }
         return replace(self, **changes)
+
+    def require(self, name: str, who: str) -> FloatArray:
+        """An optional field that a term needs.
+
+        Args:
+            name: The field (``"tension_cmd"`` or ``"motor_speed"``).
+            who: The term that needs it (for the message).
+
+        Raises:
+            InputError: The field is absent (the logs lack the channels it comes from).
+        """
+        value = getattr(self, name)
+        if value is None:
+            source = {"tension_cmd": "tension_cmd.<cable>", "motor_speed": "motor_angle.<cable>"}
+            raise InputError(
+                f"{who}: needs Signals.{name}, which is absent (the logs have no "
+                f"{source.get(name, name)} columns)"
+            )
+        return value
+
+    def run_mean(self, values: FloatArray) -> FloatArray:
+        """Each run's mean of ``values`` ``(T, k)``, repeated over that run's samples."""
+        out = np.empty_like(values)
+        for label in np.unique(self.run):
+            index = self.run == label
+            out[index] = values[index].mean(axis=0)
+        return out
 
     def tension_rate(self) -> FloatArray:
         """Time derivative of the tensions [N/s], shape ``(T, m)``.

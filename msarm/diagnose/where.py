@@ -304,7 +304,8 @@ def break_down(
 
     Args:
         residuals: The residuals of each log (same robot).
-        kind: Which residual: ``"joint_torque"``, ``"cable_length"`` or ``"replay"``.
+        kind: Which residual: ``"joint_torque"``, ``"cable_length"``, ``"drive"`` or
+            ``"replay"``.
         settings: Phase thresholds.
         posture_joints: The two joints of the posture grid; default the two with the largest
             standard deviation of ``q``.

@@ -1,0 +1,260 @@
+"""Candidate effects of the drives and cables: terms for the drive and cable-length residuals.
+
+The joint-torque terms of :mod:`msarm.diagnose.effects` explain what is lost between the load
+cells and the joints. What happens between the controller's tension command and the load cell
+(winch friction, cogging, delay, a load-cell error) and between the motor encoder and the
+cable's path (elastic stretch) shows in two other channel groups (see
+:mod:`msarm.diagnose.builder`):
+
+- ``"drive"`` [N], ``(T, m)``: ``e = F - F_cmd``, the load-cell tension minus the command it
+  answers. The nominal drive renders each command exactly. A drive that closes its tension
+  loop on the load cell with gain ``K`` (``tau_m = rho (F_cmd + K (F_cmd - F))``) and a winch
+  torque ``tau_w`` (friction, cogging) settles at ``e = tau_w / (rho (1 + K))`` (drum radius
+  ``rho``): a quasi-static winch; its inertia adds ``-J domega/dt / (rho (1 + K))``.
+- ``"length"`` [m], ``(T, m)``: the cable length the motor encoder says minus the path length
+  of the logged posture, minus its mean over each run (the encoder gives lengths up to an
+  offset per run). Zero for rigid cables.
+
+Terms here follow the same interface as the joint terms (``design`` of shape ``(T, W, p)``
+with ``W`` the width of the term's groups), so the same fitting and selection apply. Motor
+angle ``theta`` is positive when the winch reels cable in (as the plant and logs have it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.diagnose.effects import CandidateEffect, register
+from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
+
+__all__ = ["CableElasticity", "CommandDelay", "DriveCogging", "WinchFriction"]
+
+FloatArray = NDArray[np.float64]
+
+
+def _drive_factor(drum_radius: float, drive_gain: float) -> float:
+    """``1 / (rho (1 + K))``: tension error [N] per winch torque [N m] of a settled drive."""
+    if not drum_radius > 0:
+        raise InputError(f"drum_radius: expected > 0 m, got {drum_radius}")
+    if not drive_gain >= 0:
+        raise InputError(f"drive_gain: expected >= 0, got {drive_gain}")
+    return 1.0 / (drum_radius * (1.0 + drive_gain))
+
+
+def _per_cable_or_shared(columns: list[FloatArray], shared: bool) -> FloatArray:
+    """``(T, m)`` feature columns -> a ``(T, m, p)`` design, per cable or shared."""
+    T, m = columns[0].shape
+    if shared:
+        return np.stack(columns, axis=2)
+    out = np.zeros((T, m, m * len(columns)))
+    for k, column in enumerate(columns):
+        for c in range(m):
+            out[:, c, c * len(columns) + k] = column[:, c]
+    return out
+
+
+def _names(kinds: Sequence[str], shared: bool, n_cables: int) -> tuple[str, ...]:
+    cables = ("all",) if shared else tuple(str(c) for c in range(n_cables))
+    return tuple(f"{k}[{c}]" for c in cables for k in kinds)
+
+
+@register
+class WinchFriction(CandidateEffect):
+    """Coulomb + viscous friction of winch and motor (paper 000 eq. 5 shape), on the drive.
+
+    ``tau_f = -tau_c tanh(omega / omega_s) - b omega`` on each winch (motor speed ``omega``);
+    through a settled drive ``e = tau_f / (rho (1 + K))``. Linear in ``tau_c`` [N m] and ``b``
+    [N m s/rad], shared by all winches or per winch; ``omega_s`` [rad/s] is fixed.
+    """
+
+    name = "winch_friction"
+    description = (
+        "e = -(tau_c tanh(omega/omega_s) + b omega) / (rho (1 + K)): Coulomb + viscous friction "
+        "of winch and motor, seen as a tension error of the drive"
+    )
+    linear = True
+    groups = ("drive",)
+
+    def __init__(
+        self,
+        drum_radius: float,
+        drive_gain: float,
+        n_cables: int = 9,
+        smoothing_speed: float = 0.5,
+        shared: bool = True,
+    ) -> None:
+        """Build the term.
+
+        Args:
+            drum_radius: Drum radius ``rho`` [m].
+            drive_gain: Gain ``K`` of the drive's tension loop [-].
+            n_cables: Number of cables ``m``.
+            smoothing_speed: ``omega_s`` of the smoothed sign [rad/s].
+            shared: One pair of coefficients for all winches.
+        """
+        self.factor = _drive_factor(drum_radius, drive_gain)
+        if not smoothing_speed > 0:
+            raise InputError(f"smoothing_speed: expected > 0 rad/s, got {smoothing_speed}")
+        self.smoothing_speed = float(smoothing_speed)
+        self.n_cables, self.shared = int(n_cables), bool(shared)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = _names(("coulomb", "viscous"), self.shared, self.n_cables)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        omega = signals.require("motor_speed", self.name)
+        columns = [
+            -self.factor * np.tanh(omega / self.smoothing_speed),
+            -self.factor * omega,
+        ]
+        return _per_cable_or_shared(columns, self.shared)
+
+
+@register
+class DriveCogging(CandidateEffect):
+    """Motor cogging torque, periodic in the motor angle (paper 001 eq. 2-3), on the drive.
+
+    ``tau_cog = A sin(N theta + phi) = a sin(N theta) + b cos(N theta)`` with ``a = A cos
+    phi``, ``b = A sin phi`` [N m]; through a settled drive ``e = tau_cog / (rho (1 + K))``.
+    Linear in ``(a, b)`` for a known number ``N`` of periods per revolution, shared by all
+    motors (identical motors, one phase) or per motor.
+    """
+
+    name = "motor_cogging"
+    description = (
+        "e = A sin(N theta + phi) / (rho (1 + K)): motor cogging torque periodic in the motor "
+        "angle theta, seen as a tension error of the drive"
+    )
+    linear = True
+    groups = ("drive",)
+
+    def __init__(
+        self,
+        n_periods: int,
+        drum_radius: float,
+        drive_gain: float,
+        n_cables: int = 9,
+        shared: bool = True,
+    ) -> None:
+        """Build the term.
+
+        Args:
+            n_periods: Cogging periods per motor revolution ``N``.
+            drum_radius: Drum radius ``rho`` [m].
+            drive_gain: Gain ``K`` of the drive's tension loop [-].
+            n_cables: Number of cables ``m``.
+            shared: One amplitude-phase pair for all motors.
+        """
+        if int(n_periods) < 1:
+            raise InputError(f"n_periods: expected an integer >= 1, got {n_periods}")
+        self.n_periods = int(n_periods)
+        self.factor = _drive_factor(drum_radius, drive_gain)
+        self.n_cables, self.shared = int(n_cables), bool(shared)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = _names(("cogging_a", "cogging_b"), self.shared, self.n_cables)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        angle = self.n_periods * signals.motor_angle
+        columns = [self.factor * np.sin(angle), self.factor * np.cos(angle)]
+        return _per_cable_or_shared(columns, self.shared)
+
+    @staticmethod
+    def amplitude_phase(a: float, b: float) -> tuple[float, float]:
+        """``(A [N m], phi [rad])`` of fitted ``(a, b)``."""
+        return float(np.hypot(a, b)), float(np.arctan2(b, a))
+
+
+@register
+class CommandDelay(CandidateEffect):
+    """A delay between the tension command and the measured tension, as a short FIR kernel.
+
+    The load cell reads a weighted mix of past commands (a drive that acts late, a reading
+    that arrives late, or a lag): ``F(t_k) = sum_j w_j F_cmd(t_{k-j}) + (1 - sum_j w_j)
+    F_cmd(t_k)`` for ``j = 1..J`` samples (``F_cmd`` the aligned command), so
+
+    ``e_k = sum_j w_j (F_cmd(t_{k-j}) - F_cmd(t_k))``.
+
+    Linear in the weights ``w_j`` [-]; a pure delay of ``s`` samples is ``w_s = 1`` (exact, as
+    commands change from sample to sample with the controller's noise, which a first-order
+    ``-d dF/dt`` term would miss), a fractional one splits between two taps. The delay is
+    ``d = dt sum_j j w_j`` [s] (:meth:`delay`). Samples before a run's start repeat its first.
+    """
+
+    name = "command_delay"
+    description = (
+        "e = sum_j w_j (F_cmd(t - j dt) - F_cmd(t)): tensions follow their commands late "
+        "(delay d = dt sum_j j w_j)"
+    )
+    linear = True
+    groups = ("drive",)
+
+    def __init__(self, n_cables: int = 9, taps: int = 4) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+            taps: Number of past samples ``J`` (the longest delay it can express).
+        """
+        if int(taps) < 1:
+            raise InputError(f"taps: expected an integer >= 1, got {taps}")
+        self.n_cables, self.taps = int(n_cables), int(taps)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = tuple(f"w[{j}]" for j in range(1, self.taps + 1))
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        command = signals.require("tension_cmd", self.name)
+        out = np.zeros(command.shape + (self.taps,))
+        for label in np.unique(signals.run):
+            index = np.flatnonzero(signals.run == label)
+            run = command[index]
+            for j in range(1, self.taps + 1):
+                past = np.concatenate([np.repeat(run[:1], min(j, len(run)), axis=0), run[:-j]])
+                out[index, :, j - 1] = past[: len(run)] - run
+        return out
+
+    def delay(self, theta: Sequence[float], dt: float) -> float:
+        """The delay ``d = dt sum_j j w_j`` [s] of fitted weights (sample period ``dt`` [s])."""
+        weights = np.asarray(theta, dtype=float)
+        return float(dt * np.sum(np.arange(1, weights.size + 1) * weights))
+
+
+@register
+class CableElasticity(CandidateEffect):
+    """Elastic cables: the encoder's length differs from the path by the cable's stretch.
+
+    A taut cable of compliance ``c = 1/k`` [m/N] is stretched by ``c F``; the motor encoder,
+    which measures the unstretched length paid out, then says ``l_hat = l(q) - c F + const``,
+    so the run-demeaned length error is ``-c (F - mean_run(F))``. Linear in ``c``, shared by
+    all cables or per cable. A slack cable (``F = 0``) has an unmeasured negative stretch the
+    term cannot explain: slack shows as what is left.
+    """
+
+    name = "elasticity"
+    description = (
+        "e_l = -c (F - mean_run F): cable stretch of compliance c = 1/k [m/N] between the "
+        "encoder's length and the path length (slack is what is left)"
+    )
+    linear = True
+    groups = ("length",)
+
+    def __init__(self, n_cables: int = 9, shared: bool = True) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+            shared: One compliance for all cables.
+        """
+        self.n_cables, self.shared = int(n_cables), bool(shared)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = _names(("compliance",), self.shared, self.n_cables)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        tension = signals.tension
+        return _per_cable_or_shared([-(tension - signals.run_mean(tension))], self.shared)

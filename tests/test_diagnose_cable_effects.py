@@ -1,0 +1,179 @@
+"""Drive and cable-length candidates of the gap diagnosis: recovery, and naming on plants."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from test_diagnose_effects import DRUM, _make_signals
+
+from msarm.control import ArmControllerConfig
+from msarm.diagnose.builder import channels_from_logs
+from msarm.diagnose.cable_effects import CableElasticity, CommandDelay, DriveCogging, WinchFriction
+from msarm.diagnose.effects import SensorBiasScale
+from msarm.diagnose.fitting import bootstrap, fit
+from msarm.diagnose.residuals import DiagnosisWarning
+from msarm.diagnose.select import diagnose
+from msarm.errors import InputError
+from msarm.io.logs import read_log, write_log
+from msarm.plant import IDEAL_PLANT
+from msarm.plant.config import (
+    DelayConfig,
+    SensorNoiseConfig,
+    WinchFrictionConfig,
+)
+from msarm.tasks.track import TrackSettings, track
+from msarm.tasks.trajectories import hold_then_move
+
+GAIN = 4.0
+
+
+@pytest.fixture(scope="module")
+def signals(arm):
+    base = _make_signals(arm, seed=3)
+    rng = np.random.default_rng(5)
+    speed = -base.cable_velocity / DRUM
+    command = base.tension + rng.normal(0, 0.5, size=base.tension.shape)
+    return replace(base, tension_cmd=command, motor_speed=speed)
+
+
+def _cases():
+    rng = np.random.default_rng(2)
+    return [
+        (WinchFriction(DRUM, GAIN), np.array([0.02, 2e-4])),
+        (WinchFriction(DRUM, GAIN, shared=False), rng.uniform(0.01, 0.03, size=18)),
+        (DriveCogging(6, DRUM, GAIN), np.array([0.01, -0.004])),
+        (DriveCogging(6, DRUM, GAIN, shared=False), rng.normal(0, 0.01, size=18)),
+        (CommandDelay(), np.array([0.0, 1.0, 0.0, 0.0])),
+        (CommandDelay(taps=3), np.array([0.3, 0.7, 0.0])),
+        (CableElasticity(), np.array([5e-5])),
+        (CableElasticity(shared=False), rng.uniform(2e-5, 8e-5, size=9)),
+        (SensorBiasScale(shared=True, drive=True), np.array([1.5, 0.03])),
+    ]
+
+
+IDS = [
+    "winch",
+    "winch_per_cable",
+    "cogging",
+    "cogging_per_cable",
+    "delay",
+    "delay_fractional",
+    "elasticity",
+    "elasticity_per_cable",
+    "sensor_drive",
+]
+
+
+@pytest.mark.parametrize("case", range(len(IDS)), ids=IDS)
+def test_noise_free_recovery(signals, case):
+    effect, truth = _cases()[case]
+    residual = effect.torque(signals, truth)
+    assert residual.shape == (signals.n_samples, effect.width(signals))
+    assert np.std(residual) > 0
+    result = fit(effect, signals, residual)
+    np.testing.assert_allclose(result.parameters, truth, rtol=1e-6, atol=1e-9 * np.abs(truth).max())
+
+
+@pytest.mark.parametrize("case", [0, 2, 6], ids=["winch", "cogging", "elasticity"])
+def test_noisy_recovery_within_bootstrap_std(signals, case):
+    effect, truth = _cases()[case]
+    clean = effect.torque(signals, truth)
+    rng = np.random.default_rng(11)
+    residual = clean + rng.normal(0, 0.3 * np.std(clean), size=clean.shape)
+    result = fit(effect, signals, residual)
+    spread = bootstrap(effect, signals, residual, n_boot=30, seed=1)
+    assert np.all(spread.std > 0)
+    assert np.all(np.abs(result.parameters - truth) < 3 * spread.std)
+
+
+def test_helpers_and_missing_signals(signals):
+    assert CommandDelay().delay([0.0, 1.0, 0.0, 0.0], 0.004) == pytest.approx(0.008)
+    assert CommandDelay(taps=2).delay([0.5, 0.5], 0.004) == pytest.approx(0.006)
+    amplitude, phase = DriveCogging.amplitude_phase(0.0, 0.01)
+    assert amplitude == pytest.approx(0.01) and phase == pytest.approx(np.pi / 2)
+    bare = replace(signals, tension_cmd=None, motor_speed=None)
+    with pytest.raises(InputError, match="command_delay.*tension_cmd"):
+        CommandDelay().design(bare)
+    with pytest.raises(InputError, match="winch_friction.*motor_speed"):
+        WinchFriction(DRUM, GAIN).design(bare)
+    with pytest.raises(InputError, match="drive_gain"):
+        WinchFriction(DRUM, -1.0)
+    with pytest.raises(InputError, match="taps"):
+        CommandDelay(taps=0)
+
+
+# --------------------------------------------------------------------------- on the plant
+def _plant(**effects):
+    noise = SensorNoiseConfig(enabled=True)
+    return replace(
+        IDEAL_PLANT,
+        name="test",
+        effects=replace(IDEAL_PLANT.effects, sensor_noise=noise, **effects),
+    )
+
+
+def _logs(arm, root, plant, n_runs=3):
+    paths = []
+    for seed in range(n_runs):
+        rng = np.random.default_rng(100 + seed)
+        lower, upper = np.asarray(arm.joint_lower), np.asarray(arm.joint_upper)
+        width = upper - lower
+        start, target = (rng.uniform(lower + 0.25 * width, upper - 0.25 * width) for _ in range(2))
+        task = hold_then_move(f"m{seed}", start, target, wait=0.5, move_time=2.0, duration=4.0)
+        settings = TrackSettings(f"m{seed}", seed, plant, ArmControllerConfig())
+        paths.append(track(arm, task, settings, root / f"run{seed}", plots_too=False).files["log"])
+    return paths
+
+
+@pytest.fixture(scope="module")
+def winch_logs(arm, tmp_path_factory):
+    plant = _plant(winch_friction=WinchFrictionConfig(enabled=True, coulomb=0.02, viscous=2e-4))
+    return _logs(arm, tmp_path_factory.mktemp("winch"), plant)
+
+
+@pytest.fixture(scope="module")
+def delay_logs(arm, tmp_path_factory):
+    plant = _plant(delay=DelayConfig(enabled=True, sensing_periods=1, actuation_periods=1))
+    return _logs(arm, tmp_path_factory.mktemp("delay"), plant)
+
+
+def test_winch_friction_is_named_with_its_parameters(arm, winch_logs):
+    result = diagnose(arm, winch_logs[:2], winch_logs[2:], n_boot=10)
+    assert result.names[0] == "winch_friction"
+    first = result.selected[0]
+    assert first.groups == ("drive",)
+    coulomb, viscous = first.parameters
+    assert coulomb == pytest.approx(0.02, rel=0.15)
+    assert viscous == pytest.approx(2e-4, rel=0.5)
+    assert first.confidence > 0.5
+    assert result.group_shrink("drive") > 0.4
+    assert "winch_friction" in result.to_markdown()
+
+
+def test_a_drive_delay_is_named_and_timed(arm, delay_logs):
+    result = diagnose(arm, delay_logs[:2], delay_logs[2:], n_boot=0)
+    assert result.names[0] == "command_delay"
+    weights = result.selected[0].parameters
+    # one sensing and one actuation period of 4 ms: 8 ms beyond the nominal sample
+    assert CommandDelay().delay(weights, 0.004) == pytest.approx(0.008, abs=0.001)
+
+
+def test_logs_without_commands_lose_only_the_drive_terms(arm, winch_logs, tmp_path):
+    stripped = []
+    for k, path in enumerate(winch_logs):
+        log = read_log(path)
+        columns = {c: v for c, v in log.columns.items() if not c.startswith("tension_cmd.")}
+        target = tmp_path / f"run{k}.parquet"
+        write_log(target, type(log)(columns, log.metadata))
+        stripped.append(target)
+    with pytest.warns(DiagnosisWarning, match="tension_cmd"):
+        signals, groups, _ = channels_from_logs(arm, stripped)
+    assert "drive" not in groups and signals.tension_cmd is None
+    with pytest.warns(DiagnosisWarning, match="candidates not tried.*winch_friction"):
+        result = diagnose(arm, stripped[:2], stripped[2:], n_boot=0)
+    assert "drive" not in result.groups
+    assert "winch_friction" in result.skipped
+    with pytest.raises(InputError, match="command_delay cannot be fitted"):
+        diagnose(arm, stripped[:2], stripped[2:], candidates=["command_delay"], n_boot=0)
