@@ -45,6 +45,7 @@ from msarm.muscle.geometry import cable_kinematics
 
 __all__ = [
     "RESIDUAL_UNITS",
+    "replay_runs",
     "DiagnosisWarning",
     "ResidualSpec",
     "Residuals",
@@ -77,6 +78,10 @@ class ResidualSpec:
         drum_radius: Winch drum radius ``r`` [m] (motor angle to cable length).
         drive_gain: Gain ``K`` of the drives' tension loop [-] (winch torque to tension error,
             for the drive-side terms' parameters in N m).
+        length_resolution: Smallest cable length gap worth diagnosing [m]: a diagnosis
+            leaves the cable-length group out when its RMS on the training or held-out runs
+            is below this. The encoders and the joint-angle noise alone make about 30 µm on
+            the simulated arm (measured on noise-only plants), so the default is 50 µm.
         replay: Also compute the replay residual.
         replay_window: Length of one replay window [s]; each restarts from the logged state.
         replay_substeps: Integration steps per sample period in the replay.
@@ -85,6 +90,7 @@ class ResidualSpec:
     target: TargetSpec = TargetSpec()
     drum_radius: float = 0.003
     drive_gain: float = 4.0
+    length_resolution: float = 5e-5
     replay: bool = True
     replay_window: float = 0.2
     replay_substeps: int = 4
@@ -92,6 +98,8 @@ class ResidualSpec:
     def __post_init__(self) -> None:
         if not self.drum_radius > 0:
             raise ValueError(f"drum_radius must be > 0 [m], got {self.drum_radius}")
+        if not self.length_resolution >= 0:
+            raise ValueError(f"length_resolution must be >= 0 [m], got {self.length_resolution}")
         if not self.drive_gain >= 0:
             raise ValueError(f"drive_gain must be >= 0, got {self.drive_gain}")
         if not self.replay_window > 0:
@@ -372,10 +380,17 @@ class _Work:
         """Cable lengths at ``q`` [m], shape ``(m,)``; fills :attr:`jacobian`."""
         return cable_kinematics(self.model.mj_model, self.data.mj, q, self.jacobian)
 
-    def acceleration(self, q: FloatArray, qd: FloatArray, tension: FloatArray) -> FloatArray:
-        """Nominal ``qdd`` [rad/s^2] under ``tau = -J_c(q)^T F`` (ideal cables)."""
+    def acceleration(
+        self, q: FloatArray, qd: FloatArray, tension: FloatArray, lost: FloatArray | None = None
+    ) -> FloatArray:
+        """Nominal ``qdd`` [rad/s^2] under ``tau = -J_c(q)^T F - lost`` (ideal cables).
+
+        ``lost`` [N m], ``(n,)``: torque lost on the way (a fitted residual), if any.
+        """
         self.kinematics(q)
         tau = -self.jacobian.T @ tension
+        if lost is not None:
+            tau = tau - lost
         i = self.index
         qdd = pinocchio.aba(self.model.pin_model, self.data.pin, q[i], qd[i], tau[i])
         return np.asarray(qdd)[self.inverse]
@@ -389,12 +404,14 @@ def _replay(
     tension: FloatArray,
     dt: float,
     spec: ResidualSpec,
+    lost: FloatArray | None = None,
 ) -> FloatArray:
     """Replay residual of one segment [rad], shape ``(T, n)``.
 
     Each window starts at the filtered state ``(q_start, qd_start)`` of its first sample and
-    runs the nominal dynamics under the logged tensions (held over each sample period). An
-    error beyond pi rad (a diverging replay) is clipped to +-pi and the window restarts.
+    runs the nominal dynamics under the logged tensions (held over each sample period), less
+    the torque ``lost`` [N m], ``(T, n)``, when given (the nominal model with fitted effects).
+    An error beyond pi rad (a diverging replay) is clipped to +-pi and the window restarts.
     """
     n_samples = len(q_log)
     per_window = max(1, round(spec.replay_window / dt))
@@ -417,7 +434,57 @@ def _replay(
                 first = k + 1
             out[k] = error
             if first != k + 1:
+                extra = None if lost is None else lost[k]
                 for _ in range(spec.replay_substeps):
-                    v = v + h * work.acceleration(q, v, tension[k])
+                    v = v + h * work.acceleration(q, v, tension[k], extra)
                     q = q + h * v
+    return out
+
+
+def replay_runs(
+    model: RobotModel,
+    q: FloatArray,
+    qd: FloatArray,
+    tension: FloatArray,
+    run: NDArray[np.int64],
+    dt: float,
+    lost: FloatArray | None = None,
+    spec: ResidualSpec | None = None,
+) -> FloatArray:
+    """Replay residual of concatenated runs, optionally with a fitted torque loss.
+
+    The nominal dynamics driven by the logged tensions over short windows (see the module
+    docstring), less ``lost`` when given: how far the nominal model, or the nominal model with
+    fitted effects, drifts from the logged motion.
+
+    Args:
+        model: The nominal robot model.
+        q: Logged joint angles [rad], ``(T, n)``.
+        qd: Filtered joint velocities [rad/s], ``(T, n)`` (the windows' start states).
+        tension: Load-cell tensions [N], ``(T, m)``.
+        run: Run label of each sample, ``(T,)``; each run contiguous.
+        dt: Sample period [s].
+        lost: Torque lost between the cables and the joints [N m], ``(T, n)`` (the fitted
+            joint-torque residual), or None for the nominal model.
+        spec: Window and substeps.
+
+    Returns:
+        ``q_replay - q`` [rad], ``(T, n)``.
+    """
+    spec = spec or ResidualSpec()
+    work = _Work(model)
+    out = np.empty_like(q)
+    for label in np.unique(run):
+        index = np.flatnonzero(run == label)
+        part = slice(int(index[0]), int(index[-1]) + 1)
+        out[part] = _replay(
+            work,
+            q[part],
+            q[part],
+            qd[part],
+            tension[part],
+            dt,
+            spec,
+            None if lost is None else lost[part],
+        )
     return out

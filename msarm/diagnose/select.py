@@ -71,7 +71,7 @@ from msarm.diagnose.effects import (
     ViscousFriction,
 )
 from msarm.diagnose.fitting import _NonlinearProblem, _solve_linear, fit
-from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec
+from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 from msarm.model import RobotModel
@@ -81,10 +81,13 @@ __all__ = [
     "DEFAULT_COGGING_PERIODS",
     "DEFAULT_THRESHOLD",
     "Diagnosis",
+    "DiagnosisData",
     "SelectedEffect",
     "available_candidates",
     "default_candidates",
     "diagnose",
+    "load_data",
+    "select_effects",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -316,6 +319,31 @@ def _fit_together(
     )
 
 
+def _replay_gap(data: DiagnosisData, lost: FloatArray) -> dict[str, Any]:
+    """Replay of the held-out runs without and with the fitted joint torque ``lost`` [N m].
+
+    Returns the pooled joint RMSE of ``q_replay - q`` [rad] and the mean hand-position error
+    at the end of each replay window [m], before (nominal) and after (with the effects).
+    """
+    from msarm.tasks.evaluate import hand_position
+
+    spec = ResidualSpec()
+    hold, model = data.hold, data.model
+    per_window = max(1, round(spec.replay_window / hold.dt))
+    ends = np.zeros(hold.n_samples, dtype=bool)
+    for label in np.unique(hold.run):
+        index = np.flatnonzero(hold.run == label)
+        ends[index[per_window - 1 :: per_window]] = True
+    p_log = hand_position(model, hold.q[ends])
+    out: dict[str, Any] = {"window_s": spec.replay_window}
+    for key, extra in (("before", None), ("after", lost)):
+        error = replay_runs(model, hold.q, hold.qd, hold.tension, hold.run, hold.dt, extra, spec)
+        p_replay = hand_position(model, hold.q[ends] + error[ends])
+        out[f"joint_rmse_{key}"] = _pooled(error)
+        out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))
+    return out
+
+
 def _group_scores(
     layout: _Layout, residual: FloatArray, prediction: FloatArray
 ) -> dict[str, float]:
@@ -421,6 +449,9 @@ class Diagnosis:
         n_train: Training samples.
         n_holdout: Held-out samples.
         skipped: Candidates not tried, with the reason (a channel group the logs lack).
+        replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
+            dynamics driven by the logged tensions over 0.2 s windows, without and with the
+            selected joint-torque terms; None when not computed.
     """
 
     selected: tuple[SelectedEffect, ...]
@@ -437,6 +468,7 @@ class Diagnosis:
     n_train: int
     n_holdout: int
     skipped: dict[str, str]
+    replay: dict[str, Any] | None = None
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -505,6 +537,7 @@ class Diagnosis:
             "n_train": self.n_train,
             "n_holdout": self.n_holdout,
             "skipped": dict(self.skipped),
+            "replay": self.replay,
         }
 
     def to_markdown(self) -> str:
@@ -557,6 +590,27 @@ class Diagnosis:
             for step, values in zip(steps, self.waterfall, strict=True):
                 cells = " | ".join(f"{values[g]:.4g} {GROUP_UNITS[g]}" for g in self.groups)
                 lines.append(f"| {step} | {cells} |")
+        if self.replay is not None:
+            r = self.replay
+            lines += [
+                "",
+                f"As motion: the nominal dynamics driven by the logged tensions over "
+                f"{r['window_s']:g} s windows from the logged state (held-out runs), without "
+                "and with the selected joint-torque terms:",
+                "",
+                "| | nominal model | with the effects | shrink |",
+                "|---|---|---|---|",
+            ]
+            for key, label, unit, scale in (
+                ("joint_rmse", "joint RMSE", "mrad", 1e3),
+                ("hand_error_end", "hand error at window end", "mm", 1e3),
+            ):
+                b, a = r[f"{key}_before"], r[f"{key}_after"]
+                share = 100 * (1 - a / b) if b > 0 else 0.0
+                lines.append(
+                    f"| {label} | {scale * b:.3g} {unit} | {scale * a:.3g} {unit} | "
+                    f"{share:.1f} % |"
+                )
         lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
         for k, scores in enumerate(self.step_scores, start=1):
             ranked = sorted(scores.items(), key=lambda kv: -kv[1])
@@ -607,10 +661,19 @@ def _resolve(
 
 
 def _usable(
-    pool: list[CandidateEffect], layout: _Layout, signals: Signals, named: bool
+    pool: list[CandidateEffect],
+    layout: _Layout,
+    signals: Signals,
+    named: bool,
+    absent: set[str],
 ) -> tuple[list[CandidateEffect], dict[str, str]]:
-    """Drop candidates whose groups or signals the logs lack (an error if the user named them)."""
+    """Drop candidates whose groups or signals the logs lack (an error if the user named them).
+
+    A warning names those dropped for want of channels (``absent`` groups); those whose group
+    is below its resolution are only listed in the result.
+    """
     usable, skipped = [], {}
+    warn: list[str] = []
     for term in pool:
         missing = [g for g in term.groups if g not in layout.groups]
         if missing:
@@ -620,8 +683,9 @@ def _usable(
         reason = ""
         if missing:
             reason = (
-                f"needs the {', '.join(missing)} residual, which the logs lack or which has "
-                "no variance (drive: tension_cmd.<cable> columns; length: motor_angle.<cable>)"
+                f"needs the {', '.join(missing)} residual, which the logs lack (drive: "
+                "tension_cmd.<cable> columns; length: motor_angle.<cable>) or which is zero or "
+                "below its resolution (ResidualSpec.length_resolution)"
             )
         else:
             try:
@@ -636,10 +700,12 @@ def _usable(
             raise InputError(f"candidates: {term.name} cannot be fitted to these logs: {reason}")
         else:
             skipped[term.name] = reason
-    if skipped:
+            if not missing or absent & set(missing):
+                warn.append(term.name)
+    if warn:
         warnings.warn(
             "candidates not tried: "
-            + "; ".join(f"{name} ({why})" for name, why in skipped.items()),
+            + "; ".join(f"{name} ({skipped[name]})" for name in warn),
             DiagnosisWarning,
             stacklevel=3,
         )
@@ -746,6 +812,55 @@ def diagnose(
             variance on both training and held-out runs.
         LogError: A log that cannot be diagnosed (file named).
     """
+    data = load_data(model, train_paths, holdout_paths, candidates, spec, groups)
+    return select_effects(data, threshold, n_boot, seed)
+
+
+@dataclass(frozen=True, eq=False)
+class DiagnosisData:
+    """Everything the selection works on, read once from the logs (see :func:`load_data`).
+
+    Attributes:
+        model: The nominal robot model.
+        train: Signals of the training runs.
+        hold: Signals of the held-out runs.
+        layout: The channel groups, their columns and normalising spreads.
+        r_train: Normalised, stacked training residual, ``(T_train, W)``.
+        r_hold: Normalised, stacked held-out residual, ``(T_hold, W)``.
+        candidates: The usable candidates (each embedded in the stack).
+        skipped: Candidates not usable on these logs, with the reason.
+        train_runs: Training log names.
+        holdout_runs: Held-out log names.
+        channel_names: Channel names of each group.
+    """
+
+    model: RobotModel
+    train: Signals
+    hold: Signals
+    layout: _Layout
+    r_train: FloatArray
+    r_hold: FloatArray
+    candidates: tuple[_Embedded, ...]
+    skipped: dict[str, str]
+    train_runs: tuple[str, ...]
+    holdout_runs: tuple[str, ...]
+    channel_names: dict[str, tuple[str, ...]]
+
+
+def load_data(
+    model: RobotModel,
+    train_paths: Sequence[str | Path],
+    holdout_paths: Sequence[str | Path],
+    candidates: Sequence[CandidateEffect | str] | None = None,
+    spec: ResidualSpec | None = None,
+    groups: Sequence[str] | None = None,
+) -> DiagnosisData:
+    """Read the logs and set up the selection's data (arguments as :func:`diagnose`).
+
+    Raises:
+        InputError: See :func:`diagnose`.
+        LogError: A log that cannot be diagnosed (file named).
+    """
     if not train_paths:
         raise InputError("train_paths: no training logs; the terms need runs to be fitted on")
     if not holdout_paths:
@@ -755,9 +870,6 @@ def diagnose(
     }
     if both:
         raise InputError(f"holdout_paths: logs also used for training: {sorted(both)}")
-    threshold = float(threshold)
-    if not np.isfinite(threshold) or threshold < 0:
-        raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
     wanted = tuple(GROUPS if groups is None else groups)
     unknown = [g for g in wanted if g not in GROUPS]
     if unknown or not wanted:
@@ -766,13 +878,17 @@ def diagnose(
     train, g_train, train_names = channels_from_logs(model, train_paths, spec)
     hold, g_hold, hold_names = channels_from_logs(model, holdout_paths, spec)
 
-    def varies(r: FloatArray) -> bool:
-        return bool(np.sum(r**2) > 0)
+    spec = spec or ResidualSpec()
+    floor = {"joint": 0.0, "drive": 0.0, "length": spec.length_resolution}
+
+    def above(r: FloatArray, group: str) -> bool:
+        rms = float(np.sqrt(np.mean(r**2)))
+        return rms > floor[group]
 
     present = {
         g: g_train[g]
         for g in wanted
-        if g in g_train and g in g_hold and varies(g_train[g]) and varies(g_hold[g])
+        if g in g_train and g in g_hold and above(g_train[g], g) and above(g_hold[g], g)
     }
     if not present:
         raise InputError(
@@ -781,8 +897,43 @@ def diagnose(
     layout = _Layout(present)
     r_train = layout.stack(g_train)
     r_hold = layout.stack(g_hold)
-    usable, skipped = _usable(pool, layout, train, named)
-    embedded = [_Embedded(t, layout) for t in usable]
+    absent = {g for g in wanted if g not in g_train or g not in g_hold}
+    usable, skipped = _usable(pool, layout, train, named, absent)
+    names = {"joint": tuple(model.joint_names)}
+    names.update({g: tuple(model.cable_names) for g in ("drive", "length")})
+    return DiagnosisData(
+        model=model,
+        train=train,
+        hold=hold,
+        layout=layout,
+        r_train=r_train,
+        r_hold=r_hold,
+        candidates=tuple(_Embedded(t, layout) for t in usable),
+        skipped=skipped,
+        train_runs=train_names,
+        holdout_runs=hold_names,
+        channel_names={g: names[g] for g in layout.groups},
+    )
+
+
+def select_effects(
+    data: DiagnosisData,
+    threshold: float = DEFAULT_THRESHOLD,
+    n_boot: int = 20,
+    seed: int = 0,
+    replay: bool = True,
+) -> Diagnosis:
+    """Forward selection, final fit, bootstrap and gaps on prepared data (see :func:`diagnose`).
+
+    Raises:
+        InputError: A bad threshold.
+    """
+    threshold = float(threshold)
+    if not np.isfinite(threshold) or threshold < 0:
+        raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
+    train, hold, layout = data.train, data.hold, data.layout
+    r_train, r_hold = data.r_train, data.r_hold
+    embedded = list(data.candidates)
 
     chosen: list[CandidateEffect] = []
     scores_per_step: list[dict[str, float]] = []
@@ -819,8 +970,9 @@ def diagnose(
         cumulative = cumulative + np.asarray(term.torque(hold, theta), dtype=float)
         waterfall.append({g: _pooled(v) for g, v in layout.unstack(r_hold - cumulative).items()})
     before, after = layout.unstack(r_hold), layout.unstack(r_hold - cumulative)
-    names = {"joint": tuple(model.joint_names)}
-    names.update({g: tuple(model.cable_names) for g in ("drive", "length")})
+    motion = None
+    if replay and "joint" in layout.groups:
+        motion = _replay_gap(data, layout.unstack(cumulative)["joint"])
     selected = tuple(
         SelectedEffect(
             name=term.name,
@@ -843,14 +995,15 @@ def diagnose(
         explained_variance=tuple(explained),
         step_scores=tuple(scores_per_step),
         groups=layout.groups,
-        channel_names={g: names[g] for g in layout.groups},
+        channel_names=dict(data.channel_names),
         gap_before={g: _rmse(v) for g, v in before.items()},
         gap_after={g: _rmse(v) for g, v in after.items()},
         waterfall=tuple(waterfall),
         threshold=threshold,
-        train_runs=train_names,
-        holdout_runs=hold_names,
+        train_runs=data.train_runs,
+        holdout_runs=data.holdout_runs,
         n_train=train.n_samples,
         n_holdout=hold.n_samples,
-        skipped=skipped,
+        skipped=dict(data.skipped),
+        replay=motion,
     )

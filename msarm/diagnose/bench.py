@@ -1,0 +1,331 @@
+"""The withheld-effect benchmark: does the diagnosis name the effect the logs were made with?
+
+For every scenario of :mod:`msarm.diagnose.scenarios` (a plant with one effect, two effects,
+or only sensor noise), the logs of its training and held-out tasks are diagnosed twice from
+the same data (:func:`msarm.diagnose.select.load_data`): by the forward selection of
+:func:`msarm.diagnose.select.select_effects` and by the PySINDy baseline
+(:func:`msarm.diagnose.baseline.sindy_baseline`). Neither sees the sidecar or the scenario.
+
+Scores (each for both methods):
+
+- **top-1 accuracy** on single-effect scenarios: the first named term is one of the
+  candidates of the plant's effect (:data:`EFFECT_CANDIDATES`);
+- **both found** on two-effect scenarios: each effect has one of its candidates among the
+  named terms;
+- **false alarms** on null plants: any term named;
+- **held-out gap shrink** on single-effect scenarios: ``1 - RMSE_after / RMSE_before`` of the
+  pooled held-out residual on the groups the effect shows in (:data:`EFFECT_GROUPS`, mean over
+  them). Sensor noise bounds it below 1, so the *excess* shrink is also given: the same with
+  the noise floor removed, ``1 - sqrt((after^2 - floor^2) / (before^2 - floor^2))``, the floor
+  of each group being the mean held-out RMSE of the null scenarios (same tasks, same noise);
+- **extra terms**: terms named beyond the candidates of the scenario's effects, mean per
+  scenario with effects (a precision score; some are real side effects of the plant, e.g. an
+  elastic cable's winch dynamics show as a drive lag);
+- **time per scenario**: reading the logs and diagnosing (log generation excluded).
+
+Results are written after each scenario (atomically) to ``results.json`` in the output
+folder; a rerun with the same settings reuses the scenarios already scored (``rescore``
+diagnoses them again from their cached logs).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from msarm.diagnose.baseline import sindy_baseline
+from msarm.diagnose.residuals import DiagnosisWarning
+from msarm.diagnose.scenarios import Scenario, build_scenarios, generate_logs, scenario_tasks
+from msarm.diagnose.select import DEFAULT_THRESHOLD, load_data, select_effects
+from msarm.errors import InputError
+from msarm.io.atomic import write_json_atomic
+from msarm.model import RobotModel
+
+__all__ = [
+    "EFFECT_CANDIDATES",
+    "EFFECT_GROUPS",
+    "BenchSettings",
+    "run_diagnosis_benchmark",
+    "summarise",
+]
+
+#: Plant effect -> the candidate names that count as naming it.
+EFFECT_CANDIDATES: dict[str, tuple[str, ...]] = {
+    "sheath_friction": ("capstan",),
+    "winch_friction": ("winch_friction",),
+    "elasticity": ("elasticity",),
+    "joint_friction": ("coulomb", "viscous", "stribeck"),
+    "cogging": ("motor_cogging",),
+    "sensor_bias": ("sensor",),
+    "delay": ("command_delay",),
+}
+#: Plant effect -> the residual groups it shows in (where its gap shrink is measured).
+EFFECT_GROUPS: dict[str, tuple[str, ...]] = {
+    "sheath_friction": ("joint",),
+    "winch_friction": ("drive",),
+    "elasticity": ("length",),
+    "joint_friction": ("joint",),
+    "cogging": ("drive",),
+    "sensor_bias": ("joint", "drive"),
+    "delay": ("drive",),
+}
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """Settings of the benchmark (written with the results; a change re-scores).
+
+    Attributes:
+        seed: Seed of the scenarios and tasks.
+        draws: Parameter draws per effect class.
+        n_null: Null scenarios (sensor noise only).
+        n_train: Training tasks per scenario.
+        n_holdout: Held-out tasks per scenario.
+        duration: Duration of each task [s].
+        threshold: The diagnosis's selection threshold [-].
+        n_boot: Bootstrap draws of the diagnosis (confidence and std).
+        effects: Effect classes to cover (all of :data:`EFFECT_CANDIDATES` when empty).
+        pairs: Include the two-effect scenarios.
+    """
+
+    seed: int = 0
+    draws: int = 3
+    n_null: int = 3
+    n_train: int = 4
+    n_holdout: int = 2
+    duration: float = 10.0
+    threshold: float = DEFAULT_THRESHOLD
+    n_boot: int = 10
+    effects: tuple[str, ...] = ()
+    pairs: bool = True
+
+
+def _check(settings: BenchSettings) -> None:
+    unknown = [e for e in settings.effects if e not in EFFECT_CANDIDATES]
+    if unknown:
+        raise InputError(
+            f"effects: unknown effect class {unknown[0]!r}; known: {', '.join(EFFECT_CANDIDATES)}"
+        )
+    for name in ("draws", "n_train", "n_holdout"):
+        if int(getattr(settings, name)) < 1:
+            raise InputError(f"{name}: expected an integer >= 1, got {getattr(settings, name)}")
+    if settings.n_null < 0:
+        raise InputError(f"n_null: expected an integer >= 0, got {settings.n_null}")
+    if not settings.duration > 0:
+        raise InputError(f"duration: expected > 0 s, got {settings.duration}")
+
+
+def _scenarios(settings: BenchSettings) -> list[Scenario]:
+    kwargs: dict[str, Any] = {
+        "seed": settings.seed,
+        "draws": settings.draws,
+        "n_null": settings.n_null,
+    }
+    if not settings.pairs:
+        kwargs["pairs"] = ()
+    scenarios = build_scenarios(**kwargs)
+    if settings.effects:
+        wanted = set(settings.effects)
+        scenarios = [s for s in scenarios if not s.effects or set(s.effects) <= wanted]
+    # null plants first: their residuals give the noise floor of the excess shrink
+    return sorted(scenarios, key=lambda s: len(s.effects) > 0)
+
+
+def _named(names: tuple[str, ...], effect: str) -> bool:
+    return any(n in EFFECT_CANDIDATES[effect] for n in names)
+
+
+def _score_one(scenario: Scenario, names: tuple[str, ...]) -> dict[str, Any]:
+    if not scenario.effects:
+        return {"kind": "null", "false_alarm": bool(names)}
+    if len(scenario.effects) == 1:
+        effect = scenario.effects[0]
+        return {"kind": "single", "top1": bool(names) and _named(names[:1], effect)}
+    return {"kind": "pair", "both": all(_named(names, e) for e in scenario.effects)}
+
+
+def _shrink(before: dict[str, float], after: dict[str, float], groups: tuple[str, ...]) -> float:
+    values = [1.0 - after[g] / before[g] for g in groups if g in before and before[g] > 0]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def _excess_shrink(
+    before: dict[str, float],
+    after: dict[str, float],
+    groups: tuple[str, ...],
+    floor: dict[str, float],
+) -> float:
+    values = []
+    for g in groups:
+        if g not in before or g not in floor:
+            continue
+        gap = before[g] ** 2 - floor[g] ** 2
+        if gap <= 0:
+            continue
+        values.append(1.0 - np.sqrt(max(after[g] ** 2 - floor[g] ** 2, 0.0) / gap))
+    return float(np.mean(values)) if values else float("nan")
+
+
+def _diagnose_scenario(
+    model: RobotModel, train: list[Path], held: list[Path], settings: BenchSettings
+) -> dict[str, Any]:
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DiagnosisWarning)
+        data = load_data(model, train, held)
+    loaded = time.perf_counter()
+    diagnosis = select_effects(data, settings.threshold, settings.n_boot, settings.seed)
+    selected = time.perf_counter()
+    baseline = sindy_baseline(data)
+    done = time.perf_counter()
+    return {
+        "msarm": {
+            "names": list(diagnosis.names),
+            "confidence": [s.confidence for s in diagnosis.selected],
+            "parameters": {s.name: s.as_dict()["parameters"] for s in diagnosis.selected},
+            "gap_before": {g: float(diagnosis.waterfall[0][g]) for g in diagnosis.groups},
+            "gap_after": {g: float(diagnosis.waterfall[-1][g]) for g in diagnosis.groups},
+            "seconds": selected - start,
+        },
+        "sindy": {
+            "names": list(baseline.names),
+            "contributions": baseline.contributions,
+            "gap_before": baseline.gap_before,
+            "gap_after": baseline.gap_after,
+            "seconds": (done - selected) + (loaded - start),
+        },
+        "load_seconds": loaded - start,
+    }
+
+
+def run_diagnosis_benchmark(
+    model: RobotModel,
+    out: Path,
+    settings: BenchSettings | None = None,
+    progress: Callable[[str], None] | None = None,
+    rescore: bool = False,
+) -> dict[str, Any]:
+    """Generate (or reuse) the scenarios' logs, diagnose each with both methods, score.
+
+    Args:
+        model: The nominal arm model.
+        out: Folder of the logs (``out/logs``) and of ``results.json``.
+        settings: The benchmark settings.
+        progress: Called with a line of text before each scenario.
+        rescore: Diagnose every scenario again (its logs are still reused).
+
+    Returns:
+        The report: settings, one entry per scenario (effects, drawn parameters, both
+        methods' answers, gaps and times, scores) and the summary of :func:`summarise`.
+
+    Raises:
+        InputError: Bad settings.
+    """
+    settings = settings or BenchSettings()
+    _check(settings)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    results_path = out / "results.json"
+    settings_dict = {**asdict(settings), "effects": list(settings.effects)}
+    done: dict[str, Any] = {}
+    if results_path.is_file() and not rescore:
+        import json
+
+        previous = json.loads(results_path.read_text())
+        if previous.get("settings") == settings_dict:
+            done = {row["scenario"]: row for row in previous.get("scenarios", [])}
+    scenarios = _scenarios(settings)
+    train_tasks, held_tasks = scenario_tasks(
+        model, settings.n_train, settings.n_holdout, settings.duration, settings.seed
+    )
+    rows: list[dict[str, Any]] = []
+    for k, scenario in enumerate(scenarios, start=1):
+        if scenario.name in done:
+            rows.append(done[scenario.name])
+            continue
+        if progress is not None:
+            progress(f"[{k}/{len(scenarios)}] {scenario.name}: simulating")
+        sim_start = time.perf_counter()
+        train, held = generate_logs(model, scenario, train_tasks, held_tasks, out / "logs")
+        sim_seconds = time.perf_counter() - sim_start
+        if progress is not None:
+            progress(f"[{k}/{len(scenarios)}] {scenario.name}: diagnosing")
+        answer = _diagnose_scenario(model, list(train), list(held), settings)
+        row = {
+            "scenario": scenario.name,
+            "effects": list(scenario.effects),
+            "parameters": scenario.parameters,
+            "simulation_seconds": sim_seconds,
+            **answer,
+        }
+        for method in ("msarm", "sindy"):
+            row[method]["score"] = _score_one(scenario, tuple(row[method]["names"]))
+        rows.append(row)
+        report = {"settings": settings_dict, "scenarios": rows}
+        write_json_atomic(results_path, report)
+    summary = summarise(rows)
+    report = {"settings": settings_dict, "scenarios": rows, "summary": summary}
+    write_json_atomic(results_path, report)
+    return report
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The scores of both methods over scored scenarios (see the module docstring).
+
+    Args:
+        rows: The per-scenario entries of :func:`run_diagnosis_benchmark`.
+
+    Returns:
+        ``{method: {top1_accuracy, both_found, false_alarms, null_scenarios, mean_shrink,
+        mean_excess_shrink, seconds_per_scenario, ...}}`` plus the noise floor used.
+    """
+    null = [r for r in rows if not r["effects"]]
+    floor: dict[str, float] = {}
+    if null:
+        groups = set.intersection(*(set(r["msarm"]["gap_before"]) for r in null))
+        floor = {g: float(np.mean([r["msarm"]["gap_before"][g] for r in null])) for g in groups}
+    out: dict[str, Any] = {"noise_floor": floor}
+    for method in ("msarm", "sindy"):
+        single = [r for r in rows if len(r["effects"]) == 1]
+        pairs = [r for r in rows if len(r["effects"]) == 2]
+        shrinks, excess = [], []
+        for r in single:
+            groups = EFFECT_GROUPS[r["effects"][0]]
+            answer = r[method]
+            shrinks.append(_shrink(answer["gap_before"], answer["gap_after"], groups))
+            excess.append(_excess_shrink(answer["gap_before"], answer["gap_after"], groups, floor))
+        extra = []
+        for r in [*single, *pairs]:
+            allowed = {c for e in r["effects"] for c in EFFECT_CANDIDATES[e]}
+            extra.append(sum(n not in allowed for n in r[method]["names"]))
+        per_effect: dict[str, list[bool]] = {}
+        for r in single:
+            per_effect.setdefault(r["effects"][0], []).append(r[method]["score"]["top1"])
+        out[method] = {
+            "single_scenarios": len(single),
+            "top1_accuracy": (
+                float(np.mean([r[method]["score"]["top1"] for r in single])) if single else None
+            ),
+            "top1_by_effect": {e: float(np.mean(v)) for e, v in per_effect.items()},
+            "pair_scenarios": len(pairs),
+            "both_found": (
+                float(np.mean([r[method]["score"]["both"] for r in pairs])) if pairs else None
+            ),
+            "null_scenarios": len(null),
+            "false_alarms": int(sum(r[method]["score"]["false_alarm"] for r in null)),
+            "mean_shrink": float(np.nanmean(shrinks)) if shrinks else None,
+            "mean_excess_shrink": (
+                float(np.nanmean(excess)) if excess and np.isfinite(excess).any() else None
+            ),
+            "mean_extra_terms": float(np.mean(extra)) if extra else None,
+            "seconds_per_scenario": (
+                float(np.mean([r[method]["seconds"] for r in rows])) if rows else None
+            ),
+        }
+    return out

@@ -1,0 +1,123 @@
+"""The withheld-effect benchmark and its PySINDy baseline, on a tiny scenario set."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import msarm.diagnose.bench as bench_module
+from msarm.diagnose.baseline import sindy_baseline
+from msarm.diagnose.bench import BenchSettings, run_diagnosis_benchmark, summarise
+from msarm.errors import InputError
+
+TINY = BenchSettings(
+    draws=1,
+    n_null=1,
+    n_train=2,
+    n_holdout=1,
+    duration=4.0,
+    n_boot=0,
+    effects=("winch_friction", "sensor_bias"),
+    pairs=False,
+)
+
+
+@pytest.fixture(scope="module")
+def report(arm, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    return out, run_diagnosis_benchmark(arm, out, TINY)
+
+
+def test_tiny_benchmark_names_the_withheld_effects(report):
+    out, result = report
+    names = [row["scenario"] for row in result["scenarios"]]
+    assert names[0].startswith("null-")  # null plants first: they give the noise floor
+    assert sorted(names[1:]) == ["sensor_bias-0", "winch_friction-0"]
+    summary = result["summary"]
+    for method in ("msarm", "sindy"):
+        assert summary[method]["single_scenarios"] == 2
+        assert summary[method]["null_scenarios"] == 1
+        assert summary[method]["pair_scenarios"] == 0 and summary[method]["both_found"] is None
+    ours = summary["msarm"]
+    assert ours["top1_accuracy"] == 1.0
+    assert ours["false_alarms"] == 0
+    assert ours["mean_shrink"] > 0.3
+    assert ours["mean_excess_shrink"] > ours["mean_shrink"]
+    assert set(summary["noise_floor"]) >= {"joint", "drive"}
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["summary"] == json.loads(json.dumps(summary))
+
+
+def test_a_rerun_reuses_the_scores_and_rescore_recomputes(arm, report, monkeypatch):
+    out, first = report
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("diagnosed again")
+
+    monkeypatch.setattr(bench_module, "_diagnose_scenario", refuse)
+    again = run_diagnosis_benchmark(arm, out, TINY)
+    assert again["summary"] == first["summary"]
+    with pytest.raises(AssertionError, match="diagnosed again"):
+        run_diagnosis_benchmark(arm, out, TINY, rescore=True)
+
+
+def test_scores_are_computed_from_the_names():
+    rows = [
+        {
+            "effects": [],
+            "msarm": {"names": [], "gap_before": {"drive": 0.3}, "seconds": 1.0},
+            "sindy": {"names": ["inertia"], "gap_before": {"drive": 0.3}, "seconds": 1.0},
+        },
+        {
+            "effects": ["winch_friction"],
+            "msarm": {
+                "names": ["winch_friction"],
+                "gap_before": {"drive": 1.0},
+                "gap_after": {"drive": 0.5},
+                "seconds": 1.0,
+            },
+            "sindy": {
+                "names": ["inertia", "winch_friction"],
+                "gap_before": {"drive": 1.0},
+                "gap_after": {"drive": 0.5},
+                "seconds": 1.0,
+            },
+        },
+    ]
+    for row in rows:
+        scenario = bench_module.Scenario(
+            name="x", effects=tuple(row["effects"]), plant=None, draw=0
+        )
+        for method in ("msarm", "sindy"):
+            row[method]["score"] = bench_module._score_one(scenario, tuple(row[method]["names"]))
+    summary = summarise(rows)
+    assert summary["msarm"]["top1_accuracy"] == 1.0 and summary["sindy"]["top1_accuracy"] == 0.0
+    assert summary["msarm"]["false_alarms"] == 0 and summary["sindy"]["false_alarms"] == 1
+    assert summary["msarm"]["mean_shrink"] == pytest.approx(0.5)
+    # floor 0.3: 1 - sqrt((0.25 - 0.09) / (1 - 0.09))
+    assert summary["msarm"]["mean_excess_shrink"] == pytest.approx(1 - (0.16 / 0.91) ** 0.5)
+    assert summary["sindy"]["mean_extra_terms"] == 1.0
+
+
+def test_baseline_runs_on_the_same_data(arm, report):
+    out, _ = report
+    from msarm.diagnose.select import load_data
+
+    logs = sorted((out / "logs" / "winch_friction-0").glob("*/log.parquet"))
+    train = [p for p in logs if p.parent.name.startswith("train")]
+    held = [p for p in logs if p.parent.name.startswith("holdout")]
+    data = load_data(arm, train, held)
+    result = sindy_baseline(data)
+    assert result.names[0] == "winch_friction"
+    assert "stribeck" in result.excluded and "capstan" in result.library
+    assert result.group_shrink("drive") > 0.3
+    with pytest.raises(InputError, match="threshold"):
+        sindy_baseline(data, threshold=-1.0)
+
+
+def test_bad_settings_are_refused(arm, tmp_path):
+    with pytest.raises(InputError, match="effects"):
+        run_diagnosis_benchmark(arm, tmp_path, BenchSettings(effects=("gremlins",)))
+    with pytest.raises(InputError, match="draws"):
+        run_diagnosis_benchmark(arm, tmp_path, BenchSettings(draws=0))
