@@ -12,6 +12,7 @@ from msarm.diagnose.effects import (
     CandidateEffect,
     CasadiOps,
     CoulombFriction,
+    DahlFriction,
     InertiaError,
     MotorCogging,
     SensorBiasScale,
@@ -105,6 +106,7 @@ def _cases(arm):
         (CoulombFriction(), np.array([0.3, 0.5, 0.2, 0.4])),
         (CoulombFriction(joints=[3], eps=0.05), np.array([0.7])),
         (ViscousFriction(), np.array([0.05, 0.1, 0.02, 0.08])),
+        (DahlFriction(rate=30.0), np.array([0.3, 0.5, 0.2, 0.4])),
         (
             StribeckFriction(joints=[0, 3], viscous=True),
             np.array([0.3, 0.6, 0.15, 0.05, 0.2, 0.5, 0.25, 0.02]),
@@ -128,6 +130,7 @@ def _case_ids():
         "coulomb",
         "coulomb_elbow",
         "viscous",
+        "dahl",
         "stribeck_viscous",
         "capstan",
         "capstan_per_cable",
@@ -363,3 +366,31 @@ def test_fit_bad_input(signals):
         bootstrap(effect, signals, good, runs=np.zeros(signals.n_samples, dtype=int))
     with pytest.raises(InputError, match="cables"):
         fit(CableCapstanFriction(n_cables=8), signals, good)
+
+
+def test_dahl_state_lags_behind_a_reversal():
+    """After a reversal z goes from +1 to -1 over an angle of a few 1/a, not at once."""
+    t = np.arange(0, 2.0, 0.001)
+    qd = np.where(t < 1.0, 0.5, -0.5)[:, None]  # rad/s, reverses at t = 1 s
+    base = dict(
+        t=t,
+        q=np.cumsum(qd, axis=0) * 0.001,
+        qd=qd,
+        qdd=np.zeros_like(qd),
+        tension=np.ones((len(t), 1)),
+        lengths=np.ones((len(t), 1)),
+        cable_velocity=np.zeros((len(t), 1)),
+        jacobian=np.zeros((len(t), 1, 1)),
+        wrap=np.ones((len(t), 1)),
+        motor_angle=np.zeros((len(t), 1)),
+        dt=0.001,
+    )
+    signals = Signals(**base)
+    z = DahlFriction(n_joints=1, rate=50.0).state(signals)[:, 0]
+    assert z[999] == pytest.approx(1.0, abs=1e-6)  # saturated before the reversal
+    # implicit Euler of dz/dx = -a (1 + z) after the reversal: z = -1 + 2 exp(-a |dx|)
+    k = 1000 + 40  # 20 mrad later
+    assert z[k] == pytest.approx(-1 + 2 * np.exp(-50 * 0.02), abs=0.02)
+    assert z[-1] == pytest.approx(-1.0, abs=1e-6)
+    steep = DahlFriction(n_joints=1, rate=1e5).state(signals)[:, 0]
+    np.testing.assert_allclose(steep[5:995], 1.0, atol=1e-6)  # a large a: Coulomb

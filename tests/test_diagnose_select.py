@@ -143,3 +143,26 @@ def test_cli_writes_the_report(arm, noise_logs, tmp_path, capsys):
     assert printed["selected"] == [] or isinstance(printed["selected"], list)
     assert (out / "diagnosis.md").read_text().startswith("# Sim-to-real gap diagnosis")
     assert json.loads((out / "diagnosis.json").read_text()) == printed
+
+
+def test_a_candidate_the_data_cannot_tell_apart_is_not_selected(arm, friction_logs):
+    from msarm.diagnose.effects import CoulombFriction
+
+    class CoulombCopy(CoulombFriction):
+        name = "coulomb_copy"
+
+    result = diagnose(
+        arm,
+        friction_logs[:-1],
+        friction_logs[-1:],
+        candidates=["coulomb", "viscous"],
+        extra_candidates=[CoulombCopy()],
+        n_boot=0,
+    )
+    assert result.names[0] in ("coulomb", "coulomb_copy")
+    other = "coulomb_copy" if result.names[0] == "coulomb" else "coulomb"
+    assert other not in result.names
+    assert "canonical correlation" in result.confounded[other]
+    assert other in result.to_markdown()
+    with pytest.raises(InputError, match="names must be unique"):
+        diagnose(arm, friction_logs[:1], friction_logs[1:2], extra_candidates=[CoulombFriction()])

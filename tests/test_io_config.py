@@ -199,3 +199,15 @@ def test_plant_and_controller_configs_round_trip(tmp_path):
 def test_exponent_without_dot_is_a_float(tmp_path):
     cfg = load_config(_write(tmp_path, "name: a\ngains: {kp: 1e-4, kd: -2E+3}\n"), Experiment)
     assert cfg.gains.kp == 1e-4 and cfg.gains.kd == -2000.0
+
+
+def test_atomic_writes_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from msarm.io.atomic import write_bytes_atomic
+
+    path = write_bytes_atomic(tmp_path / "report.md", b"hello")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask

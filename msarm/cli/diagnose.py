@@ -1,17 +1,41 @@
-"""``msarm diagnose``: which unmodelled effect explains the gap between logs and the model."""
+"""``msarm diagnose``: which unmodelled effect explains the gap between logs and the model.
+
+The command fits the candidate effects (:func:`msarm.diagnose.select.diagnose`) on the
+training logs, scores them on the held-out ones and prints the named effects (parameters with
+their bootstrap std, gain, confidence), the held-out gap of each channel group before and after
+them, and the candidates that could not be tried. With ``--out`` it also breaks the gap of the
+training logs down by channel, phase and posture (:mod:`msarm.diagnose.where`; the
+joint-torque residual, and the drive and cable-length residuals when the logs have them) and
+writes the report (:func:`msarm.diagnose.report.write_report`: ``report.md``, ``report.html``,
+``diagnosis.json``, plots) plus ``diagnosis.md`` (the diagnosis' tables alone).
+"""
 
 from __future__ import annotations
 
 import json
+import warnings
+from collections.abc import Sequence
+from contextlib import nullcontext
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
 from msarm.cli.common import console
 from msarm.errors import InputError
+
+if TYPE_CHECKING:
+    from msarm.diagnose.select import Diagnosis, SelectedEffect
+    from msarm.diagnose.where import GapBreakdown
+    from msarm.model import RobotModel
+
+#: Residual kinds broken down by ``--out``, in report order (each only when the logs have it).
+WHERE_KINDS = ("joint_torque", "drive", "cable_length")
+#: The diagnosis' channel group of each residual kind of :data:`WHERE_KINDS`.
+KIND_GROUPS = {"joint_torque": "joint", "drive": "drive", "cable_length": "length"}
 
 
 def split_runs(logs: list[Path], holdout: list[Path] | None) -> tuple[list[Path], list[Path]]:
@@ -39,6 +63,120 @@ def split_runs(logs: list[Path], holdout: list[Path] | None) -> tuple[list[Path]
     return list(logs[:-k]), list(logs[-k:])
 
 
+def where_breakdowns(
+    model: RobotModel, logs: Sequence[Path], groups: Sequence[str] | None = None
+) -> tuple[dict[str, GapBreakdown], dict[str, str]]:
+    """The "where" breakdowns of ``logs`` for every residual kind they support.
+
+    Each log's residuals are computed once (:func:`msarm.diagnose.residuals.residuals_from_log`)
+    and broken down (:func:`msarm.diagnose.where.break_down`) for each of :data:`WHERE_KINDS`.
+    A kind the logs lack (no ``tension_cmd.<cable>`` columns: no drive residual), whose
+    residual is zero everywhere, or whose channel group is not in ``groups`` is skipped.
+
+    Args:
+        model: The nominal robot model.
+        logs: Log files (their sidecars are never opened).
+        groups: The channel groups to break down (:data:`KIND_GROUPS`), e.g. those the
+            diagnosis kept (``Diagnosis.groups``: a cable-length error below the encoders'
+            resolution is left out there); all when ``None``.
+
+    Returns:
+        ``(breakdowns, skipped)``: the breakdowns by kind, and the reason of each kind skipped.
+    """
+    from msarm.diagnose.residuals import DiagnosisWarning, residuals_from_log
+    from msarm.diagnose.where import break_down
+
+    with warnings.catch_warnings():
+        # diagnose() has already warned about missing columns of these logs
+        warnings.simplefilter("ignore", DiagnosisWarning)
+        runs = [residuals_from_log(model, path) for path in logs]
+    breakdowns: dict[str, GapBreakdown] = {}
+    skipped: dict[str, str] = {}
+    for kind in WHERE_KINDS:
+        if groups is not None and KIND_GROUPS[kind] not in groups:
+            skipped[kind] = (
+                f"the diagnosis left the {KIND_GROUPS[kind]} residual out: missing, zero or "
+                "below its resolution"
+            )
+            continue
+        try:
+            breakdowns[kind] = break_down(runs, kind, model=model)
+        except ValueError as exc:
+            skipped[kind] = str(exc)
+    return breakdowns, skipped
+
+
+def _parameters(effect: SelectedEffect, limit: int = 8) -> str:
+    """``name = value ± std`` of each parameter, one per line (the first ``limit``)."""
+    import numpy as np
+
+    lines = []
+    for name, value, std in zip(effect.parameter_names, effect.parameters, effect.std, strict=True):
+        text = f"{name} = {value:.4g}"
+        if np.isfinite(std):
+            text += f" ± {std:.2g}"
+        lines.append(text)
+    if len(lines) > limit:
+        lines = [*lines[:limit], f"... ({len(lines) - limit} more)"]
+    return "\n".join(lines)
+
+
+def _print_diagnosis(
+    screen: Console, result: Diagnosis, n_train: int, n_held: int, where_skipped: dict[str, str]
+) -> None:
+    """The rich tables of a diagnosis: named effects, gap per group, candidates not tried."""
+    import numpy as np
+
+    from msarm.diagnose.builder import GROUP_UNITS
+
+    table = Table(title=f"diagnosis: {n_train} training run(s), {n_held} held-out run(s)")
+    for column in ("step", "effect", "acts on", "parameters ± bootstrap std"):
+        table.add_column(column)
+    for column in ("held-out score", "gain", "confidence"):
+        table.add_column(column, justify="right")
+    table.add_row("0", "nominal model", "", "", f"{result.explained_variance[0]:.3f}", "", "")
+    for k, effect in enumerate(result.selected, start=1):
+        confidence = f"{effect.confidence:.2f}" if np.isfinite(effect.confidence) else "n/a"
+        table.add_row(
+            str(k),
+            escape(effect.name),
+            ", ".join(effect.groups),
+            escape(_parameters(effect)),
+            f"{effect.explained_variance:.3f}",
+            f"{effect.gain:+.3f}",
+            confidence,
+        )
+    screen.print(table)
+    if not result.selected:
+        screen.print(
+            f"no candidate raises the held-out explained variance by more than "
+            f"{result.threshold:g}: nothing selected"
+        )
+    gap = Table(title="held-out gap per channel group (pooled RMSE of the residual)")
+    for column in ("group", "unit", "nominal model", "after the effects", "shrink"):
+        gap.add_column(column, justify="left" if column in ("group", "unit") else "right")
+    for g in result.groups:
+        before = float(np.sqrt(np.mean(np.asarray(result.gap_before[g]) ** 2)))
+        after = float(np.sqrt(np.mean(np.asarray(result.gap_after[g]) ** 2)))
+        gap.add_row(
+            g,
+            escape(GROUP_UNITS[g]),
+            f"{before:.4g}",
+            f"{after:.4g}",
+            f"{100 * result.group_shrink(g):.1f} %",
+        )
+    screen.print(gap)
+    if result.skipped:
+        skipped = Table(title="candidates not tried")
+        skipped.add_column("candidate")
+        skipped.add_column("why")
+        for name, why in result.skipped.items():
+            skipped.add_row(escape(name), escape(why))
+        screen.print(skipped)
+    for kind, why in where_skipped.items():
+        screen.print(f"where: no {escape(kind)} breakdown ({escape(why)})")
+
+
 def diagnose_command(
     logs: Annotated[list[Path], typer.Argument(help="Log files (Parquet) of the robot.")],
     holdout: Annotated[
@@ -50,45 +188,89 @@ def diagnose_command(
     ] = False,
     out: Annotated[
         Path | None,
-        typer.Option(help="Folder to write diagnosis.md and diagnosis.json into."),
+        typer.Option(
+            help="Folder for the report: report.md, report.html (self-contained), "
+            "diagnosis.json, diagnosis.md, waterfall.png, gap.png, where-<kind>.png."
+        ),
     ] = None,
+    candidates: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--candidates",
+            metavar="NAME",
+            help="Candidate effect to try, by name (repeatable); default: the default set "
+            "(DEFAULT_CANDIDATES of msarm.diagnose.select). An unknown name lists the known "
+            "ones.",
+        ),
+    ] = None,
+    threshold: Annotated[
+        float | None,
+        typer.Option(
+            help="Least rise of the held-out explained variance for an effect to be named "
+            "[-]; default 0.02."
+        ),
+    ] = None,
+    boot: Annotated[
+        int,
+        typer.Option(
+            "--boot",
+            metavar="N",
+            help="Bootstrap refits over training runs for the std and confidence (< 2: none).",
+        ),
+    ] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the bootstrap draws.")] = 0,
 ) -> None:
     """Find which candidate effects explain the sim-to-real gap, scored on held-out runs."""
+    from msarm.diagnose.residuals import DiagnosisWarning
     from msarm.diagnose.select import diagnose
     from msarm.model import load_arm
 
     train, held = split_runs(list(logs), holdout)
-    result = diagnose(load_arm(), train, held)
-    payload = result.as_dict()
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "diagnosis.md").write_text(result.to_markdown())
-        (out / "diagnosis.json").write_text(json.dumps(payload, indent=2) + "\n")
+    if boot < 0:
+        raise InputError(f"--boot: expected a number of draws >= 0, got {boot}")
+    options: dict = {"n_boot": int(boot), "seed": int(seed)}
+    if candidates:
+        options["candidates"] = list(candidates)
+    if threshold is not None:
+        options["threshold"] = threshold
+    err = Console(stderr=True)
+    status = nullcontext() if json_output else err.status("reading the logs", spinner="dots")
+    where_skipped: dict[str, str] = {}
+    written: dict[str, Path] = {}
+    with status as spinner:
+
+        def say(text: str) -> None:
+            if spinner is not None:
+                spinner.update(text)
+
+        model = load_arm()
+        say(f"fitting the candidates: {len(train)} training, {len(held)} held-out log(s)")
+        with warnings.catch_warnings():
+            # the candidates skipped are listed in a table below
+            warnings.filterwarnings(
+                "ignore", message="candidates not tried", category=DiagnosisWarning
+            )
+            result = diagnose(model, train, held, **options)
+        if out is not None:
+            from msarm.diagnose.report import write_report
+            from msarm.io.atomic import write_bytes_atomic
+
+            say("breaking the gap of the training logs down")
+            breakdowns, where_skipped = where_breakdowns(model, train, result.groups)
+            say(f"writing the report into {out}")
+            written = write_report(result, out, breakdowns)
+            written["diagnosis_md"] = write_bytes_atomic(
+                Path(out) / "diagnosis.md", result.to_markdown().encode()
+            )
     if json_output:
-        typer.echo(json.dumps(payload, indent=2))
+        typer.echo(json.dumps(result.as_dict(), indent=2))
+        for path in written.values():
+            err.print(f"wrote {escape(str(path))}", highlight=False)
         return
     screen = console()
-    table = Table(title=f"diagnosis: {len(train)} training run(s), {len(held)} held-out run(s)")
-    for column in ("step", "effect", "parameters", "held-out explained variance"):
-        table.add_column(column)
-    table.add_row("0", "nominal model", "", f"{result.explained_variance[0]:.3f}")
-    for k, effect in enumerate(result.selected, start=1):
-        params = ", ".join(
-            f"{n}={v:.3g}" for n, v in zip(effect.parameter_names, effect.parameters, strict=True)
-        )
-        table.add_row(str(k), effect.name, escape(params), f"{effect.explained_variance:.3f}")
-    screen.print(table)
-    if not result.selected:
-        screen.print(
-            f"no candidate raises the held-out explained variance by more than "
-            f"{result.threshold:g}: nothing selected"
-        )
-    gap = Table(title="held-out gap per joint (RMSE of the joint-torque residual)")
-    for column in ("joint", "before [N m]", "after [N m]", "shrink"):
-        gap.add_column(column, justify="right")
-    for name, b, a, s in zip(
-        result.joint_names, result.gap_before, result.gap_after, result.shrink, strict=True
-    ):
-        gap.add_row(name, f"{b:.4g}", f"{a:.4g}", f"{100 * s:.1f} %")
-    gap.add_row("all", "", "", f"{100 * result.total_shrink:.1f} %")
-    screen.print(gap)
+    _print_diagnosis(screen, result, len(train), len(held), where_skipped)
+    if written:
+        screen.print(f"report: {escape(str(written['markdown']))}", highlight=False)
+        screen.print(f"        {escape(str(written['html']))} (self-contained)", highlight=False)
+        others = [p.name for k, p in written.items() if k not in ("markdown", "html")]
+        screen.print(f"also in {escape(str(out))}: {escape(', '.join(others))}", highlight=False)

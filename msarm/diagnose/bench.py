@@ -60,7 +60,7 @@ EFFECT_CANDIDATES: dict[str, tuple[str, ...]] = {
     "sheath_friction": ("capstan",),
     "winch_friction": ("winch_friction",),
     "elasticity": ("elasticity",),
-    "joint_friction": ("coulomb", "viscous", "stribeck"),
+    "joint_friction": ("coulomb", "viscous", "stribeck", "dahl"),
     "cogging": ("motor_cogging",),
     "sensor_bias": ("sensor",),
     "delay": ("command_delay",),

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +61,7 @@ from msarm.diagnose.effects import (
     CableCapstanFriction,
     CandidateEffect,
     CoulombFriction,
+    DahlFriction,
     InertiaError,
     MotorCogging,
     NumpyOps,
@@ -77,9 +78,11 @@ from msarm.errors import InputError
 from msarm.model import RobotModel
 
 __all__ = [
+    "CONFOUNDING_LIMIT",
     "DEFAULT_CANDIDATES",
     "DEFAULT_COGGING_PERIODS",
     "DEFAULT_THRESHOLD",
+    "MAX_FIT_SAMPLES",
     "Diagnosis",
     "DiagnosisData",
     "SelectedEffect",
@@ -94,6 +97,18 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
+#: Largest canonical correlation between a candidate's regressor and those of the terms
+#: already selected (training runs) for the candidate to be tried: above it, the data cannot
+#: tell the two apart (e.g. a load-cell scale error, whose regressor is the measured cable
+#: torque, against the links' mass error, whose regressor spans the inverse dynamics that
+#: torque balances), and their joint fit would trade one for the other [-].
+CONFOUNDING_LIMIT = 0.99
+#: The selection fits and scores on at most this many training (and held-out) samples,
+#: evenly thinned: 20 runs of 20 s at 250 Hz are 100,000 samples, and the residuals' content
+#: lies far below the thinned rate (12.5 Hz or more).
+MAX_FIT_SAMPLES = 20_000
+#: Of the fitting samples, every this many enter the confounding test.
+_CONFOUNDING_STRIDE = 8
 #: Cogging periods per motor revolution of the default cogging candidates (motor datasheet).
 DEFAULT_COGGING_PERIODS = 24
 #: The candidates tried by default, by name (see :func:`available_candidates`).
@@ -101,6 +116,7 @@ DEFAULT_CANDIDATES = (
     "coulomb",
     "viscous",
     "stribeck",
+    "dahl",
     "capstan",
     "sensor",
     "inertia",
@@ -117,6 +133,7 @@ def available_candidates(
     """Every built-in candidate, configured for ``model``, by name.
 
     Joint-torque terms: Coulomb and viscous joint friction, Stribeck friction (nonlinear),
+    Dahl friction (pre-sliding hysteresis, 100 1/rad),
     capstan sheath friction (one shared ``mu``, nonlinear), the links' mass error (base set of
     masses and first moments), and two terms that act on the joints through the load cells'
     reading: ``cogging`` (a cogging force behind the load cell) and ``delay`` (tensions logged
@@ -135,6 +152,7 @@ def available_candidates(
         CoulombFriction(n_joints=n),
         ViscousFriction(n_joints=n),
         StribeckFriction(n_joints=n),
+        DahlFriction(n_joints=n),
         CableCapstanFriction(n_cables=m, n_joints=n),
         SensorBiasScale(n_cables=m, n_joints=n, shared=True, drive=True),
         InertiaError(model, subset="mass"),
@@ -276,6 +294,45 @@ class _Stacked(CandidateEffect):
         return np.split(np.asarray(theta, dtype=float), np.cumsum(self.sizes)[:-1])
 
 
+class _Sampled:
+    """The samples the selection fits and scores on, with the linear terms' designs cached.
+
+    Long logs are thinned evenly to at most ``max_samples`` training and held-out samples
+    (designs are computed on the whole runs first, so terms with memory, such as the Dahl
+    state or the delay taps, see every sample; nonlinear terms are evaluated on the thinned
+    samples and must be per-sample).
+    """
+
+    def __init__(self, data: DiagnosisData, max_samples: int) -> None:
+        self.full = {"train": data.train, "hold": data.hold}
+        self.rows = {
+            split: _even_rows(sig.n_samples, max_samples) for split, sig in self.full.items()
+        }
+        self.signals = {split: sig.take(self.rows[split]) for split, sig in self.full.items()}
+        self.residual = {
+            "train": data.r_train[self.rows["train"]],
+            "hold": data.r_hold[self.rows["hold"]],
+        }
+        self._designs: dict[tuple[int, str], FloatArray] = {}
+
+    def design(self, term: CandidateEffect, split: str) -> FloatArray:
+        key = (id(term), split)
+        if key not in self._designs:
+            self._designs[key] = term.design(self.full[split])[self.rows[split]]
+        return self._designs[key]
+
+    def predict(self, term: CandidateEffect, theta: FloatArray, split: str) -> FloatArray:
+        if term.linear:
+            return np.einsum("tnp,p->tn", self.design(term, split), theta)
+        return np.asarray(term.torque(self.signals[split], theta), dtype=float)
+
+
+def _even_rows(n: int, limit: int) -> NDArray[np.intp]:
+    if n <= limit:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, limit).round().astype(np.intp))
+
+
 @dataclass(frozen=True)
 class _Model:
     """A fitted combination of terms: parameters by term, in the given order."""
@@ -284,34 +341,31 @@ class _Model:
     parameters: tuple[FloatArray, ...]
     messages: tuple[str, ...]
 
-    def predict(self, signals: Signals) -> FloatArray:
-        width = self.terms[0].width(signals) if self.terms else signals.n_joints
-        out = np.zeros((signals.n_samples, width))
+    def predict(self, sampled: _Sampled, split: str) -> FloatArray:
+        out = np.zeros_like(sampled.residual[split])
         for term, theta in zip(self.terms, self.parameters, strict=True):
-            out += np.asarray(term.torque(signals, theta), dtype=float)
+            out += sampled.predict(term, theta, split)
         return out
 
 
-def _fit_together(
-    terms: Sequence[CandidateEffect], signals: Signals, residual: FloatArray
-) -> _Model:
+def _fit_together(terms: Sequence[CandidateEffect], sampled: _Sampled) -> _Model:
     """Joint fit: linear terms by one stacked least squares, then nonlinear ones in turn."""
     linear = [t for t in terms if t.linear]
     nonlinear = [t for t in terms if not t.linear]
     parameters: dict[int, FloatArray] = {}
     messages: dict[int, str] = {}
-    left = residual
+    left = sampled.residual["train"]
     if linear:
-        stacked = _Stacked(linear)
-        result = fit(stacked, signals, residual)
-        for term, theta in zip(linear, stacked.split(result.parameters), strict=True):
-            parameters[id(term)], messages[id(term)] = theta, "least squares (joint)"
-        left = residual - result.predict(signals)
+        design = np.concatenate([sampled.design(t, "train") for t in linear], axis=2)
+        theta = _solve_linear(design, left)
+        for term, part in zip(linear, _Stacked(linear).split(theta), strict=True):
+            parameters[id(term)], messages[id(term)] = part, "least squares (joint)"
+        left = left - np.einsum("tnp,p->tn", design, theta)
     for term in nonlinear:
-        result = fit(term, signals, left)
+        result = fit(term, sampled.signals["train"], left)
         parameters[id(term)] = result.parameters
         messages[id(term)] = result.message
-        left = left - result.predict(signals)
+        left = left - sampled.predict(term, result.parameters, "train")
     return _Model(
         terms=tuple(terms),
         parameters=tuple(parameters[id(t)] for t in terms),
@@ -358,6 +412,46 @@ def _group_scores(
         energy = float(np.sum(r**2))
         out[g] = 1.0 - float(np.sum(e**2)) / energy if energy > 0 else 0.0
     return out
+
+
+class _Bases:
+    """Orthonormal bases of linear terms' training regressors, for the confounding test."""
+
+    def __init__(self, sampled: _Sampled) -> None:
+        self.sampled = sampled
+        self.cache: dict[int, FloatArray] = {}
+
+    def basis(self, term: CandidateEffect) -> FloatArray:
+        if id(term) not in self.cache:
+            design = self.sampled.design(term, "train")[::_CONFOUNDING_STRIDE]
+            matrix = design.reshape(-1, design.shape[2])
+            matrix = matrix / np.maximum(np.linalg.norm(matrix, axis=0), 1e-300)
+            u, singular, _ = np.linalg.svd(matrix, full_matrices=False)
+            keep = singular > 1e-8 * max(float(singular.max(initial=0.0)), 1e-300)
+            self.cache[id(term)] = u[:, keep]
+        return self.cache[id(term)]
+
+    def confounder(
+        self, candidate: CandidateEffect, chosen: Sequence[CandidateEffect]
+    ) -> str | None:
+        """Why ``candidate`` cannot be told apart from the chosen terms, or None."""
+        linear = [t for t in chosen if t.linear]
+        if not candidate.linear or not linear:
+            return None
+        own = self.basis(candidate)
+        if own.shape[1] == 0:
+            return None
+        together = np.concatenate([self.basis(t) for t in linear], axis=1)
+        span, singular, _ = np.linalg.svd(together, full_matrices=False)
+        span = span[:, singular > 1e-8 * singular.max(initial=1.0)]
+        correlation = float(np.linalg.svd(own.T @ span, compute_uv=False).max(initial=0.0))
+        if correlation <= CONFOUNDING_LIMIT:
+            return None
+        names = ", ".join(t.name for t in linear)
+        return (
+            f"its regressor lies in the span of {names} (canonical correlation "
+            f"{correlation:.4f} > {CONFOUNDING_LIMIT})"
+        )
 
 
 def _own_gain(groups: Sequence[str], before: dict[str, float], after: dict[str, float]) -> float:
@@ -449,6 +543,9 @@ class Diagnosis:
         n_train: Training samples.
         n_holdout: Held-out samples.
         skipped: Candidates not tried, with the reason (a channel group the logs lack).
+        confounded: Candidates left out of a step because the data cannot tell them apart
+            from the terms already selected (see :data:`CONFOUNDING_LIMIT`), with the term
+            and the canonical correlation.
         replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
             dynamics driven by the logged tensions over 0.2 s windows, without and with the
             selected joint-torque terms; None when not computed.
@@ -469,6 +566,7 @@ class Diagnosis:
     n_holdout: int
     skipped: dict[str, str]
     replay: dict[str, Any] | None = None
+    confounded: dict[str, str] = field(default_factory=dict)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -538,6 +636,7 @@ class Diagnosis:
             "n_holdout": self.n_holdout,
             "skipped": dict(self.skipped),
             "replay": self.replay,
+            "confounded": dict(self.confounded),
         }
 
     def to_markdown(self) -> str:
@@ -608,13 +707,15 @@ class Diagnosis:
                 b, a = r[f"{key}_before"], r[f"{key}_after"]
                 share = 100 * (1 - a / b) if b > 0 else 0.0
                 lines.append(
-                    f"| {label} | {scale * b:.3g} {unit} | {scale * a:.3g} {unit} | "
-                    f"{share:.1f} % |"
+                    f"| {label} | {scale * b:.3g} {unit} | {scale * a:.3g} {unit} | {share:.1f} % |"
                 )
         lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
         for k, scores in enumerate(self.step_scores, start=1):
             ranked = sorted(scores.items(), key=lambda kv: -kv[1])
             lines.append(f"{k}. " + ", ".join(f"{n} {v:+.3f}" for n, v in ranked))
+        if self.confounded:
+            lines += ["", "## Candidates the data cannot tell apart from a selected one", ""]
+            lines += [f"- {name}: {why}" for name, why in self.confounded.items()]
         if self.skipped:
             lines += ["", "## Candidates not tried", ""]
             lines += [f"- {name}: {why}" for name, why in self.skipped.items()]
@@ -664,7 +765,7 @@ def _usable(
     pool: list[CandidateEffect],
     layout: _Layout,
     signals: Signals,
-    named: bool,
+    required: set[str],
     absent: set[str],
 ) -> tuple[list[CandidateEffect], dict[str, str]]:
     """Drop candidates whose groups or signals the logs lack (an error if the user named them).
@@ -696,7 +797,7 @@ def _usable(
                 reason = str(exc)
         if not reason:
             usable.append(term)
-        elif named:
+        elif term.name in required:
             raise InputError(f"candidates: {term.name} cannot be fitted to these logs: {reason}")
         else:
             skipped[term.name] = reason
@@ -704,8 +805,7 @@ def _usable(
                 warn.append(term.name)
     if warn:
         warnings.warn(
-            "candidates not tried: "
-            + "; ".join(f"{name} ({skipped[name]})" for name in warn),
+            "candidates not tried: " + "; ".join(f"{name} ({skipped[name]})" for name in warn),
             DiagnosisWarning,
             stacklevel=3,
         )
@@ -714,10 +814,7 @@ def _usable(
 
 def _bootstrap(
     model: _Model,
-    train: Signals,
-    r_train: FloatArray,
-    hold: Signals,
-    r_hold: FloatArray,
+    sampled: _Sampled,
     layout: _Layout,
     n_boot: int,
     threshold: float,
@@ -725,6 +822,8 @@ def _bootstrap(
 ) -> tuple[list[FloatArray], list[float]]:
     """Bootstrap over training runs: each term's parameter std and its confidence."""
     terms = model.terms
+    train, hold = sampled.signals["train"], sampled.signals["hold"]
+    r_train, r_hold = sampled.residual["train"], sampled.residual["hold"]
     nan_std = [np.full(t.n_parameters, np.nan) for t in terms]
     labels = np.unique(train.run)
     if n_boot < 2 or labels.size < 2 or not terms:
@@ -735,15 +834,14 @@ def _bootstrap(
     nonlinear = [k for k, t in enumerate(terms) if not t.linear]
     if linear:
         stacked = _Stacked([terms[k] for k in linear])
-        design = stacked.design(train)
-        hold_design = {k: terms[k].design(hold) for k in linear}
+        design = np.concatenate([sampled.design(terms[k], "train") for k in linear], axis=2)
     left = r_train
     for k in linear:
-        left = left - np.asarray(terms[k].torque(train, model.parameters[k]), dtype=float)
+        left = left - sampled.predict(terms[k], model.parameters[k], "train")
     problems = {}
     for k in nonlinear:
         problems[k] = _NonlinearProblem(terms[k], train, left)
-        left = left - np.asarray(terms[k].torque(train, model.parameters[k]), dtype=float)
+        left = left - sampled.predict(terms[k], model.parameters[k], "train")
     hold_runs = [hold.run == label for label in np.unique(hold.run)]
     samples = [np.empty((n_boot, t.n_parameters)) for t in terms]
     needed = np.zeros(len(terms))
@@ -758,12 +856,7 @@ def _bootstrap(
                 samples[k][b] = part
         for k in nonlinear:
             samples[k][b], *_ = problems[k].solve(model.parameters[k], weights)
-        parts = []
-        for k, term in enumerate(terms):
-            if term.linear:
-                parts.append(np.einsum("tnp,p->tn", hold_design[k], samples[k][b]))
-            else:
-                parts.append(np.asarray(term.torque(hold, samples[k][b]), dtype=float))
+        parts = [sampled.predict(term, samples[k][b], "hold") for k, term in enumerate(terms)]
         full = np.sum(parts, axis=0)
         for mask in hold_runs:
             with_all = _group_scores(layout, r_hold[mask], full[mask])
@@ -784,6 +877,7 @@ def diagnose(
     n_boot: int = 20,
     seed: int = 0,
     groups: Sequence[str] | None = None,
+    extra_candidates: Sequence[CandidateEffect] = (),
 ) -> Diagnosis:
     """Find which candidate effects explain the gap, by forward selection on held-out runs.
 
@@ -802,6 +896,8 @@ def diagnose(
         n_boot: Bootstrap refits over training runs for the std and confidence (< 2: none).
         seed: Seed of the bootstrap draws.
         groups: Channel groups to diagnose (default all the logs have).
+        extra_candidates: Your own candidates, tried besides ``candidates`` (each must be
+            usable on the logs).
 
     Returns:
         The :class:`Diagnosis`.
@@ -812,7 +908,7 @@ def diagnose(
             variance on both training and held-out runs.
         LogError: A log that cannot be diagnosed (file named).
     """
-    data = load_data(model, train_paths, holdout_paths, candidates, spec, groups)
+    data = load_data(model, train_paths, holdout_paths, candidates, spec, groups, extra_candidates)
     return select_effects(data, threshold, n_boot, seed)
 
 
@@ -854,6 +950,7 @@ def load_data(
     candidates: Sequence[CandidateEffect | str] | None = None,
     spec: ResidualSpec | None = None,
     groups: Sequence[str] | None = None,
+    extra_candidates: Sequence[CandidateEffect] = (),
 ) -> DiagnosisData:
     """Read the logs and set up the selection's data (arguments as :func:`diagnose`).
 
@@ -898,7 +995,16 @@ def load_data(
     r_train = layout.stack(g_train)
     r_hold = layout.stack(g_hold)
     absent = {g for g in wanted if g not in g_train or g not in g_hold}
-    usable, skipped = _usable(pool, layout, train, named, absent)
+    extras = list(extra_candidates)
+    for extra in extras:
+        if not isinstance(extra, CandidateEffect):
+            raise InputError(f"extra_candidates: expected CandidateEffect instances, got {extra!r}")
+    names = [c.name for c in [*pool, *extras]]
+    if len(set(names)) != len(names):
+        raise InputError(f"extra_candidates: names must be unique, got {names}")
+    required = {c.name for c in pool} if named else set()
+    required |= {c.name for c in extras}
+    usable, skipped = _usable([*pool, *extras], layout, train, required, absent)
     names = {"joint": tuple(model.joint_names)}
     names.update({g: tuple(model.cable_names) for g in ("drive", "length")})
     return DiagnosisData(
@@ -922,17 +1028,30 @@ def select_effects(
     n_boot: int = 20,
     seed: int = 0,
     replay: bool = True,
+    max_samples: int = MAX_FIT_SAMPLES,
 ) -> Diagnosis:
     """Forward selection, final fit, bootstrap and gaps on prepared data (see :func:`diagnose`).
 
+    Args:
+        data: From :func:`load_data`.
+        threshold: Least gain for a term to be added [-].
+        n_boot: Bootstrap draws over training runs (< 2: none).
+        seed: Seed of the bootstrap.
+        replay: Also replay the held-out runs without and with the effects (the gap as motion).
+        max_samples: The fits and scores use at most this many training and as many held-out
+            samples, evenly thinned (the gaps reported use every held-out sample).
+
     Raises:
-        InputError: A bad threshold.
+        InputError: A bad threshold or ``max_samples``.
     """
+    if int(max_samples) < 100:
+        raise InputError(f"max_samples: expected an integer >= 100, got {max_samples}")
     threshold = float(threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
-    train, hold, layout = data.train, data.hold, data.layout
-    r_train, r_hold = data.r_train, data.r_hold
+    hold, layout = data.hold, data.layout
+    r_hold = data.r_hold
+    sampled = _Sampled(data, int(max_samples))
     embedded = list(data.candidates)
 
     chosen: list[CandidateEffect] = []
@@ -941,17 +1060,29 @@ def select_effects(
     explained = [0.0]
     gains: list[float] = []
     remaining = list(embedded)
+    bases = _Bases(sampled)
+    confounded: dict[str, str] = {}
     while remaining:
         gain_of: dict[str, float] = {}
         after: dict[str, dict[str, float]] = {}
         for candidate in remaining:
-            fitted = _fit_together([*chosen, candidate], train, r_train)
-            after[candidate.name] = _group_scores(layout, r_hold, fitted.predict(hold))
+            clash = bases.confounder(candidate, chosen)
+            if clash is not None:
+                confounded[candidate.name] = clash
+                gain_of[candidate.name] = float("nan")
+                continue
+            fitted = _fit_together([*chosen, candidate], sampled)
+            after[candidate.name] = _group_scores(
+                layout, sampled.residual["hold"], fitted.predict(sampled, "hold")
+            )
             gain_of[candidate.name] = _own_gain(
                 candidate.term.groups, current, after[candidate.name]
             )
         scores_per_step.append(gain_of)
-        best = max(remaining, key=lambda c: gain_of[c.name])
+        open_ = [c for c in remaining if np.isfinite(gain_of[c.name])]
+        if not open_:
+            break
+        best = max(open_, key=lambda c: gain_of[c.name])
         if not gain_of[best.name] > threshold:
             break
         chosen.append(best)
@@ -960,10 +1091,8 @@ def select_effects(
         explained.append(float(np.mean(list(current.values()))))
         gains.append(gain_of[best.name])
 
-    final = _fit_together(chosen, train, r_train)
-    stds, confidence = _bootstrap(
-        final, train, r_train, hold, r_hold, layout, int(n_boot), threshold, seed
-    )
+    final = _fit_together(chosen, sampled)
+    stds, confidence = _bootstrap(final, sampled, layout, int(n_boot), threshold, seed)
     cumulative = np.zeros_like(r_hold)
     waterfall = [{g: _pooled(v) for g, v in layout.unstack(r_hold).items()}]
     for term, theta in zip(final.terms, final.parameters, strict=True):
@@ -1002,8 +1131,9 @@ def select_effects(
         threshold=threshold,
         train_runs=data.train_runs,
         holdout_runs=data.holdout_runs,
-        n_train=train.n_samples,
+        n_train=data.train.n_samples,
         n_holdout=hold.n_samples,
         skipped=dict(data.skipped),
         replay=motion,
+        confounded={k: v for k, v in confounded.items() if k not in {c.name for c in chosen}},
     )

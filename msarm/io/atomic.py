@@ -19,12 +19,20 @@ from typing import Any
 __all__ = ["atomic_path", "write_bytes_atomic", "write_json_atomic"]
 
 
+def _umask() -> int:
+    """The process's umask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success move it onto ``path``.
 
     The folder is created if needed. If the body raises, the temporary file is removed and
-    ``path`` is left as it was.
+    ``path`` is left as it was. The file gets the permissions of a plainly created one
+    (``0o666`` less the umask), not the private ``0o600`` of a temporary file.
 
     Args:
         path: The file to write.
@@ -41,6 +49,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb") as handle:
             os.fsync(handle.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -1,0 +1,392 @@
+"""The report of a gap diagnosis: plots, Markdown, a self-contained HTML page, JSON.
+
+:func:`write_report` writes, into one folder and file by file atomically:
+
+- ``diagnosis.json``: :meth:`~msarm.diagnose.select.Diagnosis.as_dict`;
+- ``waterfall.png`` (:func:`plot_waterfall`): per channel group, the pooled held-out RMSE of
+  the residual for the nominal model and after each selected effect, each step's drop shaded;
+- ``gap.png`` (:func:`plot_gap`): per group, the held-out RMSE of each channel before and after
+  the selected effects;
+- ``where-<kind>.png``: one heat map (:func:`msarm.diagnose.where.plot_heatmap`) per "where"
+  breakdown given (``joint_torque``, ``drive``, ``cable_length``, ...);
+- ``report.md``: a title and summary, the "Where" section (each breakdown's tables, its heat map
+  linked), then the diagnosis' own sections (which effects, how far the gap shrinks, the
+  candidates tried) with the waterfall and gap plots linked (relative paths);
+- ``report.html``: the same content as one self-contained page (the PNGs embedded as base64
+  ``data:`` images) that can be mailed or archived alone. Markdown is rendered with
+  ``markdown-it-py`` (a dependency of ``rich``), raw HTML in the text is escaped.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from msarm.diagnose.builder import GROUP_UNITS
+from msarm.diagnose.select import Diagnosis, SelectedEffect
+from msarm.diagnose.where import GapBreakdown, plot_heatmap
+from msarm.errors import InputError
+from msarm.io.atomic import write_bytes_atomic, write_json_atomic
+
+__all__ = ["REPORT_FILES", "plot_gap", "plot_waterfall", "render_html", "write_report"]
+
+#: The fixed files of a report, by the key :func:`write_report` returns them under.
+REPORT_FILES = {
+    "json": "diagnosis.json",
+    "waterfall": "waterfall.png",
+    "gap": "gap.png",
+    "markdown": "report.md",
+    "html": "report.html",
+}
+
+_KIND = re.compile(r"^[A-Za-z0-9_.-]+$")
+_COLOURS = {"nominal": "0.55", "kept": "tab:blue", "drop": "tab:green", "rise": "tab:red"}
+
+
+def _check_diagnosis(diagnosis: Diagnosis) -> None:
+    if not isinstance(diagnosis, Diagnosis):
+        raise InputError(f"diagnosis: expected a Diagnosis, got {type(diagnosis).__name__}")
+    if not diagnosis.groups:
+        raise InputError("diagnosis: it has no channel group to report on")
+
+
+def _step_labels(diagnosis: Diagnosis) -> list[str]:
+    """``["nominal model", "+ effect1", ...]``, one per waterfall step."""
+    labels = ["nominal model", *(f"+ {s.name}" for s in diagnosis.selected)]
+    if len(labels) != len(diagnosis.waterfall):  # defensive: label by index
+        labels = ["nominal model", *(f"step {k}" for k in range(1, len(diagnosis.waterfall)))]
+    return labels
+
+
+def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
+    """Pooled held-out RMSE of each group after each selection step, as a waterfall.
+
+    One panel per group of ``diagnosis.groups``. Bar ``k`` is the group's pooled held-out RMSE
+    [its unit, :data:`~msarm.diagnose.builder.GROUP_UNITS`] after the first ``k`` selected
+    effects (bar 0: the nominal model); the drop from the previous step is shaded (green, red
+    for a rise) and labelled with its size in % of the nominal RMSE. The panel title gives the
+    group's total shrink ``1 - RMSE_after / RMSE_nominal``. With nothing selected, each panel
+    has the nominal bar only.
+
+    Args:
+        diagnosis: The diagnosis.
+        path: PNG file to write (atomically).
+
+    Returns:
+        The path written.
+
+    Raises:
+        InputError: ``diagnosis`` is not a :class:`Diagnosis` or has no group.
+    """
+    from msarm.plots import plt, save_figure
+
+    _check_diagnosis(diagnosis)
+    labels = _step_labels(diagnosis)
+    groups = diagnosis.groups
+    width = max(4.2, 1.0 + 0.9 * len(labels))
+    fig, axes = plt.subplots(
+        1, len(groups), figsize=(width * len(groups), 4.4), squeeze=False, layout="constrained"
+    )
+    x = np.arange(len(labels))
+    for ax, g in zip(axes[0], groups, strict=True):
+        unit = GROUP_UNITS[g]
+        values = np.array([step[g] for step in diagnosis.waterfall], dtype=float)
+        nominal = values[0]
+        acts = [True] + [g in s.groups for s in diagnosis.selected]
+        acts += [True] * (len(values) - len(acts))
+        colours = [_COLOURS["nominal"]] + [
+            _COLOURS["kept"] if a else "0.8" for a in acts[1 : len(values)]
+        ]
+        ax.bar(x, values, color=colours, width=0.6, zorder=2)
+        for k in range(1, len(values)):
+            drop = values[k - 1] - values[k]
+            ax.bar(
+                x[k],
+                abs(drop),
+                bottom=min(values[k], values[k - 1]),
+                width=0.6,
+                color=_COLOURS["drop" if drop >= 0 else "rise"],
+                alpha=0.3,
+                hatch="//",
+                edgecolor=_COLOURS["drop" if drop >= 0 else "rise"],
+                zorder=2,
+            )
+            ax.plot([x[k - 1] + 0.3, x[k] - 0.3], [values[k - 1]] * 2, color="0.4", lw=0.8)
+            share = 100.0 * drop / nominal if nominal > 0 else 0.0
+            change = f"{-share:+.1f} %" if abs(share) >= 0.05 else "0.0 %"
+            ax.annotate(
+                f"{values[k]:.3g} ({change})",
+                (x[k], max(values[k], values[k - 1])),
+                xytext=(0, 3),
+                textcoords="offset points",
+                ha="center",
+                va="bottom",
+                fontsize=8,
+            )
+        ax.annotate(
+            f"{nominal:.3g}",
+            (x[0], nominal),
+            xytext=(0, 3),
+            textcoords="offset points",
+            ha="center",
+            va="bottom",
+            fontsize=8,
+        )
+        if len(values) > 1:
+            ax.axhline(values[-1], color="k", lw=0.8, ls="--", zorder=1)
+        ax.set_xticks(x, labels, rotation=25, ha="right")
+        ax.set_ylabel(f"pooled held-out RMSE [{unit}]")
+        ax.set_ylim(0.0, 1.15 * max(float(values.max()), 1e-300))
+        shrink = 1.0 - values[-1] / nominal if nominal > 0 else 0.0
+        ax.set_title(f"{g}: shrink {100 * shrink:.1f} %")
+        ax.set_xlim(-0.6 if len(x) > 1 else -1.5, x[-1] + (0.6 if len(x) > 1 else 1.5))
+        ax.grid(axis="y", alpha=0.3, zorder=0)
+    fig.suptitle(
+        "held-out gap after each selected effect"
+        + ("" if diagnosis.selected else " (nothing selected)")
+    )
+    return save_figure(fig, path)
+
+
+def plot_gap(diagnosis: Diagnosis, path: str | Path) -> Path:
+    """Held-out RMSE per channel before and after the selected effects, one panel per group.
+
+    Grouped bars per channel (joint or cable): the nominal model's held-out RMSE and the RMSE
+    left after subtracting the selected effects' prediction [the group's unit], the shrink
+    ``1 - after / before`` [%] written above each pair.
+
+    Args:
+        diagnosis: The diagnosis.
+        path: PNG file to write (atomically).
+
+    Returns:
+        The path written.
+
+    Raises:
+        InputError: ``diagnosis`` is not a :class:`Diagnosis` or has no group.
+    """
+    from msarm.plots import plt, save_figure
+
+    _check_diagnosis(diagnosis)
+    groups = diagnosis.groups
+    widest = max(len(diagnosis.channel_names[g]) for g in groups)
+    fig, axes = plt.subplots(
+        len(groups),
+        1,
+        figsize=(max(7.0, 1.2 + 0.95 * widest), 3.4 * len(groups)),
+        squeeze=False,
+        layout="constrained",
+    )
+    for ax, g in zip(axes[:, 0], groups, strict=True):
+        unit = GROUP_UNITS[g]
+        names = diagnosis.channel_names[g]
+        before = np.asarray(diagnosis.gap_before[g], dtype=float)
+        after = np.asarray(diagnosis.gap_after[g], dtype=float)
+        shrink = diagnosis.shrink(g)
+        x = np.arange(len(names))
+        ax.bar(x - 0.2, before, width=0.4, color=_COLOURS["nominal"], label="nominal model")
+        ax.bar(x + 0.2, after, width=0.4, color=_COLOURS["kept"], label="after the effects")
+        for k in range(len(names)):
+            ax.annotate(
+                f"{100 * shrink[k]:.0f} %",
+                (x[k], max(before[k], after[k])),
+                xytext=(0, 3),
+                textcoords="offset points",
+                ha="center",
+                va="bottom",
+                fontsize=7,
+            )
+        tilted = len(names) > 5
+        ax.set_xticks(x, names, rotation=20 if tilted else 0, ha="right" if tilted else "center")
+        ax.set_ylabel(f"held-out RMSE [{unit}]")
+        top = float(max(before.max(initial=0.0), after.max(initial=0.0)))
+        ax.set_ylim(0.0, 1.35 * top if top > 0 else 1.0)
+        pooled_before = float(np.sqrt(np.mean(before**2)))
+        pooled_after = float(np.sqrt(np.mean(after**2)))
+        ax.set_title(
+            f"{g}: pooled {pooled_before:.3g} -> {pooled_after:.3g} {unit} "
+            f"(shrink {100 * diagnosis.group_shrink(g):.1f} %)"
+        )
+        ax.legend(fontsize=8, loc="upper right", ncol=2)
+        ax.grid(axis="y", alpha=0.3)
+    fig.suptitle("held-out gap per channel, before and after the selected effects")
+    return save_figure(fig, path)
+
+
+def _demote(markdown: str, levels: int = 1) -> str:
+    """Move every ATX heading of ``markdown`` down by ``levels`` (``#`` -> ``##``)."""
+    return re.sub(
+        r"^(#{1,6})(?= )",
+        lambda m: "#" * min(6, len(m.group(1)) + levels),
+        markdown,
+        flags=re.MULTILINE,
+    )
+
+
+def _effect_summary(effect: SelectedEffect, limit: int = 4) -> str:
+    parts = []
+    for name, value, std in zip(effect.parameter_names, effect.parameters, effect.std, strict=True):
+        text = f"{name} = {value:.4g}"
+        if np.isfinite(std):
+            text += f" ± {std:.2g}"
+        parts.append(text)
+    if len(parts) > limit:
+        parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
+    confidence = f", confidence {effect.confidence:.2f}" if np.isfinite(effect.confidence) else ""
+    return f"**{effect.name}** ({', '.join(parts)}{confidence})"
+
+
+def _markdown(
+    diagnosis: Diagnosis, where: Mapping[str, tuple[GapBreakdown, str]], images: Mapping[str, str]
+) -> str:
+    """The report as Markdown, images linked by their file names."""
+    lines = ["# Sim-to-real gap report", ""]
+    if diagnosis.selected:
+        lines.append(
+            "Named effects, in the order they were selected: "
+            + "; ".join(_effect_summary(s) for s in diagnosis.selected)
+            + "."
+        )
+    else:
+        lines.append(
+            "No candidate effect explains the held-out gap better than the nominal model by "
+            f"more than {diagnosis.threshold:.3g}: nothing named."
+        )
+    lines += [
+        "",
+        "Held-out gap shrink per channel group: "
+        + ", ".join(
+            f"{g} {100 * diagnosis.group_shrink(g):.1f} % "
+            f"({diagnosis.waterfall[0][g]:.4g} -> {diagnosis.waterfall[-1][g]:.4g} "
+            f"{GROUP_UNITS[g]})"
+            for g in diagnosis.groups
+        )
+        + ".",
+        "",
+        "## Where the gap lies (training runs)",
+        "",
+    ]
+    if not where:
+        lines += ["No breakdown was computed.", ""]
+    for kind, (breakdown, image) in where.items():
+        body = _demote(breakdown.to_markdown().strip(), 1)
+        head, _, rest = body.partition("\n")
+        lines += [head, "", f"![where the {kind} gap lies]({image})", "", rest.strip(), ""]
+    diagnosis_md = _demote(diagnosis.to_markdown().strip(), 1).splitlines()
+    figures = [
+        f"![held-out gap after each selected effect]({images['waterfall']})",
+        "",
+        f"![held-out gap per channel]({images['gap']})",
+        "",
+    ]
+    at = next((k for k, line in enumerate(diagnosis_md) if line.startswith("### How far")), None)
+    if at is None:
+        diagnosis_md += ["", *figures]
+    else:
+        diagnosis_md[at + 1 : at + 1] = ["", *figures[:-1]]
+    lines += diagnosis_md
+    return "\n".join(lines).rstrip() + "\n"
+
+
+_STYLE = """
+body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; max-width: 1100px;
+       margin: 2em auto; padding: 0 1em; color: #222; line-height: 1.45; }
+h1, h2, h3, h4 { line-height: 1.2; }
+h2 { border-bottom: 1px solid #ddd; padding-bottom: 0.2em; margin-top: 1.6em; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
+th { background: #f3f3f3; }
+tr:nth-child(even) td { background: #fafafa; }
+img { max-width: 100%; height: auto; border: 1px solid #eee; }
+code { background: #f3f3f3; padding: 0 0.2em; }
+"""
+
+
+def render_html(markdown: str, images: Mapping[str, bytes], title: str = "") -> str:
+    """A self-contained HTML page of ``markdown``, the linked images embedded as base64.
+
+    Args:
+        markdown: The Markdown text (CommonMark with GFM tables); raw HTML in it is escaped.
+        images: PNG bytes by the file name the Markdown links them by (``![..](name)``).
+        title: Page title (default: the first heading).
+
+    Returns:
+        The HTML page.
+    """
+    from markdown_it import MarkdownIt
+
+    body = MarkdownIt("commonmark", {"html": False}).enable("table").render(markdown)
+    for name, data in images.items():
+        uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+        body = body.replace(f'src="{html.escape(name, quote=True)}"', f'src="{uri}"')
+    if not title:
+        heading = re.search(r"^#+ (.+)$", markdown, flags=re.MULTILINE)
+        title = heading.group(1) if heading else "report"
+    return (
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        f"<title>{html.escape(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
+        f"{body}</body>\n</html>\n"
+    )
+
+
+def write_report(
+    diagnosis: Diagnosis,
+    out_dir: str | Path,
+    breakdowns: Mapping[str, GapBreakdown] | None = None,
+) -> dict[str, Path]:
+    """Write the diagnosis report (JSON, plots, Markdown, HTML) into ``out_dir``.
+
+    See the module docstring for the files. Every file is written atomically; the folder is
+    created if needed and files already there are replaced.
+
+    Args:
+        diagnosis: The diagnosis (:func:`msarm.diagnose.select.diagnose`).
+        out_dir: Folder to write into.
+        breakdowns: "Where" breakdowns (:func:`msarm.diagnose.where.diagnose_where`) by
+            residual kind, in the order they should appear; the kind names the heat map
+            ``where-<kind>.png`` (letters, digits, ``_``, ``.``, ``-``).
+
+    Returns:
+        The paths written, by name: ``json``, ``waterfall``, ``gap``, ``where-<kind>`` for each
+        breakdown, ``markdown`` and ``html`` (see :data:`REPORT_FILES`).
+
+    Raises:
+        InputError: ``diagnosis`` is not a :class:`Diagnosis`; ``out_dir`` is a file; a
+            breakdown that is not a :class:`GapBreakdown` or a kind unfit for a file name.
+    """
+    _check_diagnosis(diagnosis)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"out_dir: {out} exists and is not a folder")
+    where = dict(breakdowns or {})
+    for kind, breakdown in where.items():
+        if not isinstance(kind, str) or not _KIND.match(kind):
+            raise InputError(
+                f"breakdowns: kind {kind!r} cannot name a file (letters, digits, _ . - only)"
+            )
+        if not isinstance(breakdown, GapBreakdown):
+            raise InputError(
+                f"breakdowns: {kind!r} is a {type(breakdown).__name__}, not a GapBreakdown"
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    paths: dict[str, Path] = {}
+    paths["json"] = write_json_atomic(out / REPORT_FILES["json"], diagnosis.as_dict())
+    paths["waterfall"] = plot_waterfall(diagnosis, out / REPORT_FILES["waterfall"])
+    paths["gap"] = plot_gap(diagnosis, out / REPORT_FILES["gap"])
+    linked: dict[str, tuple[GapBreakdown, str]] = {}
+    for kind, breakdown in where.items():
+        name = f"where-{kind}"
+        paths[name] = plot_heatmap(breakdown, out / f"{name}.png")
+        linked[kind] = (breakdown, paths[name].name)
+    images = {"waterfall": paths["waterfall"].name, "gap": paths["gap"].name}
+    markdown = _markdown(diagnosis, linked, images)
+    paths["markdown"] = write_bytes_atomic(out / REPORT_FILES["markdown"], markdown.encode())
+    embedded = {p.name: p.read_bytes() for p in paths.values() if p.suffix == ".png"}
+    page = render_html(markdown, embedded, title="Sim-to-real gap report")
+    paths["html"] = write_bytes_atomic(out / REPORT_FILES["html"], page.encode())
+    return paths

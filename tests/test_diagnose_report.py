@@ -1,0 +1,236 @@
+"""The report of a gap diagnosis (issue 7): plots, Markdown, HTML, JSON, the CLI, the example."""
+
+from __future__ import annotations
+
+import base64
+import importlib.util
+import json
+import re
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from msarm.cli.diagnose import diagnose_command, where_breakdowns
+from msarm.control import ArmControllerConfig
+from msarm.diagnose.effects import CANDIDATES as REGISTRY
+from msarm.diagnose.fitting import fit
+from msarm.diagnose.report import REPORT_FILES, plot_gap, plot_waterfall, write_report
+from msarm.diagnose.select import diagnose
+from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
+from msarm.plant import IDEAL_PLANT
+from msarm.plant.config import JointFrictionConfig
+from msarm.tasks.track import TrackSettings, track
+from msarm.tasks.trajectories import hold_then_move
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "diagnose_custom_candidate.py"
+PNG = b"\x89PNG\r\n\x1a\n"
+CANDIDATES = ["coulomb", "viscous"]
+N_RUNS = 3
+
+
+def _task(arm, seed: int):
+    rng = np.random.default_rng(seed)
+    lower, upper = np.asarray(arm.joint_lower), np.asarray(arm.joint_upper)
+    width = upper - lower
+    start, target = (rng.uniform(lower + 0.25 * width, upper - 0.25 * width) for _ in range(2))
+    return hold_then_move(f"move{seed}", start, target, wait=0.5, move_time=2.0, duration=4.0)
+
+
+@pytest.fixture(scope="module")
+def friction_logs(arm, tmp_path_factory):
+    root = tmp_path_factory.mktemp("report_friction")
+    plant = replace(
+        IDEAL_PLANT,
+        name="test",
+        effects=replace(IDEAL_PLANT.effects, joint_friction=JointFrictionConfig(enabled=True)),
+    )
+    paths = []
+    for seed in range(N_RUNS):
+        settings = TrackSettings(f"move{seed}", seed, plant, ArmControllerConfig())
+        result = track(arm, _task(arm, seed), settings, root / f"run{seed}", plots_too=False)
+        paths.append(result.files["log"])
+    return paths
+
+
+@pytest.fixture(scope="module")
+def diagnosis(arm, friction_logs):
+    return diagnose(arm, friction_logs[:-1], friction_logs[-1:], candidates=CANDIDATES, n_boot=4)
+
+
+@pytest.fixture(scope="module")
+def nothing_selected(diagnosis):
+    """The same diagnosis as if no candidate had been selected."""
+    return replace(
+        diagnosis,
+        selected=(),
+        explained_variance=diagnosis.explained_variance[:1],
+        waterfall=diagnosis.waterfall[:1],
+        gap_after=dict(diagnosis.gap_before),
+    )
+
+
+@pytest.fixture(scope="module")
+def example():
+    """The example module, loaded from its path (its candidate registered for the module)."""
+    REGISTRY.pop("pulley_loss", None)
+    spec = importlib.util.spec_from_file_location("diagnose_custom_candidate", EXAMPLE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    yield module
+    REGISTRY.pop("pulley_loss", None)
+    sys.modules.pop("custom_effect", None)
+
+
+def _embedded_pngs(page: str) -> list[bytes]:
+    return [
+        base64.b64decode(data) for data in re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    ]
+
+
+def test_write_report_writes_every_file(arm, diagnosis, friction_logs, tmp_path):
+    assert diagnosis.names, "joint friction should be named"
+    # perfect drives and rigid cables: only the joint group is diagnosed and broken down
+    assert diagnosis.groups == ("joint",)
+    breakdowns, skipped = where_breakdowns(arm, friction_logs[:-1], diagnosis.groups)
+    assert list(breakdowns) == ["joint_torque"]
+    assert set(skipped) == {"drive", "cable_length"}
+    every, _ = where_breakdowns(arm, friction_logs[:-1])
+    assert "joint_torque" in every and "drive" not in every
+    out = tmp_path / "report"
+    paths = write_report(diagnosis, out, breakdowns)
+    expected = {**REPORT_FILES, **{f"where-{k}": f"where-{k}.png" for k in breakdowns}}
+    assert set(paths) == set(expected)
+    for key, name in expected.items():
+        assert paths[key] == out / name
+        assert paths[key].stat().st_size > 0
+        if name.endswith(".png"):
+            assert paths[key].read_bytes().startswith(PNG)
+    assert not list(out.glob(".*.tmp")), "temporary files left behind"
+
+    assert json.loads(paths["json"].read_text()) == json.loads(json.dumps(diagnosis.as_dict()))
+
+    markdown = paths["markdown"].read_text()
+    assert markdown.startswith("# Sim-to-real gap report")
+    first = diagnosis.selected[0].name
+    assert f"**{first}**" in markdown
+    assert f"| 1 | {first} |" in markdown
+    for name in ("waterfall.png", "gap.png", "where-joint_torque.png"):
+        assert re.search(rf"!\[[^\]]*\]\({re.escape(name)}\)", markdown), name
+    assert "## Where the gap lies (training runs)" in markdown
+    assert "### How far: the held-out gap before and after" in markdown
+    assert markdown.index("where-joint_torque.png") < markdown.index("waterfall.png")
+
+    page = paths["html"].read_text()
+    assert page.startswith("<!DOCTYPE html>")
+    assert "<table>" in page and first in page
+    assert 'src="waterfall.png"' not in page, "images must be embedded, not linked"
+    embedded = _embedded_pngs(page)
+    files = {p.read_bytes() for k, p in paths.items() if p.suffix == ".png"}
+    assert len(embedded) == 2 + len(breakdowns) and set(embedded) == files
+
+
+def test_plots_with_nothing_selected(nothing_selected, tmp_path):
+    assert nothing_selected.selected == ()
+    for plot in (plot_waterfall, plot_gap):
+        path = plot(nothing_selected, tmp_path / f"{plot.__name__}.png")
+        assert path.read_bytes().startswith(PNG)
+    paths = write_report(nothing_selected, tmp_path / "empty")
+    assert "where-joint_torque" not in paths
+    markdown = paths["markdown"].read_text()
+    assert "nothing named" in markdown and "No breakdown was computed." in markdown
+    assert len(_embedded_pngs(paths["html"].read_text())) == 2
+
+
+def test_write_report_refuses_bad_input(diagnosis, tmp_path):
+    with pytest.raises(InputError, match="diagnosis"):
+        write_report(diagnosis.as_dict(), tmp_path / "a")
+    afile = tmp_path / "file"
+    afile.write_text("x")
+    with pytest.raises(InputError, match="out_dir"):
+        write_report(diagnosis, afile)
+    with pytest.raises(InputError, match="breakdowns"):
+        write_report(diagnosis, tmp_path / "b", {"../evil": None})
+    with pytest.raises(InputError, match="breakdowns"):
+        write_report(diagnosis, tmp_path / "c", {"joint_torque": "not a breakdown"})
+
+
+def test_cli_writes_the_report_and_prints_the_tables(friction_logs, tmp_path, capsys):
+    out = tmp_path / "cli"
+    diagnose_command(
+        friction_logs[:2], friction_logs[2:3], False, out, candidates=CANDIDATES, boot=3, seed=1
+    )
+    printed = capsys.readouterr().out
+    for name in ("report.md", "report.html", "diagnosis.json", "diagnosis.md", "gap.png"):
+        assert (out / name).is_file(), name
+    assert (out / "where-joint_torque.png").is_file()
+    assert "held-out gap per channel group" in printed
+    assert "joint" in printed and "N m" in printed and "%" in printed
+    assert any(name in printed for name in CANDIDATES)
+    assert "report.md" in printed and "report.html" in printed
+    assert "where: no drive breakdown" in printed
+    # --json keeps stdout pure JSON, the report is still written
+    diagnose_command(
+        friction_logs[:2], friction_logs[2:3], True, out, candidates=CANDIDATES, boot=0
+    )
+    payload = json.loads(capsys.readouterr().out)
+    assert json.loads((out / "diagnosis.json").read_text()) == payload
+
+
+def test_cli_refuses_unknown_candidates_and_bad_boot(friction_logs, tmp_path):
+    with pytest.raises(InputError, match="unknown name 'no_such_effect'"):
+        diagnose_command(friction_logs[:2], friction_logs[2:3], False, None, ["no_such_effect"])
+    with pytest.raises(InputError, match="--boot"):
+        diagnose_command(friction_logs[:2], friction_logs[2:3], False, None, boot=-1)
+
+
+def _random_signals(arm, T: int = 300, seed: int = 0) -> Signals:
+    rng = np.random.default_rng(seed)
+    n, m = arm.n_joints, arm.n_cables
+    q = rng.uniform(arm.joint_lower, arm.joint_upper, size=(T, n))
+    qd = rng.normal(0.0, 0.5, size=(T, n))
+    jacobian = rng.normal(0.0, 0.02, size=(T, m, n))
+    return Signals(
+        t=np.arange(T) * 0.01,
+        q=q,
+        qd=qd,
+        qdd=rng.normal(0.0, 1.0, size=(T, n)),
+        tension=rng.uniform(5.0, 60.0, size=(T, m)),
+        lengths=rng.uniform(0.3, 0.8, size=(T, m)),
+        cable_velocity=np.einsum("tmn,tn->tm", jacobian, qd),
+        jacobian=jacobian,
+        wrap=rng.uniform(2.0, 4.0, size=(T, m)),
+        motor_angle=rng.uniform(0.0, 6.0, size=(T, m)),
+        dt=0.01,
+    )
+
+
+def test_example_candidate_recovers_a_known_loss(arm, example):
+    candidate = example.PulleyLossCandidate(arm.n_joints, arm.n_cables)
+    assert REGISTRY["pulley_loss"] is example.PulleyLossCandidate
+    assert candidate.groups == ("joint",) and candidate.linear
+    signals = _random_signals(arm)
+    loss = 0.15
+    design = candidate.design(signals)
+    assert design.shape == (signals.n_samples, arm.n_joints, 1)
+    # the residual r = tau_MS - tau_delivered of a lossy pulley, from its definition
+    F, J = signals.tension, signals.jacobian
+    tau_ms = -np.einsum("tmn,tm->tn", J, F)
+    delivered = -np.einsum("tmn,tm->tn", J, (1.0 - loss) * F)
+    np.testing.assert_allclose(design[:, :, 0] * loss, tau_ms - delivered, atol=1e-12)
+    noise = np.random.default_rng(1).normal(0.0, 1e-3, size=tau_ms.shape)
+    result = fit(candidate, signals, design[:, :, 0] * loss + noise)
+    assert result.parameters[0] == pytest.approx(loss, abs=2e-3)
+    assert result.reduction > 0.99
+    with pytest.raises(InputError, match="cables"):
+        example.PulleyLossCandidate(arm.n_joints, arm.n_cables + 1).design(signals)
+
+
+def test_example_names_the_pulley_loss_end_to_end(example, tmp_path):
+    result, files = example.run_example(loss=0.15, out=tmp_path / "example")
+    assert result.names[0] == "pulley_loss"
+    assert result.selected[0].parameters[0] == pytest.approx(0.15, abs=0.01)
+    assert files["html"].is_file() and files["markdown"].is_file()
