@@ -10,7 +10,13 @@ from test_diagnose_effects import DRUM, _make_signals
 
 from msarm.control import ArmControllerConfig
 from msarm.diagnose.builder import channels_from_logs
-from msarm.diagnose.cable_effects import CableElasticity, CommandDelay, DriveCogging, WinchFriction
+from msarm.diagnose.cable_effects import (
+    CableBacklash,
+    CableElasticity,
+    CommandDelay,
+    DriveCogging,
+    WinchFriction,
+)
 from msarm.diagnose.effects import SensorBiasScale
 from msarm.diagnose.fitting import bootstrap, fit
 from msarm.diagnose.residuals import DiagnosisWarning
@@ -50,6 +56,8 @@ def _cases():
         (CableElasticity(), np.array([5e-5])),
         (CableElasticity(shared=False), rng.uniform(2e-5, 8e-5, size=9)),
         (SensorBiasScale(shared=True, drive=True), np.array([1.5, 0.03])),
+        (CableBacklash(DRUM), np.array([4e-4])),
+        (CableBacklash(DRUM, shared=False), rng.uniform(1e-4, 6e-4, size=9)),
     ]
 
 
@@ -63,6 +71,8 @@ IDS = [
     "elasticity",
     "elasticity_per_cable",
     "sensor_drive",
+    "backlash",
+    "backlash_per_cable",
 ]
 
 

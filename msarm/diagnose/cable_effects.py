@@ -31,7 +31,7 @@ from msarm.diagnose.effects import CandidateEffect, register
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 
-__all__ = ["CableElasticity", "CommandDelay", "DriveCogging", "WinchFriction"]
+__all__ = ["CableBacklash", "CableElasticity", "CommandDelay", "DriveCogging", "WinchFriction"]
 
 FloatArray = NDArray[np.float64]
 
@@ -258,3 +258,64 @@ class CableElasticity(CandidateEffect):
         self._check_cables(signals, self.n_cables)
         tension = signals.tension
         return _per_cable_or_shared([-(tension - signals.run_mean(tension))], self.shared)
+
+
+@register
+class CableBacklash(CandidateEffect):
+    """Backlash between winch and cable: a play that the cable takes up at each reversal.
+
+    With a play ``b`` [m] the cable end follows the drum only once the play is taken up, so
+    the encoder's length and the path length differ by ``(b / 2) z``, ``z`` in ``[-1, 1]``
+    the direction the drum last moved in, smoothed over a travel ``w`` [m] (a Dahl-type state
+    ``dz/dt = (v - |v| z) / w`` on the drum's surface speed ``v = rho omega``, integrated per
+    run from 0). Demeaned per run like the length residual; linear in ``b`` for a fixed
+    ``w``, shared by all cables or per cable.
+    """
+
+    name = "backlash"
+    description = (
+        "e_l = (b/2) (z - mean_run z), dz/dt = (v - |v| z)/w: play b [m] taken up at each "
+        "reversal of the drum (travel w to reverse)"
+    )
+    linear = True
+    groups = ("length",)
+
+    def __init__(
+        self, drum_radius: float, n_cables: int = 9, travel: float = 5e-4, shared: bool = True
+    ) -> None:
+        """Build the term.
+
+        Args:
+            drum_radius: Drum radius ``rho`` [m].
+            n_cables: Number of cables ``m``.
+            travel: Drum travel ``w`` over which the direction state reverses [m].
+            shared: One play for all cables.
+        """
+        if not drum_radius > 0:
+            raise InputError(f"drum_radius: expected > 0 m, got {drum_radius}")
+        if not travel > 0:
+            raise InputError(f"travel: expected > 0 m, got {travel}")
+        self.drum_radius, self.travel = float(drum_radius), float(travel)
+        self.n_cables, self.shared = int(n_cables), bool(shared)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = _names(("play",), self.shared, self.n_cables)
+
+    def state(self, signals: Signals) -> FloatArray:
+        """The direction state ``z`` [-] of every drum, shape ``(T, m)``."""
+        speed = self.drum_radius * signals.require("motor_speed", self.name)
+        z = np.zeros_like(speed)
+        for label in np.unique(signals.run):
+            index = np.flatnonzero(signals.run == label)
+            t = signals.t[index]
+            current = np.zeros(speed.shape[1])
+            for k, i in enumerate(index):
+                if k:
+                    h = (t[k] - t[k - 1]) / self.travel
+                    current = (current + h * speed[i]) / (1.0 + h * np.abs(speed[i]))
+                z[i] = current
+        return z
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        z = self.state(signals)
+        return _per_cable_or_shared([0.5 * (z - signals.run_mean(z))], self.shared)

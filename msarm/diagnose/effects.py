@@ -927,5 +927,4 @@ class InertiaError(CandidateEffect):
 #: Effects listed in the brief that are not implemented yet.
 NOT_IMPLEMENTED: tuple[str, ...] = (
     "slack dead zone (elasticity explains taut cables only; slack is what is left)",
-    "backlash",
 )

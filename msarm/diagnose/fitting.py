@@ -134,8 +134,7 @@ def _check_residual(
     if residual.shape != expected:
         groups = "joint" if effect is None else "+".join(effect.groups)
         raise InputError(
-            f"residual: expected shape (T, W) = {expected} (groups {groups}), "
-            f"got {residual.shape}"
+            f"residual: expected shape (T, W) = {expected} (groups {groups}), got {residual.shape}"
         )
     if not np.all(np.isfinite(residual)):
         bad = np.argwhere(~np.isfinite(residual))[0]

@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 
 from msarm.diagnose.builder import GROUP_UNITS, GROUPS, channels_from_logs
 from msarm.diagnose.cable_effects import (
+    CableBacklash,
     CableElasticity,
     CommandDelay,
     DriveCogging,
@@ -124,6 +125,7 @@ DEFAULT_CANDIDATES = (
     "motor_cogging",
     "command_delay",
     "elasticity",
+    "backlash",
 )
 
 
@@ -140,7 +142,8 @@ def available_candidates(
     late against the encoders, first order). Joint and drive: ``sensor`` (load-cell bias and
     scale shared by all cables). Drive terms: ``winch_friction``, ``motor_cogging``
     (:data:`DEFAULT_COGGING_PERIODS` periods per revolution) and ``command_delay``. Cable
-    length: ``elasticity``. Drive terms use ``spec.drum_radius`` and ``spec.drive_gain``.
+    length: ``elasticity`` and ``backlash``. Drive terms use ``spec.drum_radius`` and
+    ``spec.drive_gain``.
 
     Args:
         model: The nominal robot model.
@@ -160,6 +163,7 @@ def available_candidates(
         DriveCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, spec.drive_gain, n_cables=m),
         CommandDelay(n_cables=m),
         CableElasticity(n_cables=m),
+        CableBacklash(spec.drum_radius, n_cables=m),
         MotorCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, n_cables=m, n_joints=n),
         TensionDelay(n_cables=m, n_joints=n),
     ]
