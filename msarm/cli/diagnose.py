@@ -28,7 +28,7 @@ from msarm.cli.common import console
 from msarm.errors import InputError
 
 if TYPE_CHECKING:
-    from msarm.diagnose.select import Diagnosis, SelectedEffect
+    from msarm.diagnose.select import Diagnosis
     from msarm.diagnose.where import GapBreakdown
     from msarm.model import RobotModel
 
@@ -106,21 +106,6 @@ def where_breakdowns(
     return breakdowns, skipped
 
 
-def _parameters(effect: SelectedEffect, limit: int = 8) -> str:
-    """``name = value ± std`` of each parameter, one per line (the first ``limit``)."""
-    import numpy as np
-
-    lines = []
-    for name, value, std in zip(effect.parameter_names, effect.parameters, effect.std, strict=True):
-        text = f"{name} = {value:.4g}"
-        if np.isfinite(std):
-            text += f" ± {std:.2g}"
-        lines.append(text)
-    if len(lines) > limit:
-        lines = [*lines[:limit], f"... ({len(lines) - limit} more)"]
-    return "\n".join(lines)
-
-
 def _print_diagnosis(
     screen: Console, result: Diagnosis, n_train: int, n_held: int, where_skipped: dict[str, str]
 ) -> None:
@@ -141,7 +126,7 @@ def _print_diagnosis(
             str(k),
             escape(effect.name),
             ", ".join(effect.groups),
-            escape(_parameters(effect)),
+            escape("\n".join(effect.parameter_texts(limit=8))),
             f"{effect.explained_variance:.3f}",
             f"{effect.gain:+.3f}",
             confidence,

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.effects import CandidateEffect, register
-from msarm.diagnose.signals import Signals
+from msarm.diagnose.signals import Signals, direction_memory
 from msarm.errors import InputError
 
 __all__ = ["CableBacklash", "CableElasticity", "CommandDelay", "DriveCogging", "WinchFriction"]
@@ -303,17 +303,7 @@ class CableBacklash(CandidateEffect):
     def state(self, signals: Signals) -> FloatArray:
         """The direction state ``z`` [-] of every drum, shape ``(T, m)``."""
         speed = self.drum_radius * signals.require("motor_speed", self.name)
-        z = np.zeros_like(speed)
-        for label in np.unique(signals.run):
-            index = np.flatnonzero(signals.run == label)
-            t = signals.t[index]
-            current = np.zeros(speed.shape[1])
-            for k, i in enumerate(index):
-                if k:
-                    h = (t[k] - t[k - 1]) / self.travel
-                    current = (current + h * speed[i]) / (1.0 + h * np.abs(speed[i]))
-                z[i] = current
-        return z
+        return direction_memory(speed, signals.t, signals.run, 1.0 / self.travel)
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_cables(signals, self.n_cables)

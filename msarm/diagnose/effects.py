@@ -55,7 +55,7 @@ import numpy as np
 import pinocchio
 from numpy.typing import NDArray
 
-from msarm.diagnose.signals import Signals
+from msarm.diagnose.signals import Signals, direction_memory
 from msarm.errors import InputError
 
 __all__ = [
@@ -437,18 +437,7 @@ class DahlFriction(CandidateEffect):
 
     def state(self, signals: Signals) -> FloatArray:
         """The normalised Dahl state ``z`` [-] of every joint, shape ``(T, n)``."""
-        qd = signals.qd
-        z = np.zeros_like(qd)
-        for label in np.unique(signals.run):
-            index = np.flatnonzero(signals.run == label)
-            t = signals.t[index]
-            current = np.zeros(qd.shape[1])
-            for k, i in enumerate(index):
-                if k:
-                    h = self.rate * (t[k] - t[k - 1])
-                    current = (current + h * qd[i]) / (1.0 + h * np.abs(qd[i]))
-                z[i] = current
-        return z
+        return direction_memory(signals.qd, signals.t, signals.run, self.rate)
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)

@@ -229,14 +229,7 @@ def _demote(markdown: str, levels: int = 1) -> str:
 
 
 def _effect_summary(effect: SelectedEffect, limit: int = 4) -> str:
-    parts = []
-    for name, value, std in zip(effect.parameter_names, effect.parameters, effect.std, strict=True):
-        text = f"{name} = {value:.4g}"
-        if np.isfinite(std):
-            text += f" ± {std:.2g}"
-        parts.append(text)
-    if len(parts) > limit:
-        parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
+    parts = effect.parameter_texts(limit)
     confidence = f", confidence {effect.confidence:.2f}" if np.isfinite(effect.confidence) else ""
     return f"**{effect.name}** ({', '.join(parts)}{confidence})"
 

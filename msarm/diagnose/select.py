@@ -506,6 +506,18 @@ class SelectedEffect:
     confidence: float
     message: str
 
+    def parameter_texts(self, limit: int = 6, equals: str = " = ") -> list[str]:
+        """``name = value ± std`` of the first ``limit`` parameters, and a count of the rest."""
+        parts = []
+        for name, value, std in zip(self.parameter_names, self.parameters, self.std, strict=True):
+            text = f"{name}{equals}{value:.4g}"
+            if np.isfinite(std):
+                text += f" ± {std:.2g}"
+            parts.append(text)
+        if len(parts) > limit:
+            parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
+        return parts
+
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dict."""
         return {
@@ -588,6 +600,19 @@ class Diagnosis:
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(before > 0, 1.0 - after / before, 0.0)
 
+    def gap_rows(self, group: str) -> list[tuple[str, float, float, float]]:
+        """``(channel, before, after, shrink)`` of each channel of a group."""
+        return [
+            (name, float(b), float(a), float(s))
+            for name, b, a, s in zip(
+                self.channel_names[group],
+                self.gap_before[group],
+                self.gap_after[group],
+                self.shrink(group),
+                strict=True,
+            )
+        ]
+
     def group_shrink(self, group: str) -> float:
         """``1 - RMSE_after / RMSE_before`` of one group, pooled over its channels [-]."""
         before = float(np.sqrt(np.mean(self.gap_before[group] ** 2)))
@@ -613,14 +638,8 @@ class Diagnosis:
                 "unit": GROUP_UNITS[g],
                 "shrink": self.group_shrink(g),
                 "channels": {
-                    name: {"before": float(b), "after": float(a), "shrink": float(s)}
-                    for name, b, a, s in zip(
-                        self.channel_names[g],
-                        self.gap_before[g],
-                        self.gap_after[g],
-                        self.shrink(g),
-                        strict=True,
-                    )
+                    name: {"before": b, "after": a, "shrink": sh}
+                    for name, b, a, sh in self.gap_rows(g)
                 },
             }
             for g in self.groups
@@ -666,21 +685,16 @@ class Diagnosis:
             ]
             for k, s in enumerate(self.selected, start=1):
                 confidence = f"{s.confidence:.2f}" if np.isfinite(s.confidence) else "n/a"
+                parameters = ", ".join(s.parameter_texts(equals="="))
                 lines.append(
-                    f"| {k} | {s.name} | {', '.join(s.groups)} | {_format_parameters(s)} | "
+                    f"| {k} | {s.name} | {', '.join(s.groups)} | {parameters} | "
                     f"{s.explained_variance:.3f} | {s.gain:+.3f} | {confidence} |"
                 )
         lines += ["", "## How far: the held-out gap before and after", ""]
         lines += ["| group | channel | before | after | shrink |", "|---|---|---|---|---|"]
         for g in self.groups:
             unit = GROUP_UNITS[g]
-            for name, b, a, s in zip(
-                self.channel_names[g],
-                self.gap_before[g],
-                self.gap_after[g],
-                self.shrink(g),
-                strict=True,
-            ):
+            for name, b, a, s in self.gap_rows(g):
                 lines.append(
                     f"| {g} | {name} | {b:.4g} {unit} | {a:.4g} {unit} | {100 * s:.1f} % |"
                 )
@@ -724,18 +738,6 @@ class Diagnosis:
             lines += ["", "## Candidates not tried", ""]
             lines += [f"- {name}: {why}" for name, why in self.skipped.items()]
         return "\n".join(lines) + "\n"
-
-
-def _format_parameters(effect: SelectedEffect, limit: int = 6) -> str:
-    parts = []
-    for name, value, std in zip(effect.parameter_names, effect.parameters, effect.std, strict=True):
-        text = f"{name}={value:.4g}"
-        if np.isfinite(std):
-            text += f"±{std:.2g}"
-        parts.append(text)
-    if len(parts) > limit:
-        parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
-    return ", ".join(parts)
 
 
 def _resolve(

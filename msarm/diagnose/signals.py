@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from msarm.errors import InputError
 
-__all__ = ["Signals"]
+__all__ = ["Signals", "direction_memory"]
 
 FloatArray = NDArray[np.float64]
 
@@ -209,3 +209,34 @@ class Signals:
             if index.size >= 2:
                 out[index] = np.gradient(self.tension[index], self.t[index], axis=0)
         return out
+
+
+def direction_memory(
+    speed: FloatArray, t: FloatArray, run: NDArray[np.int64], rate: float
+) -> FloatArray:
+    """A Dahl-type memory of the direction of motion, per channel, in ``[-1, 1]``.
+
+    ``dz/dt = rate (v - |v| z)``: ``z`` tends to ``sgn(v)`` over a travel of about
+    ``1 / rate`` and holds its value while ``v = 0``. Integrated by implicit Euler (stable for
+    any step) within each run, from ``z = 0`` at the run's first sample.
+
+    Args:
+        speed: Velocities ``v``, shape ``(T, k)`` [unit/s].
+        t: Sample times [s], shape ``(T,)``.
+        run: Run labels, shape ``(T,)``; each run contiguous.
+        rate: ``1 /`` the travel over which the memory reverses [1/unit].
+
+    Returns:
+        ``z`` [-], shape ``(T, k)``.
+    """
+    z = np.zeros_like(speed)
+    for label in np.unique(run):
+        index = np.flatnonzero(run == label)
+        times = t[index]
+        current = np.zeros(speed.shape[1])
+        for k, i in enumerate(index):
+            if k:
+                h = rate * (times[k] - times[k - 1])
+                current = (current + h * speed[i]) / (1.0 + h * np.abs(speed[i]))
+            z[i] = current
+    return z
