@@ -11,3 +11,27 @@ from msarm.model import load_arm
 def arm():
     """The musculoskeletal arm of ``models/msarm_arm.xml``."""
     return load_arm()
+
+
+def short_move_logs(arm, root, plant, n_runs: int, first_seed: int = 0) -> list:
+    """Logs of ``n_runs`` short hold-then-move tasks (4 s, seeded) on ``plant``, in ``root``.
+
+    Run ``k`` moves between two postures drawn with seed ``first_seed + k`` inside the middle
+    half of every joint's range; its plant seed is the same number.
+    """
+    import numpy as np
+
+    from msarm.control import ArmControllerConfig
+    from msarm.tasks.track import TrackSettings, track
+    from msarm.tasks.trajectories import hold_then_move
+
+    lower, upper = np.asarray(arm.joint_lower), np.asarray(arm.joint_upper)
+    width = upper - lower
+    paths = []
+    for seed in range(first_seed, first_seed + n_runs):
+        rng = np.random.default_rng(seed)
+        start, target = (rng.uniform(lower + 0.25 * width, upper - 0.25 * width) for _ in range(2))
+        task = hold_then_move(f"move{seed}", start, target, wait=0.5, move_time=2.0, duration=4.0)
+        settings = TrackSettings(f"move{seed}", seed, plant, ArmControllerConfig())
+        paths.append(track(arm, task, settings, root / f"run{seed}", plots_too=False).files["log"])
+    return paths

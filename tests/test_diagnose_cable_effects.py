@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import short_move_logs
 from test_diagnose_effects import DRUM, _make_signals
 
-from msarm.control import ArmControllerConfig
 from msarm.diagnose.builder import channels_from_logs
 from msarm.diagnose.cable_effects import (
     CableBacklash,
@@ -29,8 +29,6 @@ from msarm.plant.config import (
     SensorNoiseConfig,
     WinchFrictionConfig,
 )
-from msarm.tasks.track import TrackSettings, track
-from msarm.tasks.trajectories import hold_then_move
 
 GAIN = 4.0
 
@@ -125,16 +123,7 @@ def _plant(**effects):
 
 
 def _logs(arm, root, plant, n_runs=3):
-    paths = []
-    for seed in range(n_runs):
-        rng = np.random.default_rng(100 + seed)
-        lower, upper = np.asarray(arm.joint_lower), np.asarray(arm.joint_upper)
-        width = upper - lower
-        start, target = (rng.uniform(lower + 0.25 * width, upper - 0.25 * width) for _ in range(2))
-        task = hold_then_move(f"m{seed}", start, target, wait=0.5, move_time=2.0, duration=4.0)
-        settings = TrackSettings(f"m{seed}", seed, plant, ArmControllerConfig())
-        paths.append(track(arm, task, settings, root / f"run{seed}", plots_too=False).files["log"])
-    return paths
+    return short_move_logs(arm, root, plant, n_runs, first_seed=100)
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import short_move_logs
 
 from msarm.cli.diagnose import diagnose_command, where_breakdowns
-from msarm.control import ArmControllerConfig
 from msarm.diagnose.effects import CANDIDATES as REGISTRY
 from msarm.diagnose.fitting import fit
 from msarm.diagnose.report import REPORT_FILES, plot_gap, plot_waterfall, write_report
@@ -23,21 +23,11 @@ from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 from msarm.plant import IDEAL_PLANT
 from msarm.plant.config import JointFrictionConfig
-from msarm.tasks.track import TrackSettings, track
-from msarm.tasks.trajectories import hold_then_move
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "diagnose_custom_candidate.py"
 PNG = b"\x89PNG\r\n\x1a\n"
 CANDIDATES = ["coulomb", "viscous"]
 N_RUNS = 3
-
-
-def _task(arm, seed: int):
-    rng = np.random.default_rng(seed)
-    lower, upper = np.asarray(arm.joint_lower), np.asarray(arm.joint_upper)
-    width = upper - lower
-    start, target = (rng.uniform(lower + 0.25 * width, upper - 0.25 * width) for _ in range(2))
-    return hold_then_move(f"move{seed}", start, target, wait=0.5, move_time=2.0, duration=4.0)
 
 
 @pytest.fixture(scope="module")
@@ -48,12 +38,7 @@ def friction_logs(arm, tmp_path_factory):
         name="test",
         effects=replace(IDEAL_PLANT.effects, joint_friction=JointFrictionConfig(enabled=True)),
     )
-    paths = []
-    for seed in range(N_RUNS):
-        settings = TrackSettings(f"move{seed}", seed, plant, ArmControllerConfig())
-        result = track(arm, _task(arm, seed), settings, root / f"run{seed}", plots_too=False)
-        paths.append(result.files["log"])
-    return paths
+    return short_move_logs(arm, root, plant, N_RUNS)
 
 
 @pytest.fixture(scope="module")

@@ -7,17 +7,15 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import short_move_logs
 
 from msarm.cli.diagnose import diagnose_command, split_runs
-from msarm.control import ArmControllerConfig
 from msarm.diagnose.builder import signals_from_logs
 from msarm.diagnose.select import DEFAULT_THRESHOLD, diagnose
 from msarm.errors import InputError
 from msarm.io.logs import sidecar_path
 from msarm.plant import IDEAL_PLANT
 from msarm.plant.config import JointFrictionConfig, SensorNoiseConfig
-from msarm.tasks.track import TrackSettings, track
-from msarm.tasks.trajectories import hold_then_move
 
 # the slow nonlinear Stribeck term is left out to keep the tests short
 CANDIDATES = ["coulomb", "viscous", "capstan", "cogging", "sensor", "delay", "inertia"]
@@ -29,21 +27,8 @@ def only(**effects):
     return replace(IDEAL_PLANT, name="test", effects=replace(IDEAL_PLANT.effects, **effects))
 
 
-def _task(arm, seed: int):
-    rng = np.random.default_rng(seed)
-    lower, upper = np.asarray(arm.joint_lower), np.asarray(arm.joint_upper)
-    width = upper - lower
-    start, target = (rng.uniform(lower + 0.25 * width, upper - 0.25 * width) for _ in range(2))
-    return hold_then_move(f"move{seed}", start, target, wait=0.5, move_time=2.0, duration=4.0)
-
-
 def _logs(arm, root, plant):
-    paths = []
-    for seed in range(N_RUNS):
-        settings = TrackSettings(f"move{seed}", seed, plant, ArmControllerConfig())
-        result = track(arm, _task(arm, seed), settings, root / f"run{seed}", plots_too=False)
-        paths.append(result.files["log"])
-    return paths
+    return short_move_logs(arm, root, plant, N_RUNS)
 
 
 @pytest.fixture(scope="module")
