@@ -29,6 +29,7 @@ import pinocchio
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.allocation import make_allocator
+from msarm.control.kernels import activation_and_reach, filter_and_pid, force_bounds
 from msarm.errors import InputError
 from msarm.model import RobotModel
 from msarm.muscle.activation import step_activation
@@ -39,6 +40,18 @@ from msarm.plant.effects import SensorReadings
 __all__ = ["ArmControllerConfig", "ControlOutput", "MuscleSpaceController"]
 
 FloatArray = NDArray[np.float64]
+
+
+def _vector(value: ArrayLike, size: int, name: str) -> FloatArray:
+    """``value`` as a float64 array of shape ``(size,)`` (itself when it already is one).
+
+    Raises:
+        InputError: The shape is not ``(size,)`` (the compiled kernels index it blindly).
+    """
+    array = np.asarray(value, dtype=float)
+    if array.shape != (size,):
+        raise InputError(f"{name} must have shape ({size},), got {array.shape}")
+    return array
 
 
 @dataclass(frozen=True)
@@ -128,6 +141,8 @@ class MuscleSpaceController:
         # the integral state is bounded so that Ki * integral stays within the integral limit
         self._integral_bound = self.config.integral_limit / np.maximum(self._ki, 1e-12)
         self._from_pinocchio = np.argsort(model.pin_q_index)
+        identity = np.array_equal(model.pin_q_index, np.arange(n))
+        self._pin_order = None if identity else np.asarray(model.pin_q_index)
         self._data = model.create_data()
         self._muscles = model.muscles
         self._hill = FastHill(model.muscles)
@@ -145,6 +160,18 @@ class MuscleSpaceController:
         """Nominal cable lengths l(q) [m] and muscle Jacobian J_c(q) [m/rad] (MuJoCo)."""
         lengths = cable_kinematics(self.model.mj_model, self._data.mj, q, self._jacobian)
         return lengths, self._jacobian
+
+    def _inverse_dynamics(
+        self, q_ref: FloatArray, qd_ref: FloatArray, qdd_ref: FloatArray
+    ) -> FloatArray:
+        """Inverse-dynamics torque of the reference (Pinocchio RNEA) [N m], ``(n,)``, new."""
+        model = self.model
+        if self._pin_order is None:  # the two orders agree: no permutation
+            return pinocchio.rnea(model.pin_model, self._data.pin, q_ref, qd_ref, qdd_ref)
+        order = self._pin_order
+        return pinocchio.rnea(
+            model.pin_model, self._data.pin, q_ref[order], qd_ref[order], qdd_ref[order]
+        )[self._from_pinocchio]
 
     @property
     def qdot_estimate(self) -> FloatArray:
@@ -180,26 +207,27 @@ class MuscleSpaceController:
         Returns:
             The commands and what led to them.
         """
-        state, cfg, model = self._state, self.config, self.model
-        q = readings.q
-        raw_velocity = (q - state.q_prev) / self.period
-        state.qdot += self._alpha * (raw_velocity - state.qdot)
-        state.q_prev = q.copy()
-        qdot = state.qdot
-
-        error = np.asarray(q_ref, dtype=float) - q
-        state.integral = np.clip(
-            state.integral + error * self.period, -self._integral_bound, self._integral_bound
+        state, cfg = self._state, self.config
+        n = state.qdot.shape[0]
+        q = _vector(readings.q, n, "readings.q")
+        q_ref, qd_ref = _vector(q_ref, n, "q_ref"), _vector(qd_ref, n, "qd_ref")
+        tau = self._inverse_dynamics(q_ref, qd_ref, _vector(qdd_ref, n, "qdd_ref"))
+        filter_and_pid(
+            q,
+            q_ref,
+            qd_ref,
+            self.period,
+            self._alpha,
+            self._kp,
+            self._ki,
+            self._kd,
+            self._integral_bound,
+            state.q_prev,
+            state.qdot,
+            state.integral,
+            tau,
         )
-        tau = pinocchio.rnea(
-            model.pin_model,
-            self._data.pin,
-            model.to_pinocchio(np.asarray(q_ref, dtype=float)),
-            model.to_pinocchio(np.asarray(qd_ref, dtype=float)),
-            model.to_pinocchio(np.asarray(qdd_ref, dtype=float)),
-        )[self._from_pinocchio]
-        tau = tau + self._kp * error + self._ki * state.integral
-        tau += self._kd * (np.asarray(qd_ref, dtype=float) - qdot)
+        qdot = state.qdot
         if callable(feedforward):
             feedforward = feedforward(readings, qdot, q_ref, qd_ref)
         if feedforward is not None:
@@ -211,11 +239,12 @@ class MuscleSpaceController:
         lengths, jacobian = self._cable_geometry(q)
         speed = np.maximum(jacobian @ qdot, -self._max_shortening)
         active, passive = self._hill.parts(lengths, speed)
-        f_min = np.maximum(passive, cfg.min_tension)
-        f_max = np.maximum(passive + active, f_min)
+        m = active.shape[0]
+        f_min, f_max = np.empty(m), np.empty(m)
+        force_bounds(active, passive, cfg.min_tension, f_min, f_max)
         result = self._allocator.solve(-jacobian.T, tau, f_min, f_max)
-        activation = np.clip((result.f - passive) / active, 0.0, 1.0)
-        reachable = (result.f >= passive - 1e-9) & (result.f <= passive + active + 1e-9)
+        activation, reachable = np.empty(m), np.empty(m, dtype=np.bool_)
+        activation_and_reach(result.f, active, passive, activation, reachable)
         if cfg.activation_dynamics:
             state.activation = step_activation(state.activation, activation, self.period)
         else:
@@ -224,7 +253,7 @@ class MuscleSpaceController:
         return ControlOutput(
             tension_command=force,
             joint_torque=tau,
-            feedforward=np.zeros_like(tau) if feedforward is None else dtau,
+            feedforward=np.zeros(tau.shape) if feedforward is None else dtau,
             muscle_force=result.f,
             activation=state.activation.copy(),
             qdot_estimate=qdot.copy(),

@@ -17,6 +17,7 @@ parameters) is available separately and never through :meth:`ArmPlant.sense`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import mujoco
 import numpy as np
@@ -46,6 +47,10 @@ class SimulationDivergedError(MsarmError):
         super().__init__(message)
         self.time = time
         self.state = state
+
+
+#: Index of MuJoCo's "bad acceleration" (instability) warning counter.
+_BADQACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
 
 
 def _overrides(effect: Effect, hook: str) -> bool:
@@ -137,6 +142,9 @@ class ArmPlant:
         self._length_ref = np.zeros(m)
         self.tension_insertion = np.zeros(m)
         self.motor_torque = np.zeros(m)
+        self._kernel_args = self._cable_kernel_args()
+        # live view of MuJoCo's warning counters (read after every period)
+        self._warnings = self.mj_data.warning.number
 
     # ----------------------------------------------------------------------------- state
     @property
@@ -197,8 +205,8 @@ class ArmPlant:
     def sense(self) -> SensorReadings:
         """Read the robot's sensors (encoders, motor torques, motor-side load cells)."""
         readings = SensorReadings(
-            t=self.time,
-            q=self.mj_data.qpos.copy(),
+            t=float(self.mj_data.time),
+            q=self._state.q.copy(),
             motor_angle=self._state.winch_angle.copy(),
             motor_torque=self.motor_torque.copy(),
             tension_motor=self._state.tension_motor.copy(),
@@ -224,6 +232,31 @@ class ArmPlant:
             "wrap_angle": state.wrap_angles.copy(),
             "winch_angle": state.winch_angle.copy(),
         }
+
+    def record_ground_truth(self, out: Mapping[str, FloatArray]) -> None:
+        """Write the ground truth of :meth:`ground_truth` into ``out``, without copies.
+
+        The runner's fast path: each array of ``out`` (one row of a log, say) receives the
+        same values as the entry of :meth:`ground_truth` of the same key.
+
+        Args:
+            out: Destination arrays keyed like :meth:`ground_truth`'s (any subset of its keys),
+                shape ``(n,)`` for ``q``/``qdot`` and ``(m,)`` for the others, written in place.
+        """
+        state = self._state
+        sources = {
+            "q": state.q,
+            "qdot": state.qdot,
+            "tension_motor": state.tension_motor,
+            "tension_insertion": self.tension_insertion,
+            "wrap_angle": state.wrap_angles,
+            "winch_angle": state.winch_angle,
+        }
+        for key, target in out.items():
+            if key == "stretch":
+                np.subtract(state.lengths, self.unstretched_length(), out=target)
+            else:
+                target[...] = sources[key]
 
     def unstretched_length(self) -> FloatArray:
         """Unstretched cable lengths [m], shape ``(m,)``: the path length minus the stretch."""
@@ -251,8 +284,16 @@ class ArmPlant:
         Raises:
             SimulationDivergedError: NaN in the state or a MuJoCo instability warning.
         """
+        model, data = self.mj_model, self.mj_data
+        step1, step2, args = mujoco.mj_step1, mujoco.mj_step2, self._kernel_args
+        hooks = self._user_hooks if self._has_user_hooks else None
         for _ in range(n_steps):
-            self._step_once()
+            # one plant step: MuJoCo up to the forces, the cables and winches, MuJoCo's rest
+            step1(model, data)
+            if hooks is not None:
+                hooks()
+            step_cables(*args)
+            step2(model, data)
         self._check_finite()
 
     def update_wrap_angles(self) -> None:
@@ -276,12 +317,14 @@ class ArmPlant:
         if self._user_factor.shape != (m,):
             raise InputError(f"user effects must return arrays of shape ({m},)")
 
-    def _step_once(self) -> None:
+    def _cable_kernel_args(self) -> tuple:
+        """The arguments of :func:`step_cables`, in its order (views, built once).
+
+        Every array is updated in place (by the kernel, :meth:`reset` and :meth:`command`) or is
+        a live view of MuJoCo's model or data, so one tuple serves every step.
+        """
         model, data, state = self.mj_model, self.mj_data, self._state
-        mujoco.mj_step1(model, data)
-        if self._has_user_hooks:
-            self._user_hooks()
-        step_cables(
+        return (
             self._params,
             data.ten_length,
             data.ten_velocity,
@@ -306,13 +349,12 @@ class ArmPlant:
             model.ten_J_colind,
             data.qfrc_applied,
         )
-        mujoco.mj_step2(model, data)
 
     def _check_finite(self) -> None:
-        data = self.mj_data
+        data, state = self.mj_data, self._state
         # one sum is NaN or inf exactly when some element is (a cheap check every period)
-        total = float(data.qpos.sum() + data.qvel.sum() + self._state.winch_speed.sum())
-        unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
+        total = float(state.q.sum() + state.qdot.sum() + state.winch_speed.sum())
+        unstable = self._warnings[_BADQACC] > 0
         if unstable or not math.isfinite(total):
             state = {
                 "q": data.qpos.tolist(),
@@ -331,6 +373,6 @@ class ArmPlant:
         array = np.asarray(value, dtype=float)
         if array.shape != (size,):
             raise InputError(f"{name} must have shape ({size},), got {array.shape}")
-        if not np.all(np.isfinite(array)):
+        if not np.isfinite(array).all():
             raise InputError(f"{name} must be finite, got {array}")
         return array.copy()

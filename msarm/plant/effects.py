@@ -28,7 +28,7 @@ subclassing :class:`Effect` and passing an instance to ``ArmPlant(..., extra_eff
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -223,19 +223,42 @@ class SensorNoise(Effect):
 
     def __init__(self, config: SensorNoiseConfig) -> None:
         self.config = config
+        self._sizes: tuple[int, ...] = ()
+        self._std = np.zeros(0)
 
-    def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:  # noqa: D102
-        c = self.config
-        return replace(
-            readings,
-            q=readings.q + c.joint_noise * rng.standard_normal(readings.q.shape),
-            motor_angle=readings.motor_angle
-            + c.motor_angle_noise * rng.standard_normal(readings.motor_angle.shape),
-            motor_torque=readings.motor_torque
-            + c.torque_noise * rng.standard_normal(readings.motor_torque.shape),
-            tension_motor=readings.tension_motor
-            + c.tension_bias
-            + c.tension_noise * rng.standard_normal(readings.tension_motor.shape),
+    def _noise_std(self, sizes: tuple[int, ...]) -> FloatArray:
+        """The noise std of every sample of one reading, channel after channel, ``(sum(sizes),)``.
+
+        Args:
+            sizes: Sizes of ``q``, ``motor_angle``, ``motor_torque`` and ``tension_motor``.
+        """
+        if sizes != self._sizes:  # built once per plant size
+            c = self.config
+            stds = (c.joint_noise, c.motor_angle_noise, c.torque_noise, c.tension_noise)
+            self._std = np.repeat(np.array(stds, dtype=float), sizes)
+            self._sizes = sizes
+        return self._std
+
+    def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:
+        """Add the noise (and the load-cell bias) to every channel (each of shape ``(k,)``).
+
+        The samples are drawn in one call for the four channels in the order ``q``,
+        ``motor_angle``, ``motor_torque``, ``tension_motor``: the generator's stream is the same
+        as with one draw per channel in that order.
+        """
+        channels = (readings.q, readings.motor_angle, readings.motor_torque)
+        sizes = (*(x.size for x in channels), readings.tension_motor.size)
+        std = self._noise_std(sizes)
+        noise = std * rng.standard_normal(std.shape[0])
+        a = sizes[0]
+        b = a + sizes[1]
+        c = b + sizes[2]
+        return SensorReadings(
+            t=readings.t,
+            q=readings.q + noise[:a],
+            motor_angle=readings.motor_angle + noise[a:b],
+            motor_torque=readings.motor_torque + noise[b:c],
+            tension_motor=readings.tension_motor + self.config.tension_bias + noise[c:],
         )
 
     def parameters(self) -> dict:  # noqa: D102

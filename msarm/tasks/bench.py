@@ -108,6 +108,7 @@ def run_sim_benchmark(
     plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))
     readings = plant.sense()
     zeros = np.zeros(model.n_joints)
+    controller.reset(readings.q)  # at rest there: no velocity estimate left from the warm-up
     ticks = 2000
 
     def controller_only() -> None:  # holding the posture the sensors read

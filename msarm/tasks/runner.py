@@ -258,10 +258,4 @@ def _record(
 
 
 def _record_truth(truth: dict[str, FloatArray], k: int, plant: ArmPlant) -> None:
-    state = plant.ground_truth()
-    truth["q"][k] = state["q"]
-    truth["qdot"][k] = state["qdot"]
-    truth["tension_insertion"][k] = state["tension_insertion"]
-    truth["tension_motor"][k] = state["tension_motor"]
-    truth["stretch"][k] = state["stretch"]
-    truth["wrap_angle"][k] = state["wrap_angle"]
+    plant.record_ground_truth({key: values[k] for key, values in truth.items()})
