@@ -149,6 +149,11 @@ def test_winch_friction_is_named_with_its_parameters(arm, winch_logs):
     assert first.confidence > 0.5
     assert result.group_shrink("drive") > 0.4
     assert "winch_friction" in result.to_markdown()
+    # as motion: the nominal model replaying the commands drifts; with the winch friction
+    # added to the drives it follows the logged motion much closer
+    replay = result.replay
+    assert replay["source"] == "command"
+    assert replay["hand_error_end_after"] < 0.5 * replay["hand_error_end_before"]
 
 
 def test_a_drive_delay_is_named_and_timed(arm, delay_logs):

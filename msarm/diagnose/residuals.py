@@ -15,7 +15,8 @@ Three residuals say, sample by sample, how far the logged robot is from the nomi
   the next sample: on the ideal plant this residual is zero). Winch friction, cogging, a drive
   delay and load-cell errors show here; None when the log has no ``tension_cmd`` channels.
 - ``replay`` [rad], shape ``(T, n)`` (optional): the nominal dynamics (Pinocchio ``aba``)
-  driven by the logged load-cell tensions through ideal cables (``tau = -J_c(q)^T F``, tension
+  driven by the logged tension commands (or, per ``ResidualSpec.replay_source``, the measured
+  load-cell tensions) through ideal cables (``tau = -J_c(q)^T F``, tension
   held between samples), integrated (semi-implicit Euler) over short windows that restart from
   the logged (filtered) state, minus the logged ``q``. It shows the gap as motion, the way a
   simulator would miss it. A replay that drifts beyond pi rad is clipped there and restarted.
@@ -83,6 +84,9 @@ class ResidualSpec:
             is below this. The encoders and the joint-angle noise alone make about 30 µm on
             the simulated arm (measured on noise-only plants), so the default is 50 µm.
         replay: Also compute the replay residual.
+        replay_source: What drives the replay: ``"command"``, the logged tension commands
+            (each aligned with the tension that answers it; the measured tensions when a log
+            has no commands), or ``"tension"``, the measured tensions.
         replay_window: Length of one replay window [s]; each restarts from the logged state.
         replay_substeps: Integration steps per sample period in the replay.
     """
@@ -92,12 +96,17 @@ class ResidualSpec:
     drive_gain: float = 4.0
     length_resolution: float = 5e-5
     replay: bool = True
+    replay_source: str = "command"
     replay_window: float = 0.2
     replay_substeps: int = 4
 
     def __post_init__(self) -> None:
         if not self.drum_radius > 0:
             raise ValueError(f"drum_radius must be > 0 [m], got {self.drum_radius}")
+        if self.replay_source not in ("command", "tension"):
+            raise ValueError(
+                f"replay_source must be 'command' or 'tension', got {self.replay_source!r}"
+            )
         if not self.length_resolution >= 0:
             raise ValueError(f"length_resolution must be >= 0 [m], got {self.length_resolution}")
         if not self.drive_gain >= 0:
@@ -297,7 +306,9 @@ def residuals_from_log(
             out["tension_cmd"][part] = aligned
             out["drive"][part] = tension_all[part] - aligned
         if spec.replay:
-            out["replay"][part] = _replay(work, q, q_f, qd, tension_all[part], dt, spec)
+            use_command = spec.replay_source == "command" and out["tension_cmd"] is not None
+            driving = out["tension_cmd"][part] if use_command else tension_all[part]
+            out["replay"][part] = _replay(work, q, q_f, qd, driving, dt, spec)
         valid[part] = True
     return Residuals(
         source=source,

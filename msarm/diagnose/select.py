@@ -377,11 +377,24 @@ def _fit_together(terms: Sequence[CandidateEffect], sampled: _Sampled) -> _Model
     )
 
 
-def _replay_gap(data: DiagnosisData, lost: FloatArray) -> dict[str, Any]:
-    """Replay of the held-out runs without and with the fitted joint torque ``lost`` [N m].
+def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[str, Any]:
+    """Replay the held-out runs' commands with the nominal model, without and with the effects.
 
-    Returns the pooled joint RMSE of ``q_replay - q`` [rad] and the mean hand-position error
-    at the end of each replay window [m], before (nominal) and after (with the effects).
+    The nominal dynamics start from the logged state every 0.2 s and are driven by the logged
+    tension commands (the tension each measured one answers) through ideal cables; "with the
+    effects" adds the selected drive terms' prediction to the commands (the tension the drives
+    then deliver) and subtracts the selected joint terms' torque. Without commands in the logs
+    the measured tensions drive the replay (drive terms then play no part).
+
+    Args:
+        data: The diagnosis data.
+        cumulative: The selected terms' prediction on the held-out runs, by group, in the
+            groups' units.
+
+    Returns:
+        ``source`` (``"command"`` or ``"tension"``), the window [s], and before and after:
+        the pooled joint RMSE of ``q_replay - q`` [rad] and the mean hand-position error at
+        the end of each window [m].
     """
     from msarm.tasks.evaluate import hand_position
 
@@ -393,9 +406,15 @@ def _replay_gap(data: DiagnosisData, lost: FloatArray) -> dict[str, Any]:
         index = np.flatnonzero(hold.run == label)
         ends[index[per_window - 1 :: per_window]] = True
     p_log = hand_position(model, hold.q[ends])
-    out: dict[str, Any] = {"window_s": spec.replay_window}
-    for key, extra in (("before", None), ("after", lost)):
-        error = replay_runs(model, hold.q, hold.qd, hold.tension, hold.run, hold.dt, extra, spec)
+    source = "tension" if hold.tension_cmd is None else "command"
+    drive = hold.tension if hold.tension_cmd is None else hold.tension_cmd
+    lost = cumulative.get("joint")
+    delivered = (
+        drive + cumulative["drive"] if "drive" in cumulative and source == "command" else drive
+    )
+    out: dict[str, Any] = {"source": source, "window_s": spec.replay_window}
+    for key, tension, extra in (("before", drive, None), ("after", delivered, lost)):
+        error = replay_runs(model, hold.q, hold.qd, tension, hold.run, hold.dt, extra, spec)
         p_replay = hand_position(model, hold.q[ends] + error[ends])
         out[f"joint_rmse_{key}"] = _pooled(error)
         out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))
@@ -563,8 +582,8 @@ class Diagnosis:
             from the terms already selected (see :data:`CONFOUNDING_LIMIT`), with the term
             and the canonical correlation.
         replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
-            dynamics driven by the logged tensions over 0.2 s windows, without and with the
-            selected joint-torque terms; None when not computed.
+            dynamics driven by the logged commands over 0.2 s windows, without and with the
+            selected drive and joint terms; None when not computed.
     """
 
     selected: tuple[SelectedEffect, ...]
@@ -711,9 +730,9 @@ class Diagnosis:
             r = self.replay
             lines += [
                 "",
-                f"As motion: the nominal dynamics driven by the logged tensions over "
+                f"As motion: the nominal dynamics driven by the logged {r['source']}s over "
                 f"{r['window_s']:g} s windows from the logged state (held-out runs), without "
-                "and with the selected joint-torque terms:",
+                "and with the selected drive and joint terms:",
                 "",
                 "| | nominal model | with the effects | shrink |",
                 "|---|---|---|---|",
@@ -1105,9 +1124,7 @@ def select_effects(
         cumulative = cumulative + np.asarray(term.torque(hold, theta), dtype=float)
         waterfall.append({g: _pooled(v) for g, v in layout.unstack(r_hold - cumulative).items()})
     before, after = layout.unstack(r_hold), layout.unstack(r_hold - cumulative)
-    motion = None
-    if replay and "joint" in layout.groups:
-        motion = _replay_gap(data, layout.unstack(cumulative)["joint"])
+    motion = _replay_gap(data, layout.unstack(cumulative)) if replay else None
     selected = tuple(
         SelectedEffect(
             name=term.name,
