@@ -121,3 +121,21 @@ def test_bad_settings_are_refused(arm, tmp_path):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(effects=("gremlins",)))
     with pytest.raises(InputError, match="draws"):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(draws=0))
+
+
+def test_a_diverged_scenario_is_reported_not_scored(arm, report, monkeypatch, tmp_path):
+    out, _ = report
+    real = bench_module.generate_logs
+
+    def diverge_winch(model, scenario, train, held, root, *args, **kwargs):
+        if scenario.name.startswith("winch_friction"):
+            raise bench_module.ScenarioRunError(
+                "diverged at 1.2 s", scenario.name, "train-0", root, 1.2
+            )
+        return real(model, scenario, train, held, root, *args, **kwargs)
+
+    monkeypatch.setattr(bench_module, "generate_logs", diverge_winch)
+    result = run_diagnosis_benchmark(arm, out, TINY, rescore=True)
+    assert [f["scenario"] for f in result["failed"]] == ["winch_friction-0"]
+    assert "winch_friction-0" not in [r["scenario"] for r in result["scenarios"]]
+    assert result["summary"]["msarm"]["single_scenarios"] == 1

@@ -247,4 +247,8 @@ def diagnose_bench(
         for e in ours["top1_by_effect"]
     )
     console.print(f"top-1 by effect (msarm/PySINDy): {by_effect}")
+    for failure in report["failed"]:
+        console.print(
+            f"not scored (simulation diverged): {failure['scenario']}: {failure['error']}"
+        )
     console.print(f"results: {Path(out) / 'results.json'}")

@@ -41,7 +41,13 @@ import numpy as np
 
 from msarm.diagnose.baseline import sindy_baseline
 from msarm.diagnose.residuals import DiagnosisWarning
-from msarm.diagnose.scenarios import Scenario, build_scenarios, generate_logs, scenario_tasks
+from msarm.diagnose.scenarios import (
+    Scenario,
+    ScenarioRunError,
+    build_scenarios,
+    generate_logs,
+    scenario_tasks,
+)
 from msarm.diagnose.select import DEFAULT_THRESHOLD, load_data, select_effects
 from msarm.errors import InputError
 from msarm.io.atomic import write_json_atomic
@@ -222,7 +228,8 @@ def run_diagnosis_benchmark(
 
     Returns:
         The report: settings, one entry per scenario (effects, drawn parameters, both
-        methods' answers, gaps and times, scores) and the summary of :func:`summarise`.
+        methods' answers, gaps and times, scores), the scenarios whose simulation diverged
+        (``failed``, not scored) and the summary of :func:`summarise`.
 
     Raises:
         InputError: Bad settings.
@@ -245,6 +252,7 @@ def run_diagnosis_benchmark(
         model, settings.n_train, settings.n_holdout, settings.duration, settings.seed
     )
     rows: list[dict[str, Any]] = []
+    failed: list[dict[str, str]] = []
     for k, scenario in enumerate(scenarios, start=1):
         if scenario.name in done:
             rows.append(done[scenario.name])
@@ -252,7 +260,13 @@ def run_diagnosis_benchmark(
         if progress is not None:
             progress(f"[{k}/{len(scenarios)}] {scenario.name}: simulating")
         sim_start = time.perf_counter()
-        train, held = generate_logs(model, scenario, train_tasks, held_tasks, out / "logs")
+        try:
+            train, held = generate_logs(model, scenario, train_tasks, held_tasks, out / "logs")
+        except ScenarioRunError as exc:  # a diverged run: reported, not scored
+            failed.append({"scenario": scenario.name, "error": str(exc)})
+            if progress is not None:
+                progress(f"[{k}/{len(scenarios)}] {scenario.name}: {exc}")
+            continue
         sim_seconds = time.perf_counter() - sim_start
         if progress is not None:
             progress(f"[{k}/{len(scenarios)}] {scenario.name}: diagnosing")
@@ -267,10 +281,10 @@ def run_diagnosis_benchmark(
         for method in ("msarm", "sindy"):
             row[method]["score"] = _score_one(scenario, tuple(row[method]["names"]))
         rows.append(row)
-        report = {"settings": settings_dict, "scenarios": rows}
+        report = {"settings": settings_dict, "scenarios": rows, "failed": failed}
         write_json_atomic(results_path, report)
     summary = summarise(rows)
-    report = {"settings": settings_dict, "scenarios": rows, "summary": summary}
+    report = {"settings": settings_dict, "scenarios": rows, "failed": failed, "summary": summary}
     write_json_atomic(results_path, report)
     return report
 
