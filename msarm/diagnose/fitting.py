@@ -168,18 +168,21 @@ def _solve_linear(design: FloatArray, residual: FloatArray) -> FloatArray:
 class _NonlinearProblem:
     """IPOPT problem of a nonlinear candidate on fixed samples, with per-sample weights.
 
-    Minimises ``sum_t w_t |r_t - torque_t(theta)|^2 / sum_t w_t |r_t|^2``; the weights are an
-    NLP parameter, so that a bootstrap builds (and differentiates) the problem once.
+    Minimises ``sum_t w_t |r_t - torque_t(theta)|^2 / sum_t w_t |r_t|^2``. The weights and the
+    residual are NLP parameters, so that a bootstrap, or a selection that fits the same term
+    to several residuals, builds (and differentiates) the problem once per set of samples.
     """
 
     def __init__(self, effect: CandidateEffect, signals: Signals, residual: FloatArray) -> None:
         self.effect, self.signals, self.residual = effect, signals, residual
         p, T = effect.n_parameters, signals.n_samples
+        width = residual.shape[1]
         theta = casadi.MX.sym("theta", p)
         weights = casadi.MX.sym("w", T)
-        error = casadi.DM(residual) - effect.torque(signals, theta, CasadiOps())
+        target = casadi.MX.sym("r", T, width)
+        error = target - effect.torque(signals, theta, CasadiOps())
         squared = casadi.sum2(error * error)
-        reference = casadi.DM(np.sum(residual**2, axis=1))
+        reference = casadi.sum2(target * target)
         objective = casadi.dot(weights, squared) / casadi.fmax(
             casadi.dot(weights, reference), 1e-300
         )
@@ -196,23 +199,32 @@ class _NonlinearProblem:
             "ipopt.bound_push": 1e-10,
             "ipopt.bound_frac": 1e-10,
         }
+        parameters = casadi.vertcat(weights, casadi.vec(target))
         self.solver = casadi.nlpsol(
-            f"fit_{effect.name}", "ipopt", {"x": theta, "p": weights, "f": objective}, options
+            f"fit_{effect.name}", "ipopt", {"x": theta, "p": parameters, "f": objective}, options
         )
         self.lower, self.upper = effect.bounds()
 
     def solve(
-        self, initial: FloatArray | None, weights: FloatArray | None = None
+        self,
+        initial: FloatArray | None,
+        weights: FloatArray | None = None,
+        residual: FloatArray | None = None,
     ) -> tuple[FloatArray, bool, str]:
+        """Fit; ``residual`` replaces the one the problem was built with (same shape)."""
         p, T = self.effect.n_parameters, self.signals.n_samples
+        r = self.residual if residual is None else np.asarray(residual, dtype=float)
+        if r.shape != self.residual.shape:
+            raise InputError(f"residual: expected shape {self.residual.shape}, got {r.shape}")
         if initial is None:
-            initial = self.effect.initial_guess(self.signals, self.residual)
+            initial = self.effect.initial_guess(self.signals, r)
         x0 = np.asarray(initial, dtype=float)
         if x0.shape != (p,):
             raise InputError(f"initial: expected shape ({p},), got {x0.shape}")
         x0 = np.clip(x0, self.lower, self.upper)
         w = np.ones(T) if weights is None else weights
-        solution = self.solver(x0=x0, p=w, lbx=self.lower, ubx=self.upper)
+        values = np.concatenate([w, r.reshape(-1, order="F")])
+        solution = self.solver(x0=x0, p=values, lbx=self.lower, ubx=self.upper)
         stats = self.solver.stats()
         return (
             np.asarray(solution["x"], dtype=float).reshape(-1),

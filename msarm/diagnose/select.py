@@ -72,7 +72,7 @@ from msarm.diagnose.effects import (
     TensionDelay,
     ViscousFriction,
 )
-from msarm.diagnose.fitting import _NonlinearProblem, _solve_linear, fit
+from msarm.diagnose.fitting import _NonlinearProblem, _solve_linear
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
@@ -269,6 +269,53 @@ class _Embedded(CandidateEffect):
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
         return self.term.bounds()
 
+    def own_columns(self) -> NDArray[np.intp]:
+        """Columns of the stack the term's groups occupy, in the term's group order."""
+        return np.concatenate(
+            [np.arange(self.layout.width)[self.layout.slices[g]] for g in self.term.groups]
+        )
+
+
+class _OwnColumns(CandidateEffect):
+    """An embedded nonlinear term restricted to its own columns (smaller IPOPT problems).
+
+    The columns it does not touch add a constant to the fit's objective, so the optimum on
+    its own columns is the optimum on the whole stack.
+    """
+
+    def __init__(self, embedded: _Embedded) -> None:
+        self.embedded = embedded
+        self.name = embedded.name  # type: ignore[misc]
+        self.linear = False  # type: ignore[misc]
+        self.parameter_names = embedded.parameter_names
+        self.columns = embedded.own_columns()
+        self.channels = tuple(range(len(self.columns)))
+        layout = embedded.layout
+        self.factors = [1.0 / layout.spread[g] for g in embedded.term.groups]
+        self.sizes = [layout.slices[g].stop - layout.slices[g].start for g in embedded.term.groups]
+
+    def width(self, signals: Signals) -> int:  # noqa: D102
+        return len(self.columns)
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
+        inner = self.embedded.term.torque(signals, theta, ops)
+        blocks, start = [], 0
+        for factor, size in zip(self.factors, self.sizes, strict=True):
+            blocks.append(inner[:, start : start + size] * factor)
+            start += size
+        return ops.hcat(blocks)
+
+    def initial_guess(  # noqa: D102
+        self, signals: Signals, residual: FloatArray | None = None
+    ) -> FloatArray:
+        if residual is None:
+            return self.embedded.term.initial_guess(signals)
+        scale = np.repeat(1.0 / np.asarray(self.factors), self.sizes)
+        return self.embedded.term.initial_guess(signals, residual * scale)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        return self.embedded.term.bounds()
+
 
 class _Stacked(CandidateEffect):
     """Several linear terms as one: their design matrices side by side."""
@@ -318,6 +365,28 @@ class _Sampled:
             "hold": data.r_hold[self.rows["hold"]],
         }
         self._designs: dict[tuple[int, str], FloatArray] = {}
+        self._problems: dict[int, _NonlinearProblem] = {}
+
+    def fit_nonlinear(
+        self,
+        term: _Embedded,
+        residual: FloatArray,
+        initial: FloatArray | None = None,
+        weights: FloatArray | None = None,
+    ) -> tuple[FloatArray, str]:
+        """Fit a nonlinear term to the training ``residual`` (stack columns) by IPOPT.
+
+        The problem (on the term's own columns) is built once per term and reused.
+        """
+        if id(term) not in self._problems:
+            own = _OwnColumns(term)
+            self._problems[id(term)] = _NonlinearProblem(
+                own, self.signals["train"], self.residual["train"][:, own.columns]
+            )
+        problem = self._problems[id(term)]
+        columns = problem.effect.columns
+        theta, _, message = problem.solve(initial, weights, residual[:, columns])
+        return theta, message
 
     def design(self, term: CandidateEffect, split: str) -> FloatArray:
         key = (id(term), split)
@@ -366,10 +435,9 @@ def _fit_together(terms: Sequence[CandidateEffect], sampled: _Sampled) -> _Model
             parameters[id(term)], messages[id(term)] = part, "least squares (joint)"
         left = left - np.einsum("tnp,p->tn", design, theta)
     for term in nonlinear:
-        result = fit(term, sampled.signals["train"], left)
-        parameters[id(term)] = result.parameters
-        messages[id(term)] = result.message
-        left = left - sampled.predict(term, result.parameters, "train")
+        theta, message = sampled.fit_nonlinear(term, left)
+        parameters[id(term)], messages[id(term)] = theta, message
+        left = left - sampled.predict(term, theta, "train")
     return _Model(
         terms=tuple(terms),
         parameters=tuple(parameters[id(t)] for t in terms),
@@ -863,9 +931,9 @@ def _bootstrap(
     left = r_train
     for k in linear:
         left = left - sampled.predict(terms[k], model.parameters[k], "train")
-    problems = {}
+    lefts = {}
     for k in nonlinear:
-        problems[k] = _NonlinearProblem(terms[k], train, left)
+        lefts[k] = left
         left = left - sampled.predict(terms[k], model.parameters[k], "train")
     hold_runs = [hold.run == label for label in np.unique(hold.run)]
     samples = [np.empty((n_boot, t.n_parameters)) for t in terms]
@@ -880,7 +948,9 @@ def _bootstrap(
             for k, part in zip(linear, stacked.split(theta), strict=True):
                 samples[k][b] = part
         for k in nonlinear:
-            samples[k][b], *_ = problems[k].solve(model.parameters[k], weights)
+            samples[k][b], _ = sampled.fit_nonlinear(
+                terms[k], lefts[k], model.parameters[k], weights
+            )
         parts = [sampled.predict(term, samples[k][b], "hold") for k, term in enumerate(terms)]
         full = np.sum(parts, axis=0)
         for mask in hold_runs:
