@@ -32,9 +32,12 @@ lint: install
 test: install lint
 	$(PY) -m pytest -n 2 --dist loadfile -q
 
+# Speed and accuracy benchmarks; the withheld-effect diagnosis benchmark simulates its 28
+# scenarios once (cached under runs/bench-diagnose) and takes about 4 minutes the first time.
 bench: install
 	$(VENV)/bin/msarm bench allocation
 	$(VENV)/bin/msarm bench sim
+	$(VENV)/bin/msarm bench diagnose
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis
