@@ -149,5 +149,7 @@ def test_a_candidate_the_data_cannot_tell_apart_is_not_selected(arm, friction_lo
     assert other not in result.names
     assert "canonical correlation" in result.confounded[other]
     assert other in result.to_markdown()
+    payload = json.loads(json.dumps(result.as_dict(), allow_nan=False))  # strict JSON
+    assert payload["confounded"] == result.confounded
     with pytest.raises(InputError, match="names must be unique"):
         diagnose(arm, friction_logs[:1], friction_logs[1:2], extra_candidates=[CoulombFriction()])

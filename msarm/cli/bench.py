@@ -184,7 +184,7 @@ def diagnose_bench(
         rows.add_row(
             row["scenario"],
             ", ".join(ours["names"]) or "-",
-            ", ".join(f"{c:.2f}" for c in ours["confidence"]),
+            ", ".join("n/a" if c is None else f"{c:.2f}" for c in ours["confidence"]),
             ", ".join(theirs["names"][:4]) + (" …" if len(theirs["names"]) > 4 else "") or "-",
             f"{ours['seconds']:.1f}",
             f"{theirs['seconds']:.1f}",

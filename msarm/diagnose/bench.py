@@ -193,7 +193,9 @@ def _diagnose_scenario(
     return {
         "msarm": {
             "names": list(diagnosis.names),
-            "confidence": [s.confidence for s in diagnosis.selected],
+            "confidence": [
+                s.confidence if np.isfinite(s.confidence) else None for s in diagnosis.selected
+            ],
             "parameters": {s.name: s.as_dict()["parameters"] for s in diagnosis.selected},
             "gap_before": {g: float(diagnosis.waterfall[0][g]) for g in diagnosis.groups},
             "gap_after": {g: float(diagnosis.waterfall[-1][g]) for g in diagnosis.groups},

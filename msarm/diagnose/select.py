@@ -734,7 +734,10 @@ class Diagnosis:
         return {
             "selected": [s.as_dict() for s in self.selected],
             "explained_variance": list(self.explained_variance),
-            "step_scores": [dict(s) for s in self.step_scores],
+            "step_scores": [
+                {name: (float(v) if np.isfinite(v) else None) for name, v in scores.items()}
+                for scores in self.step_scores
+            ],
             "groups": list(self.groups),
             "gap": gap,
             "waterfall": [dict(w) for w in self.waterfall],
@@ -816,8 +819,14 @@ class Diagnosis:
                 )
         lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
         for k, scores in enumerate(self.step_scores, start=1):
-            ranked = sorted(scores.items(), key=lambda kv: -kv[1])
-            lines.append(f"{k}. " + ", ".join(f"{n} {v:+.3f}" for n, v in ranked))
+            tried = sorted(
+                ((n, v) for n, v in scores.items() if np.isfinite(v)), key=lambda kv: -kv[1]
+            )
+            held_back = [n for n, v in scores.items() if not np.isfinite(v)]
+            text = ", ".join(f"{n} {v:+.3f}" for n, v in tried)
+            if held_back:
+                text += f" (not tried, confounded: {', '.join(held_back)})"
+            lines.append(f"{k}. {text}")
         if self.confounded:
             lines += ["", "## Candidates the data cannot tell apart from a selected one", ""]
             lines += [f"- {name}: {why}" for name, why in self.confounded.items()]
