@@ -153,3 +153,14 @@ def test_a_candidate_the_data_cannot_tell_apart_is_not_selected(arm, friction_lo
     assert payload["confounded"] == result.confounded
     with pytest.raises(InputError, match="names must be unique"):
         diagnose(arm, friction_logs[:1], friction_logs[1:2], extra_candidates=[CoulombFriction()])
+
+
+def test_cli_takes_the_nominal_model(arm, noise_logs, capsys):
+    from msarm.errors import ModelError
+    from msarm.model import ARM_MODEL_PATH
+
+    diagnose_command(noise_logs[:2], noise_logs[2:3], True, None, boot=0, model_path=ARM_MODEL_PATH)
+    assert json.loads(capsys.readouterr().out)["train_runs"] == [str(p) for p in noise_logs[:2]]
+    cable_robot = ARM_MODEL_PATH.parent / "ipanema_mini.xml"
+    with pytest.raises(ModelError, match="ipanema_mini.xml"):
+        diagnose_command(noise_logs[:2], noise_logs[2:3], True, None, model_path=cable_robot)

@@ -191,8 +191,8 @@ def diagnose_command(
     threshold: Annotated[
         float | None,
         typer.Option(
-            help="Least rise of the held-out explained variance for an effect to be named "
-            "[-]; default 0.02."
+            help="Least rise of the held-out explained share (on the groups it acts on) for an "
+            "effect to be named [-]; default 0.02."
         ),
     ] = None,
     boot: Annotated[
@@ -204,6 +204,14 @@ def diagnose_command(
         ),
     ] = 20,
     seed: Annotated[int, typer.Option(help="Seed of the bootstrap draws.")] = 0,
+    model_path: Annotated[
+        Path | None,
+        typer.Option(
+            "--model",
+            help="The nominal model (MJCF) the logs were recorded with; default "
+            "models/msarm_arm.xml. Logs of another model are refused (hashes named).",
+        ),
+    ] = None,
 ) -> None:
     """Find which candidate effects explain the sim-to-real gap, scored on held-out runs."""
     from msarm.diagnose.residuals import DiagnosisWarning
@@ -228,7 +236,7 @@ def diagnose_command(
             if spinner is not None:
                 spinner.update(text)
 
-        model = load_arm()
+        model = load_arm(model_path)
         say(f"fitting the candidates: {len(train)} training, {len(held)} held-out log(s)")
         with warnings.catch_warnings():
             # the candidates skipped are listed in a table below
