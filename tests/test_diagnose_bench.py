@@ -45,6 +45,7 @@ def test_tiny_benchmark_names_the_withheld_effects(report):
     assert ours["mean_shrink"] > 0.3
     assert ours["mean_excess_shrink"] > ours["mean_shrink"]
     assert set(summary["noise_floor"]) >= {"joint", "drive"}
+    assert (out / "confusion.png").read_bytes().startswith(b"\x89PNG")
     saved = json.loads((out / "results.json").read_text())
     assert saved["summary"] == json.loads(json.dumps(summary))
 

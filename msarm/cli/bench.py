@@ -251,4 +251,4 @@ def diagnose_bench(
         console.print(
             f"not scored (simulation diverged): {failure['scenario']}: {failure['error']}"
         )
-    console.print(f"results: {Path(out) / 'results.json'}")
+    console.print(f"results: {Path(out) / 'results.json'}, plot: {Path(out) / 'confusion.png'}")

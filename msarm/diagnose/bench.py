@@ -24,8 +24,9 @@ Scores (each for both methods):
 - **time per scenario**: reading the logs and diagnosing (log generation excluded).
 
 Results are written after each scenario (atomically) to ``results.json`` in the output
-folder; a rerun with the same settings reuses the scenarios already scored (``rescore``
-diagnoses them again from their cached logs).
+folder, with ``confusion.png`` (:func:`plot_benchmark`) at the end; a rerun with the same
+settings reuses the scenarios already scored (``rescore`` diagnoses them again from their
+cached logs).
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ __all__ = [
     "EFFECT_CANDIDATES",
     "EFFECT_GROUPS",
     "BenchSettings",
+    "plot_benchmark",
     "run_diagnosis_benchmark",
     "summarise",
 ]
@@ -288,6 +290,7 @@ def run_diagnosis_benchmark(
     summary = summarise(rows)
     report = {"settings": settings_dict, "scenarios": rows, "failed": failed, "summary": summary}
     write_json_atomic(results_path, report)
+    plot_benchmark(report, out / "confusion.png")
     return report
 
 
@@ -345,3 +348,63 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             ),
         }
     return out
+
+
+def plot_benchmark(report: dict[str, Any], path: str | Path) -> Path:
+    """Confusion of each method: the plant's effect (rows) against the first term named.
+
+    Single-effect scenarios give one row per effect class, null plants the row ``null``;
+    columns are the candidates named first (``none`` when nothing was named). Cell numbers
+    count scenarios; the diagonal (the effect's own candidates) is outlined.
+
+    Args:
+        report: The report of :func:`run_diagnosis_benchmark`.
+        path: PNG file to write (atomically).
+
+    Returns:
+        The path written.
+    """
+    from msarm.plots import plt, save_figure
+
+    rows = [r for r in report["scenarios"] if len(r["effects"]) <= 1]
+    truths = sorted({r["effects"][0] if r["effects"] else "null" for r in rows}, key=_row_order)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2), layout="constrained")
+    for ax, method, title in zip(
+        axes, ("msarm", "sindy"), ("msarm diagnosis", "PySINDy"), strict=True
+    ):
+        named = [r[method]["names"][0] if r[method]["names"] else "none" for r in rows]
+        columns = sorted(set(named), key=lambda n: (n == "none", n))
+        counts = np.zeros((len(truths), len(columns)), dtype=int)
+        for r, first in zip(rows, named, strict=True):
+            truth = r["effects"][0] if r["effects"] else "null"
+            counts[truths.index(truth), columns.index(first)] += 1
+        ax.imshow(counts, cmap="Blues", aspect="auto")
+        for i, truth in enumerate(truths):
+            for j, column in enumerate(columns):
+                right = column in EFFECT_CANDIDATES.get(truth, ()) or (
+                    truth == "null" and column == "none"
+                )
+                if right:
+                    ax.add_patch(
+                        plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2, ec="tab:green")
+                    )
+                if counts[i, j]:
+                    colour = "white" if counts[i, j] > counts.max() / 2 else "black"
+                    ax.text(j, i, str(counts[i, j]), ha="center", va="center", color=colour)
+        ax.set_xticks(range(len(columns)), columns, rotation=35, ha="right")
+        ax.set_yticks(range(len(truths)), truths)
+        ax.set_xlabel("first term named")
+        ax.set_ylabel("effect of the plant")
+        summary = report["summary"][method]
+        accuracy = summary["top1_accuracy"]
+        ax.set_title(
+            f"{title}: top-1 {'n/a' if accuracy is None else f'{accuracy:.0%}'}, "
+            f"false alarms {summary['false_alarms']}/{summary['null_scenarios']}"
+        )
+    fig.suptitle("Withheld-effect benchmark: which term each method names first")
+    return save_figure(fig, path)
+
+
+def _row_order(name: str) -> tuple[int, str]:
+    order = list(EFFECT_CANDIDATES)
+    return (order.index(name), name) if name in order else (len(order), name)
