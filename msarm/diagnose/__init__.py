@@ -17,7 +17,8 @@ Modules:
   labels.
 - ``select``: forward selection of candidate effects by the share of the held-out residual
   they explain, with a confounding guard and a confidence per effect, and the gap before and
-  after (``msarm diagnose``).
+  after (``msarm diagnose``); ``stack`` holds its internals (the normalised stack of channel
+  groups, the cached fits), ``result`` its answer (``Diagnosis``).
 - ``report``: the Markdown and HTML report with the waterfall, gap and heat-map plots.
 - ``scenarios``, ``bench``, ``baseline``: the withheld-effect benchmark against a PySINDy
   baseline (``msarm bench diagnose``).

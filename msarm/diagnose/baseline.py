@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.effects import CableCapstanFriction, CandidateEffect
-from msarm.diagnose.select import DiagnosisData, _Embedded, _pooled
+from msarm.diagnose.stack import DiagnosisData, Embedded, pooled_rmse
 from msarm.errors import InputError
 
 __all__ = ["DEFAULT_SINDY_THRESHOLD", "BaselineResult", "sindy_baseline"]
@@ -111,14 +111,14 @@ def sindy_baseline(
     for name, value in (("threshold", threshold), ("alpha", alpha)):
         if not np.isfinite(value) or value < 0:
             raise InputError(f"{name}: expected a finite value >= 0, got {value}")
-    library: list[_Embedded] = []
+    library: list[Embedded] = []
     excluded: dict[str, str] = {}
     for candidate in data.candidates:
         linear = _linear_form(candidate.term)
         if linear is None:
             excluded[candidate.name] = "not linear in its parameters"
             continue
-        library.append(_Embedded(linear, data.layout))
+        library.append(Embedded(linear, data.layout))
     if not library:
         raise InputError("data: no candidate has a linear form for the library")
     train_design = [term.design(data.train) for term in library]
@@ -152,7 +152,7 @@ def sindy_baseline(
         names=names,
         contributions={n: energy[n] / total for n in names},
         library=tuple(t.name for t in library),
-        gap_before={g: _pooled(v) for g, v in before.items()},
-        gap_after={g: _pooled(v) for g, v in after.items()},
+        gap_before={g: pooled_rmse(v) for g, v in before.items()},
+        gap_after={g: pooled_rmse(v) for g, v in after.items()},
         excluded=excluded,
     )

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from msarm.diagnose.builder import GROUP_UNITS
-from msarm.diagnose.select import Diagnosis, SelectedEffect
+from msarm.diagnose.result import Diagnosis, SelectedEffect
 from msarm.diagnose.where import GapBreakdown, plot_heatmap
 from msarm.errors import InputError
 from msarm.io.atomic import write_bytes_atomic, write_json_atomic

@@ -42,14 +42,13 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.builder import GROUP_UNITS, GROUPS, channels_from_logs
+from msarm.diagnose.builder import GROUPS, channels_from_logs
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
@@ -58,23 +57,37 @@ from msarm.diagnose.cable_effects import (
     WinchFriction,
 )
 from msarm.diagnose.effects import (
-    NUMPY_OPS,
     CableCapstanFriction,
     CandidateEffect,
     CoulombFriction,
     DahlFriction,
     InertiaError,
     MotorCogging,
-    NumpyOps,
-    Ops,
     SensorBiasScale,
     StribeckFriction,
     TensionDelay,
     ViscousFriction,
 )
-from msarm.diagnose.fitting import _NonlinearProblem, _solve_linear
+from msarm.diagnose.fitting import _solve_linear
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
+from msarm.diagnose.result import Diagnosis, SelectedEffect
 from msarm.diagnose.signals import Signals
+from msarm.diagnose.stack import (
+    CONFOUNDING_LIMIT,
+    MAX_FIT_SAMPLES,
+    Confounding,
+    DiagnosisData,
+    Embedded,
+    FittedModel,
+    Layout,
+    Sampled,
+    Stacked,
+    channel_rmse,
+    fit_together,
+    group_scores,
+    own_gain,
+    pooled_rmse,
+)
 from msarm.errors import InputError
 from msarm.model import RobotModel
 
@@ -98,18 +111,6 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
-#: Largest canonical correlation between a candidate's regressor and those of the terms
-#: already selected (training runs) for the candidate to be tried: above it, the data cannot
-#: tell the two apart (e.g. a load-cell scale error, whose regressor is the measured cable
-#: torque, against the links' mass error, whose regressor spans the inverse dynamics that
-#: torque balances), and their joint fit would trade one for the other [-].
-CONFOUNDING_LIMIT = 0.99
-#: The selection fits and scores on at most this many training (and held-out) samples,
-#: evenly thinned: 20 runs of 20 s at 250 Hz are 100,000 samples, and the residuals' content
-#: lies far below the thinned rate (12.5 Hz or more).
-MAX_FIT_SAMPLES = 20_000
-#: Of the fitting samples, every this many enter the confounding test.
-_CONFOUNDING_STRIDE = 8
 #: Cogging periods per motor revolution of the default cogging candidates (motor datasheet).
 DEFAULT_COGGING_PERIODS = 24
 #: The candidates tried by default, by name (see :func:`available_candidates`).
@@ -183,268 +184,6 @@ def default_candidates(
     return {name: every[name] for name in DEFAULT_CANDIDATES}
 
 
-class _Layout:
-    """Where each group's columns sit in the stacked residual, and its normalising spread."""
-
-    def __init__(self, groups: dict[str, FloatArray]) -> None:
-        self.groups = tuple(g for g in GROUPS if g in groups)
-        self.slices: dict[str, slice] = {}
-        self.spread: dict[str, float] = {}
-        start = 0
-        for g in self.groups:
-            r = groups[g]
-            self.slices[g] = slice(start, start + r.shape[1])
-            start += r.shape[1]
-            spread = float(np.sqrt(np.sum(r**2) / max(len(r), 1)))
-            self.spread[g] = spread if spread > 0 else 1.0
-        self.width = start
-
-    def stack(self, groups: dict[str, FloatArray]) -> FloatArray:
-        """Group residuals ``{g: (T, k_g)}`` -> the normalised stack ``(T, W)``."""
-        return np.concatenate([groups[g] / self.spread[g] for g in self.groups], axis=1)
-
-    def unstack(self, stacked: FloatArray) -> dict[str, FloatArray]:
-        """The normalised stack ``(T, W)`` -> group residuals in their units."""
-        return {g: stacked[:, self.slices[g]] * self.spread[g] for g in self.groups}
-
-
-class _Embedded(CandidateEffect):
-    """A term's prediction placed in its groups' columns of the normalised stack."""
-
-    def __init__(self, term: CandidateEffect, layout: _Layout) -> None:
-        self.term, self.layout = term, layout
-        self.name = term.name  # type: ignore[misc]
-        self.description = term.description  # type: ignore[misc]
-        self.linear = term.linear  # type: ignore[misc]
-        self.parameter_names = term.parameter_names
-        self.channels = tuple(range(layout.width))
-        self.groups = layout.groups
-
-    def width(self, signals: Signals) -> int:  # noqa: D102
-        return self.layout.width
-
-    def check(self, signals: Signals) -> None:  # noqa: D102
-        self.term.check(signals)
-
-    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
-        inner = self.term.design(signals)
-        out = np.zeros((inner.shape[0], self.layout.width, inner.shape[2]))
-        start = 0
-        for g in self.term.groups:
-            cols = self.layout.slices[g]
-            size = cols.stop - cols.start
-            out[:, cols, :] = inner[:, start : start + size, :] / self.layout.spread[g]
-            start += size
-        return out
-
-    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
-        if self.linear and isinstance(ops, NumpyOps):
-            return np.einsum("tnp,p->tn", self.design(signals), np.asarray(theta, dtype=float))
-        inner = self.term.torque(signals, theta, ops)
-        T = signals.n_samples
-        blocks, start = [], 0
-        placed = {}
-        for g in self.term.groups:
-            cols = self.layout.slices[g]
-            size = cols.stop - cols.start
-            placed[g] = inner[:, start : start + size] * (1.0 / self.layout.spread[g])
-            start += size
-        for g in self.layout.groups:
-            if g in placed:
-                blocks.append(placed[g])
-            else:
-                cols = self.layout.slices[g]
-                blocks.append(ops.const(np.zeros((T, cols.stop - cols.start))))
-        return ops.hcat(blocks)
-
-    def initial_guess(  # noqa: D102
-        self, signals: Signals, residual: FloatArray | None = None
-    ) -> FloatArray:
-        if residual is None:
-            return self.term.initial_guess(signals)
-        parts = self.layout.unstack(residual)
-        own = np.concatenate([parts[g] for g in self.term.groups], axis=1)
-        return self.term.initial_guess(signals, own)
-
-    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
-        return self.term.bounds()
-
-    def own_columns(self) -> NDArray[np.intp]:
-        """Columns of the stack the term's groups occupy, in the term's group order."""
-        return np.concatenate(
-            [np.arange(self.layout.width)[self.layout.slices[g]] for g in self.term.groups]
-        )
-
-
-class _OwnColumns(CandidateEffect):
-    """An embedded nonlinear term restricted to its own columns (smaller IPOPT problems).
-
-    The columns it does not touch add a constant to the fit's objective, so the optimum on
-    its own columns is the optimum on the whole stack.
-    """
-
-    def __init__(self, embedded: _Embedded) -> None:
-        self.embedded = embedded
-        self.name = embedded.name  # type: ignore[misc]
-        self.linear = False  # type: ignore[misc]
-        self.parameter_names = embedded.parameter_names
-        self.columns = embedded.own_columns()
-        self.channels = tuple(range(len(self.columns)))
-        layout = embedded.layout
-        self.factors = [1.0 / layout.spread[g] for g in embedded.term.groups]
-        self.sizes = [layout.slices[g].stop - layout.slices[g].start for g in embedded.term.groups]
-
-    def width(self, signals: Signals) -> int:  # noqa: D102
-        return len(self.columns)
-
-    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
-        inner = self.embedded.term.torque(signals, theta, ops)
-        blocks, start = [], 0
-        for factor, size in zip(self.factors, self.sizes, strict=True):
-            blocks.append(inner[:, start : start + size] * factor)
-            start += size
-        return ops.hcat(blocks)
-
-    def initial_guess(  # noqa: D102
-        self, signals: Signals, residual: FloatArray | None = None
-    ) -> FloatArray:
-        if residual is None:
-            return self.embedded.term.initial_guess(signals)
-        scale = np.repeat(1.0 / np.asarray(self.factors), self.sizes)
-        return self.embedded.term.initial_guess(signals, residual * scale)
-
-    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
-        return self.embedded.term.bounds()
-
-
-class _Stacked(CandidateEffect):
-    """Several linear terms as one: their design matrices side by side."""
-
-    name = "stacked"
-    description = "sum of linear terms, fitted together"
-    linear = True
-
-    def __init__(self, terms: Sequence[CandidateEffect]) -> None:
-        self.terms = tuple(terms)
-        self.parameter_names = tuple(f"{t.name}:{p}" for t in self.terms for p in t.parameter_names)
-        self.channels = tuple(sorted({c for t in self.terms for c in t.channels}))
-        self.sizes = [t.n_parameters for t in self.terms]
-
-    def width(self, signals: Signals) -> int:  # noqa: D102
-        return self.terms[0].width(signals)
-
-    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
-        return np.concatenate([t.design(signals) for t in self.terms], axis=2)
-
-    def check(self, signals: Signals) -> None:  # noqa: D102
-        for t in self.terms:
-            t.check(signals)
-
-    def split(self, theta: FloatArray) -> list[FloatArray]:
-        """The parameters of each term, in order."""
-        return np.split(np.asarray(theta, dtype=float), np.cumsum(self.sizes)[:-1])
-
-
-class _Sampled:
-    """The samples the selection fits and scores on, with the linear terms' designs cached.
-
-    Long logs are thinned evenly to at most ``max_samples`` training and held-out samples
-    (designs are computed on the whole runs first, so terms with memory, such as the Dahl
-    state or the delay taps, see every sample; nonlinear terms are evaluated on the thinned
-    samples and must be per-sample).
-    """
-
-    def __init__(self, data: DiagnosisData, max_samples: int) -> None:
-        self.full = {"train": data.train, "hold": data.hold}
-        self.rows = {
-            split: _even_rows(sig.n_samples, max_samples) for split, sig in self.full.items()
-        }
-        self.signals = {split: sig.take(self.rows[split]) for split, sig in self.full.items()}
-        self.residual = {
-            "train": data.r_train[self.rows["train"]],
-            "hold": data.r_hold[self.rows["hold"]],
-        }
-        self._designs: dict[tuple[int, str], FloatArray] = {}
-        self._problems: dict[int, _NonlinearProblem] = {}
-
-    def fit_nonlinear(
-        self,
-        term: _Embedded,
-        residual: FloatArray,
-        initial: FloatArray | None = None,
-        weights: FloatArray | None = None,
-    ) -> tuple[FloatArray, str]:
-        """Fit a nonlinear term to the training ``residual`` (stack columns) by IPOPT.
-
-        The problem (on the term's own columns) is built once per term and reused.
-        """
-        if id(term) not in self._problems:
-            own = _OwnColumns(term)
-            self._problems[id(term)] = _NonlinearProblem(
-                own, self.signals["train"], self.residual["train"][:, own.columns]
-            )
-        problem = self._problems[id(term)]
-        columns = problem.effect.columns
-        theta, _, message = problem.solve(initial, weights, residual[:, columns])
-        return theta, message
-
-    def design(self, term: CandidateEffect, split: str) -> FloatArray:
-        key = (id(term), split)
-        if key not in self._designs:
-            self._designs[key] = term.design(self.full[split])[self.rows[split]]
-        return self._designs[key]
-
-    def predict(self, term: CandidateEffect, theta: FloatArray, split: str) -> FloatArray:
-        if term.linear:
-            return np.einsum("tnp,p->tn", self.design(term, split), theta)
-        return np.asarray(term.torque(self.signals[split], theta), dtype=float)
-
-
-def _even_rows(n: int, limit: int) -> NDArray[np.intp]:
-    if n <= limit:
-        return np.arange(n)
-    return np.unique(np.linspace(0, n - 1, limit).round().astype(np.intp))
-
-
-@dataclass(frozen=True)
-class _Model:
-    """A fitted combination of terms: parameters by term, in the given order."""
-
-    terms: tuple[CandidateEffect, ...]
-    parameters: tuple[FloatArray, ...]
-    messages: tuple[str, ...]
-
-    def predict(self, sampled: _Sampled, split: str) -> FloatArray:
-        out = np.zeros_like(sampled.residual[split])
-        for term, theta in zip(self.terms, self.parameters, strict=True):
-            out += sampled.predict(term, theta, split)
-        return out
-
-
-def _fit_together(terms: Sequence[CandidateEffect], sampled: _Sampled) -> _Model:
-    """Joint fit: linear terms by one stacked least squares, then nonlinear ones in turn."""
-    linear = [t for t in terms if t.linear]
-    nonlinear = [t for t in terms if not t.linear]
-    parameters: dict[int, FloatArray] = {}
-    messages: dict[int, str] = {}
-    left = sampled.residual["train"]
-    if linear:
-        design = np.concatenate([sampled.design(t, "train") for t in linear], axis=2)
-        theta = _solve_linear(design, left)
-        for term, part in zip(linear, _Stacked(linear).split(theta), strict=True):
-            parameters[id(term)], messages[id(term)] = part, "least squares (joint)"
-        left = left - np.einsum("tnp,p->tn", design, theta)
-    for term in nonlinear:
-        theta, message = sampled.fit_nonlinear(term, left)
-        parameters[id(term)], messages[id(term)] = theta, message
-        left = left - sampled.predict(term, theta, "train")
-    return _Model(
-        terms=tuple(terms),
-        parameters=tuple(parameters[id(t)] for t in terms),
-        messages=tuple(messages[id(t)] for t in terms),
-    )
-
-
 def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[str, Any]:
     """Replay the held-out runs' commands with the nominal model, without and with the effects.
 
@@ -484,356 +223,9 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     for key, tension, extra in (("before", drive, None), ("after", delivered, lost)):
         error = replay_runs(model, hold.q, hold.qd, tension, hold.run, hold.dt, extra, spec)
         p_replay = hand_position(model, hold.q[ends] + error[ends])
-        out[f"joint_rmse_{key}"] = _pooled(error)
+        out[f"joint_rmse_{key}"] = pooled_rmse(error)
         out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))
     return out
-
-
-def _group_scores(
-    layout: _Layout, residual: FloatArray, prediction: FloatArray
-) -> dict[str, float]:
-    """Explained energy of each group, ``1 - sum (r - pred)^2 / sum r^2`` [-].
-
-    About zero, not about the mean: a constant offset (a load-cell bias) is part of the gap.
-    """
-    out = {}
-    for g in layout.groups:
-        r = residual[:, layout.slices[g]]
-        e = r - prediction[:, layout.slices[g]]
-        energy = float(np.sum(r**2))
-        out[g] = 1.0 - float(np.sum(e**2)) / energy if energy > 0 else 0.0
-    return out
-
-
-class _Bases:
-    """Orthonormal bases of linear terms' training regressors, for the confounding test."""
-
-    def __init__(self, sampled: _Sampled) -> None:
-        self.sampled = sampled
-        self.cache: dict[int, FloatArray] = {}
-
-    def basis(self, term: CandidateEffect) -> FloatArray:
-        if id(term) not in self.cache:
-            design = self.sampled.design(term, "train")[::_CONFOUNDING_STRIDE]
-            matrix = design.reshape(-1, design.shape[2])
-            matrix = matrix / np.maximum(np.linalg.norm(matrix, axis=0), 1e-300)
-            u, singular, _ = np.linalg.svd(matrix, full_matrices=False)
-            keep = singular > 1e-8 * max(float(singular.max(initial=0.0)), 1e-300)
-            self.cache[id(term)] = u[:, keep]
-        return self.cache[id(term)]
-
-    def confounder(
-        self, candidate: CandidateEffect, chosen: Sequence[CandidateEffect]
-    ) -> str | None:
-        """Why ``candidate`` cannot be told apart from the chosen terms, or None."""
-        linear = [t for t in chosen if t.linear]
-        if not candidate.linear or not linear:
-            return None
-        own = self.basis(candidate)
-        if own.shape[1] == 0:
-            return None
-        together = np.concatenate([self.basis(t) for t in linear], axis=1)
-        span, singular, _ = np.linalg.svd(together, full_matrices=False)
-        span = span[:, singular > 1e-8 * singular.max(initial=1.0)]
-        correlation = float(np.linalg.svd(own.T @ span, compute_uv=False).max(initial=0.0))
-        if correlation <= CONFOUNDING_LIMIT:
-            return None
-        names = ", ".join(t.name for t in linear)
-        return (
-            f"its regressor lies in the span of {names} (canonical correlation "
-            f"{correlation:.4f} > {CONFOUNDING_LIMIT})"
-        )
-
-
-def _own_gain(groups: Sequence[str], before: dict[str, float], after: dict[str, float]) -> float:
-    """Gain of the explained share, averaged over the groups a term acts on [-]."""
-    return float(np.mean([after[g] - before[g] for g in groups]))
-
-
-def _score(layout: _Layout, residual: FloatArray, prediction: FloatArray) -> float:
-    """The selection score: the mean over groups of their explained variance [-]."""
-    return float(np.mean(list(_group_scores(layout, residual, prediction).values())))
-
-
-def _rmse(values: FloatArray) -> FloatArray:
-    return np.sqrt(np.mean(values**2, axis=0))
-
-
-def _pooled(values: FloatArray) -> float:
-    return float(np.sqrt(np.mean(values**2)))
-
-
-@dataclass(frozen=True)
-class SelectedEffect:
-    """One selected term of a :class:`Diagnosis`.
-
-    Attributes:
-        name: Candidate name (registry name, see :mod:`msarm.diagnose.effects`).
-        description: The term's equation.
-        groups: The channel groups it acts on (``"joint"``, ``"drive"``, ``"length"``).
-        parameter_names: Names of its ``p`` parameters.
-        parameters: Fitted parameters (training runs, joint fit of the final model), ``(p,)``.
-        std: Bootstrap standard deviation over training runs, ``(p,)``; NaN when not computed
-            (fewer than 2 training runs, or ``n_boot < 2``).
-        explained_variance: Held-out score (mean over all groups) after adding this term [-].
-        gain: Rise of the held-out explained share on its own groups it brought [-].
-        confidence: Share of (bootstrap draw, held-out run) pairs that need the term (see the
-            module docstring) [-]; NaN when not computed.
-        message: Solver status of its fit.
-    """
-
-    name: str
-    description: str
-    groups: tuple[str, ...]
-    parameter_names: tuple[str, ...]
-    parameters: FloatArray
-    std: FloatArray
-    explained_variance: float
-    gain: float
-    confidence: float
-    message: str
-
-    def parameter_texts(self, limit: int = 6, equals: str = " = ") -> list[str]:
-        """``name = value ± std`` of the first ``limit`` parameters, and a count of the rest."""
-        parts = []
-        for name, value, std in zip(self.parameter_names, self.parameters, self.std, strict=True):
-            text = f"{name}{equals}{value:.4g}"
-            if np.isfinite(std):
-                text += f" ± {std:.2g}"
-            parts.append(text)
-        if len(parts) > limit:
-            parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
-        return parts
-
-    def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict."""
-        return {
-            "name": self.name,
-            "description": self.description,
-            "groups": list(self.groups),
-            "parameters": dict(zip(self.parameter_names, map(float, self.parameters), strict=True)),
-            "std": {
-                k: (None if not np.isfinite(v) else float(v))
-                for k, v in zip(self.parameter_names, self.std, strict=True)
-            },
-            "explained_variance": self.explained_variance,
-            "gain": self.gain,
-            "confidence": None if not np.isfinite(self.confidence) else self.confidence,
-            "message": self.message,
-        }
-
-
-@dataclass(frozen=True)
-class Diagnosis:
-    """Result of :func:`diagnose`.
-
-    Attributes:
-        selected: The selected effects, in the order they were added.
-        explained_variance: Held-out score after each step [-], starting with the nominal
-            model's 0.0; length ``len(selected) + 1``.
-        step_scores: Per step, the gain (on its own groups) of every candidate tried with the
-            terms selected before, by name.
-        groups: The channel groups diagnosed, in stack order.
-        channel_names: Channel names of each group (joints or cables).
-        gap_before: Held-out RMSE per channel of each group, nominal model, in the group's
-            unit (:data:`msarm.diagnose.builder.GROUP_UNITS`).
-        gap_after: The same after subtracting the selected terms' prediction.
-        waterfall: Pooled held-out RMSE of each group after each step (the final model's
-            terms added one by one in selection order); ``len(selected) + 1`` entries.
-        threshold: The selection threshold [-].
-        train_runs: The training logs.
-        holdout_runs: The held-out logs.
-        n_train: Training samples.
-        n_holdout: Held-out samples.
-        skipped: Candidates not tried, with the reason (a channel group the logs lack).
-        confounded: Candidates left out of a step because the data cannot tell them apart
-            from the terms already selected (see :data:`CONFOUNDING_LIMIT`), with the term
-            and the canonical correlation.
-        replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
-            dynamics driven by the logged commands over 0.2 s windows, without and with the
-            selected drive and joint terms; None when not computed.
-    """
-
-    selected: tuple[SelectedEffect, ...]
-    explained_variance: tuple[float, ...]
-    step_scores: tuple[dict[str, float], ...]
-    groups: tuple[str, ...]
-    channel_names: dict[str, tuple[str, ...]]
-    gap_before: dict[str, FloatArray]
-    gap_after: dict[str, FloatArray]
-    waterfall: tuple[dict[str, float], ...]
-    threshold: float
-    train_runs: tuple[str, ...]
-    holdout_runs: tuple[str, ...]
-    n_train: int
-    n_holdout: int
-    skipped: dict[str, str]
-    replay: dict[str, Any] | None = None
-    confounded: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """Names of the selected effects, in order."""
-        return tuple(s.name for s in self.selected)
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        """Joint names, ``(n,)``."""
-        return self.channel_names["joint"]
-
-    def shrink(self, group: str = "joint") -> FloatArray:
-        """Share of each channel's held-out gap removed, ``1 - after / before`` [-]."""
-        before, after = self.gap_before[group], self.gap_after[group]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(before > 0, 1.0 - after / before, 0.0)
-
-    def gap_rows(self, group: str) -> list[tuple[str, float, float, float]]:
-        """``(channel, before, after, shrink)`` of each channel of a group."""
-        return [
-            (name, float(b), float(a), float(s))
-            for name, b, a, s in zip(
-                self.channel_names[group],
-                self.gap_before[group],
-                self.gap_after[group],
-                self.shrink(group),
-                strict=True,
-            )
-        ]
-
-    def group_shrink(self, group: str) -> float:
-        """``1 - RMSE_after / RMSE_before`` of one group, pooled over its channels [-]."""
-        before = float(np.sqrt(np.mean(self.gap_before[group] ** 2)))
-        after = float(np.sqrt(np.mean(self.gap_after[group] ** 2)))
-        return 0.0 if before == 0.0 else 1.0 - after / before
-
-    @property
-    def acted_groups(self) -> tuple[str, ...]:
-        """The groups at least one selected effect acts on, in stack order."""
-        used = {g for s in self.selected for g in s.groups}
-        return tuple(g for g in self.groups if g in used)
-
-    @property
-    def total_shrink(self) -> float:
-        """Mean group shrink over the groups the selected effects act on (0 if none) [-]."""
-        acted = self.acted_groups
-        return float(np.mean([self.group_shrink(g) for g in acted])) if acted else 0.0
-
-    def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict of the whole diagnosis."""
-        gap = {
-            g: {
-                "unit": GROUP_UNITS[g],
-                "shrink": self.group_shrink(g),
-                "channels": {
-                    name: {"before": b, "after": a, "shrink": sh}
-                    for name, b, a, sh in self.gap_rows(g)
-                },
-            }
-            for g in self.groups
-        }
-        return {
-            "selected": [s.as_dict() for s in self.selected],
-            "explained_variance": list(self.explained_variance),
-            "step_scores": [
-                {name: (float(v) if np.isfinite(v) else None) for name, v in scores.items()}
-                for scores in self.step_scores
-            ],
-            "groups": list(self.groups),
-            "gap": gap,
-            "waterfall": [dict(w) for w in self.waterfall],
-            "total_shrink": self.total_shrink,
-            "threshold": self.threshold,
-            "train_runs": list(self.train_runs),
-            "holdout_runs": list(self.holdout_runs),
-            "n_train": self.n_train,
-            "n_holdout": self.n_holdout,
-            "skipped": dict(self.skipped),
-            "replay": self.replay,
-            "confounded": dict(self.confounded),
-        }
-
-    def to_markdown(self) -> str:
-        """The diagnosis as Markdown (tables only; :mod:`msarm.diagnose.report` adds plots)."""
-        lines = ["# Sim-to-real gap diagnosis", ""]
-        lines.append(
-            f"Training runs: {len(self.train_runs)} ({self.n_train} samples); held-out runs: "
-            f"{len(self.holdout_runs)} ({self.n_holdout} samples); channel groups: "
-            f"{', '.join(self.groups)}. A term is added when it raises the held-out score "
-            f"(explained variance, mean over groups) by more than {self.threshold:.3g}."
-        )
-        lines += ["", "## Which: the selected effects", ""]
-        if not self.selected:
-            lines.append(
-                "None: no candidate explains the held-out residual better than the nominal "
-                "model by more than the threshold."
-            )
-        else:
-            lines += [
-                "| step | effect | acts on | parameters (± bootstrap std) | held-out score | "
-                "gain | confidence |",
-                "|---|---|---|---|---|---|---|",
-            ]
-            for k, s in enumerate(self.selected, start=1):
-                confidence = f"{s.confidence:.2f}" if np.isfinite(s.confidence) else "n/a"
-                parameters = ", ".join(s.parameter_texts(equals="="))
-                lines.append(
-                    f"| {k} | {s.name} | {', '.join(s.groups)} | {parameters} | "
-                    f"{s.explained_variance:.3f} | {s.gain:+.3f} | {confidence} |"
-                )
-        lines += ["", "## How far: the held-out gap before and after", ""]
-        lines += ["| group | channel | before | after | shrink |", "|---|---|---|---|---|"]
-        for g in self.groups:
-            unit = GROUP_UNITS[g]
-            for name, b, a, s in self.gap_rows(g):
-                lines.append(
-                    f"| {g} | {name} | {b:.4g} {unit} | {a:.4g} {unit} | {100 * s:.1f} % |"
-                )
-            lines.append(f"| {g} | all | | | {100 * self.group_shrink(g):.1f} % |")
-        if self.selected:
-            lines += ["", "Effect by effect (pooled held-out RMSE of each group):", ""]
-            lines.append("| after | " + " | ".join(self.groups) + " |")
-            lines.append("|---|" + "---|" * len(self.groups))
-            steps = ["nominal model", *(f"+ {s.name}" for s in self.selected)]
-            for step, values in zip(steps, self.waterfall, strict=True):
-                cells = " | ".join(f"{values[g]:.4g} {GROUP_UNITS[g]}" for g in self.groups)
-                lines.append(f"| {step} | {cells} |")
-        if self.replay is not None:
-            r = self.replay
-            lines += [
-                "",
-                f"As motion: the nominal dynamics driven by the logged {r['source']}s over "
-                f"{r['window_s']:g} s windows from the logged state (held-out runs), without "
-                "and with the selected drive and joint terms:",
-                "",
-                "| | nominal model | with the effects | shrink |",
-                "|---|---|---|---|",
-            ]
-            for key, label, unit, scale in (
-                ("joint_rmse", "joint RMSE", "mrad", 1e3),
-                ("hand_error_end", "hand error at window end", "mm", 1e3),
-            ):
-                b, a = r[f"{key}_before"], r[f"{key}_after"]
-                share = 100 * (1 - a / b) if b > 0 else 0.0
-                lines.append(
-                    f"| {label} | {scale * b:.3g} {unit} | {scale * a:.3g} {unit} | {share:.1f} % |"
-                )
-        lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
-        for k, scores in enumerate(self.step_scores, start=1):
-            tried = sorted(
-                ((n, v) for n, v in scores.items() if np.isfinite(v)), key=lambda kv: -kv[1]
-            )
-            held_back = [n for n, v in scores.items() if not np.isfinite(v)]
-            text = ", ".join(f"{n} {v:+.3f}" for n, v in tried)
-            if held_back:
-                text += f" (not tried, confounded: {', '.join(held_back)})"
-            lines.append(f"{k}. {text}")
-        if self.confounded:
-            lines += ["", "## Candidates the data cannot tell apart from a selected one", ""]
-            lines += [f"- {name}: {why}" for name, why in self.confounded.items()]
-        if self.skipped:
-            lines += ["", "## Candidates not tried", ""]
-            lines += [f"- {name}: {why}" for name, why in self.skipped.items()]
-        return "\n".join(lines) + "\n"
 
 
 def _resolve(
@@ -865,7 +257,7 @@ def _resolve(
 
 def _usable(
     pool: list[CandidateEffect],
-    layout: _Layout,
+    layout: Layout,
     signals: Signals,
     required: set[str],
     absent: set[str],
@@ -915,9 +307,9 @@ def _usable(
 
 
 def _bootstrap(
-    model: _Model,
-    sampled: _Sampled,
-    layout: _Layout,
+    model: FittedModel,
+    sampled: Sampled,
+    layout: Layout,
     n_boot: int,
     threshold: float,
     seed: int,
@@ -935,7 +327,7 @@ def _bootstrap(
     linear = [k for k, t in enumerate(terms) if t.linear]
     nonlinear = [k for k, t in enumerate(terms) if not t.linear]
     if linear:
-        stacked = _Stacked([terms[k] for k in linear])
+        stacked = Stacked([terms[k] for k in linear])
         design = np.concatenate([sampled.design(terms[k], "train") for k in linear], axis=2)
     left = r_train
     for k in linear:
@@ -963,10 +355,10 @@ def _bootstrap(
         parts = [sampled.predict(term, samples[k][b], "hold") for k, term in enumerate(terms)]
         full = np.sum(parts, axis=0)
         for mask in hold_runs:
-            with_all = _group_scores(layout, r_hold[mask], full[mask])
+            with_all = group_scores(layout, r_hold[mask], full[mask])
             for k, term in enumerate(terms):
-                without = _group_scores(layout, r_hold[mask], (full - parts[k])[mask])
-                needed[k] += _own_gain(term.term.groups, without, with_all) > threshold
+                without = group_scores(layout, r_hold[mask], (full - parts[k])[mask])
+                needed[k] += own_gain(term.term.groups, without, with_all) > threshold
     stds = [s.std(axis=0, ddof=1) for s in samples]
     return stds, [float(n / (n_boot * len(hold_runs))) for n in needed]
 
@@ -1014,37 +406,6 @@ def diagnose(
     """
     data = load_data(model, train_paths, holdout_paths, candidates, spec, groups, extra_candidates)
     return select_effects(data, threshold, n_boot, seed)
-
-
-@dataclass(frozen=True, eq=False)
-class DiagnosisData:
-    """Everything the selection works on, read once from the logs (see :func:`load_data`).
-
-    Attributes:
-        model: The nominal robot model.
-        train: Signals of the training runs.
-        hold: Signals of the held-out runs.
-        layout: The channel groups, their columns and normalising spreads.
-        r_train: Normalised, stacked training residual, ``(T_train, W)``.
-        r_hold: Normalised, stacked held-out residual, ``(T_hold, W)``.
-        candidates: The usable candidates (each embedded in the stack).
-        skipped: Candidates not usable on these logs, with the reason.
-        train_runs: Training log names.
-        holdout_runs: Held-out log names.
-        channel_names: Channel names of each group.
-    """
-
-    model: RobotModel
-    train: Signals
-    hold: Signals
-    layout: _Layout
-    r_train: FloatArray
-    r_hold: FloatArray
-    candidates: tuple[_Embedded, ...]
-    skipped: dict[str, str]
-    train_runs: tuple[str, ...]
-    holdout_runs: tuple[str, ...]
-    channel_names: dict[str, tuple[str, ...]]
 
 
 def load_data(
@@ -1095,7 +456,7 @@ def load_data(
         raise InputError(
             "holdout_paths: no residual group has variance on both training and held-out runs"
         )
-    layout = _Layout(present)
+    layout = Layout(present)
     r_train = layout.stack(g_train)
     r_hold = layout.stack(g_hold)
     absent = {g for g in wanted if g not in g_train or g not in g_hold}
@@ -1118,7 +479,7 @@ def load_data(
         layout=layout,
         r_train=r_train,
         r_hold=r_hold,
-        candidates=tuple(_Embedded(t, layout) for t in usable),
+        candidates=tuple(Embedded(t, layout) for t in usable),
         skipped=skipped,
         train_runs=train_names,
         holdout_runs=hold_names,
@@ -1155,7 +516,7 @@ def select_effects(
         raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
     hold, layout = data.hold, data.layout
     r_hold = data.r_hold
-    sampled = _Sampled(data, int(max_samples))
+    sampled = Sampled(data, int(max_samples))
     embedded = list(data.candidates)
 
     chosen: list[CandidateEffect] = []
@@ -1164,7 +525,7 @@ def select_effects(
     explained = [0.0]
     gains: list[float] = []
     remaining = list(embedded)
-    bases = _Bases(sampled)
+    bases = Confounding(sampled)
     confounded: dict[str, str] = {}
     while remaining:
         gain_of: dict[str, float] = {}
@@ -1175,11 +536,11 @@ def select_effects(
                 confounded[candidate.name] = clash
                 gain_of[candidate.name] = float("nan")
                 continue
-            fitted = _fit_together([*chosen, candidate], sampled)
-            after[candidate.name] = _group_scores(
+            fitted = fit_together([*chosen, candidate], sampled)
+            after[candidate.name] = group_scores(
                 layout, sampled.residual["hold"], fitted.predict(sampled, "hold")
             )
-            gain_of[candidate.name] = _own_gain(
+            gain_of[candidate.name] = own_gain(
                 candidate.term.groups, current, after[candidate.name]
             )
         scores_per_step.append(gain_of)
@@ -1195,13 +556,15 @@ def select_effects(
         explained.append(float(np.mean(list(current.values()))))
         gains.append(gain_of[best.name])
 
-    final = _fit_together(chosen, sampled)
+    final = fit_together(chosen, sampled)
     stds, confidence = _bootstrap(final, sampled, layout, int(n_boot), threshold, seed)
     cumulative = np.zeros_like(r_hold)
-    waterfall = [{g: _pooled(v) for g, v in layout.unstack(r_hold).items()}]
+    waterfall = [{g: pooled_rmse(v) for g, v in layout.unstack(r_hold).items()}]
     for term, theta in zip(final.terms, final.parameters, strict=True):
         cumulative = cumulative + np.asarray(term.torque(hold, theta), dtype=float)
-        waterfall.append({g: _pooled(v) for g, v in layout.unstack(r_hold - cumulative).items()})
+        waterfall.append(
+            {g: pooled_rmse(v) for g, v in layout.unstack(r_hold - cumulative).items()}
+        )
     before, after = layout.unstack(r_hold), layout.unstack(r_hold - cumulative)
     motion = _replay_gap(data, layout.unstack(cumulative)) if replay else None
     selected = tuple(
@@ -1227,8 +590,8 @@ def select_effects(
         step_scores=tuple(scores_per_step),
         groups=layout.groups,
         channel_names=dict(data.channel_names),
-        gap_before={g: _rmse(v) for g, v in before.items()},
-        gap_after={g: _rmse(v) for g, v in after.items()},
+        gap_before={g: channel_rmse(v) for g, v in before.items()},
+        gap_after={g: channel_rmse(v) for g, v in after.items()},
         waterfall=tuple(waterfall),
         threshold=threshold,
         train_runs=data.train_runs,

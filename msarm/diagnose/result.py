@@ -1,0 +1,288 @@
+"""The answer of a gap diagnosis: the selected effects and the gap before and after."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.diagnose.builder import GROUP_UNITS
+
+__all__ = ["Diagnosis", "SelectedEffect"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SelectedEffect:
+    """One selected term of a :class:`Diagnosis`.
+
+    Attributes:
+        name: Candidate name (registry name, see :mod:`msarm.diagnose.effects`).
+        description: The term's equation.
+        groups: The channel groups it acts on (``"joint"``, ``"drive"``, ``"length"``).
+        parameter_names: Names of its ``p`` parameters.
+        parameters: Fitted parameters (training runs, joint fit of the final model), ``(p,)``.
+        std: Bootstrap standard deviation over training runs, ``(p,)``; NaN when not computed
+            (fewer than 2 training runs, or ``n_boot < 2``).
+        explained_variance: Held-out score (mean over all groups) after adding this term [-].
+        gain: Rise of the held-out explained share on its own groups it brought [-].
+        confidence: Share of (bootstrap draw, held-out run) pairs that need the term (see the
+            module docstring) [-]; NaN when not computed.
+        message: Solver status of its fit.
+    """
+
+    name: str
+    description: str
+    groups: tuple[str, ...]
+    parameter_names: tuple[str, ...]
+    parameters: FloatArray
+    std: FloatArray
+    explained_variance: float
+    gain: float
+    confidence: float
+    message: str
+
+    def parameter_texts(self, limit: int = 6, equals: str = " = ") -> list[str]:
+        """``name = value ± std`` of the first ``limit`` parameters, and a count of the rest."""
+        parts = []
+        for name, value, std in zip(self.parameter_names, self.parameters, self.std, strict=True):
+            text = f"{name}{equals}{value:.4g}"
+            if np.isfinite(std):
+                text += f" ± {std:.2g}"
+            parts.append(text)
+        if len(parts) > limit:
+            parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
+        return parts
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "groups": list(self.groups),
+            "parameters": dict(zip(self.parameter_names, map(float, self.parameters), strict=True)),
+            "std": {
+                k: (None if not np.isfinite(v) else float(v))
+                for k, v in zip(self.parameter_names, self.std, strict=True)
+            },
+            "explained_variance": self.explained_variance,
+            "gain": self.gain,
+            "confidence": None if not np.isfinite(self.confidence) else self.confidence,
+            "message": self.message,
+        }
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Result of :func:`diagnose`.
+
+    Attributes:
+        selected: The selected effects, in the order they were added.
+        explained_variance: Held-out score after each step [-], starting with the nominal
+            model's 0.0; length ``len(selected) + 1``.
+        step_scores: Per step, the gain (on its own groups) of every candidate tried with the
+            terms selected before, by name.
+        groups: The channel groups diagnosed, in stack order.
+        channel_names: Channel names of each group (joints or cables).
+        gap_before: Held-out RMSE per channel of each group, nominal model, in the group's
+            unit (:data:`msarm.diagnose.builder.GROUP_UNITS`).
+        gap_after: The same after subtracting the selected terms' prediction.
+        waterfall: Pooled held-out RMSE of each group after each step (the final model's
+            terms added one by one in selection order); ``len(selected) + 1`` entries.
+        threshold: The selection threshold [-].
+        train_runs: The training logs.
+        holdout_runs: The held-out logs.
+        n_train: Training samples.
+        n_holdout: Held-out samples.
+        skipped: Candidates not tried, with the reason (a channel group the logs lack).
+        confounded: Candidates left out of a step because the data cannot tell them apart
+            from the terms already selected (see :data:`CONFOUNDING_LIMIT`), with the term
+            and the canonical correlation.
+        replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
+            dynamics driven by the logged commands over 0.2 s windows, without and with the
+            selected drive and joint terms; None when not computed.
+    """
+
+    selected: tuple[SelectedEffect, ...]
+    explained_variance: tuple[float, ...]
+    step_scores: tuple[dict[str, float], ...]
+    groups: tuple[str, ...]
+    channel_names: dict[str, tuple[str, ...]]
+    gap_before: dict[str, FloatArray]
+    gap_after: dict[str, FloatArray]
+    waterfall: tuple[dict[str, float], ...]
+    threshold: float
+    train_runs: tuple[str, ...]
+    holdout_runs: tuple[str, ...]
+    n_train: int
+    n_holdout: int
+    skipped: dict[str, str]
+    replay: dict[str, Any] | None = None
+    confounded: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the selected effects, in order."""
+        return tuple(s.name for s in self.selected)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Joint names, ``(n,)``."""
+        return self.channel_names["joint"]
+
+    def shrink(self, group: str = "joint") -> FloatArray:
+        """Share of each channel's held-out gap removed, ``1 - after / before`` [-]."""
+        before, after = self.gap_before[group], self.gap_after[group]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(before > 0, 1.0 - after / before, 0.0)
+
+    def gap_rows(self, group: str) -> list[tuple[str, float, float, float]]:
+        """``(channel, before, after, shrink)`` of each channel of a group."""
+        return [
+            (name, float(b), float(a), float(s))
+            for name, b, a, s in zip(
+                self.channel_names[group],
+                self.gap_before[group],
+                self.gap_after[group],
+                self.shrink(group),
+                strict=True,
+            )
+        ]
+
+    def group_shrink(self, group: str) -> float:
+        """``1 - RMSE_after / RMSE_before`` of one group, pooled over its channels [-]."""
+        before = float(np.sqrt(np.mean(self.gap_before[group] ** 2)))
+        after = float(np.sqrt(np.mean(self.gap_after[group] ** 2)))
+        return 0.0 if before == 0.0 else 1.0 - after / before
+
+    @property
+    def acted_groups(self) -> tuple[str, ...]:
+        """The groups at least one selected effect acts on, in stack order."""
+        used = {g for s in self.selected for g in s.groups}
+        return tuple(g for g in self.groups if g in used)
+
+    @property
+    def total_shrink(self) -> float:
+        """Mean group shrink over the groups the selected effects act on (0 if none) [-]."""
+        acted = self.acted_groups
+        return float(np.mean([self.group_shrink(g) for g in acted])) if acted else 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict of the whole diagnosis."""
+        gap = {
+            g: {
+                "unit": GROUP_UNITS[g],
+                "shrink": self.group_shrink(g),
+                "channels": {
+                    name: {"before": b, "after": a, "shrink": sh}
+                    for name, b, a, sh in self.gap_rows(g)
+                },
+            }
+            for g in self.groups
+        }
+        return {
+            "selected": [s.as_dict() for s in self.selected],
+            "explained_variance": list(self.explained_variance),
+            "step_scores": [
+                {name: (float(v) if np.isfinite(v) else None) for name, v in scores.items()}
+                for scores in self.step_scores
+            ],
+            "groups": list(self.groups),
+            "gap": gap,
+            "waterfall": [dict(w) for w in self.waterfall],
+            "total_shrink": self.total_shrink,
+            "threshold": self.threshold,
+            "train_runs": list(self.train_runs),
+            "holdout_runs": list(self.holdout_runs),
+            "n_train": self.n_train,
+            "n_holdout": self.n_holdout,
+            "skipped": dict(self.skipped),
+            "replay": self.replay,
+            "confounded": dict(self.confounded),
+        }
+
+    def to_markdown(self) -> str:
+        """The diagnosis as Markdown (tables only; :mod:`msarm.diagnose.report` adds plots)."""
+        lines = ["# Sim-to-real gap diagnosis", ""]
+        lines.append(
+            f"Training runs: {len(self.train_runs)} ({self.n_train} samples); held-out runs: "
+            f"{len(self.holdout_runs)} ({self.n_holdout} samples); channel groups: "
+            f"{', '.join(self.groups)}. A term is added when it raises the held-out score "
+            f"(explained variance, mean over groups) by more than {self.threshold:.3g}."
+        )
+        lines += ["", "## Which: the selected effects", ""]
+        if not self.selected:
+            lines.append(
+                "None: no candidate explains the held-out residual better than the nominal "
+                "model by more than the threshold."
+            )
+        else:
+            lines += [
+                "| step | effect | acts on | parameters (± bootstrap std) | held-out score | "
+                "gain | confidence |",
+                "|---|---|---|---|---|---|---|",
+            ]
+            for k, s in enumerate(self.selected, start=1):
+                confidence = f"{s.confidence:.2f}" if np.isfinite(s.confidence) else "n/a"
+                parameters = ", ".join(s.parameter_texts(equals="="))
+                lines.append(
+                    f"| {k} | {s.name} | {', '.join(s.groups)} | {parameters} | "
+                    f"{s.explained_variance:.3f} | {s.gain:+.3f} | {confidence} |"
+                )
+        lines += ["", "## How far: the held-out gap before and after", ""]
+        lines += ["| group | channel | before | after | shrink |", "|---|---|---|---|---|"]
+        for g in self.groups:
+            unit = GROUP_UNITS[g]
+            for name, b, a, s in self.gap_rows(g):
+                lines.append(
+                    f"| {g} | {name} | {b:.4g} {unit} | {a:.4g} {unit} | {100 * s:.1f} % |"
+                )
+            lines.append(f"| {g} | all | | | {100 * self.group_shrink(g):.1f} % |")
+        if self.selected:
+            lines += ["", "Effect by effect (pooled held-out RMSE of each group):", ""]
+            lines.append("| after | " + " | ".join(self.groups) + " |")
+            lines.append("|---|" + "---|" * len(self.groups))
+            steps = ["nominal model", *(f"+ {s.name}" for s in self.selected)]
+            for step, values in zip(steps, self.waterfall, strict=True):
+                cells = " | ".join(f"{values[g]:.4g} {GROUP_UNITS[g]}" for g in self.groups)
+                lines.append(f"| {step} | {cells} |")
+        if self.replay is not None:
+            r = self.replay
+            lines += [
+                "",
+                f"As motion: the nominal dynamics driven by the logged {r['source']}s over "
+                f"{r['window_s']:g} s windows from the logged state (held-out runs), without "
+                "and with the selected drive and joint terms:",
+                "",
+                "| | nominal model | with the effects | shrink |",
+                "|---|---|---|---|",
+            ]
+            for key, label, unit, scale in (
+                ("joint_rmse", "joint RMSE", "mrad", 1e3),
+                ("hand_error_end", "hand error at window end", "mm", 1e3),
+            ):
+                b, a = r[f"{key}_before"], r[f"{key}_after"]
+                share = 100 * (1 - a / b) if b > 0 else 0.0
+                lines.append(
+                    f"| {label} | {scale * b:.3g} {unit} | {scale * a:.3g} {unit} | {share:.1f} % |"
+                )
+        lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
+        for k, scores in enumerate(self.step_scores, start=1):
+            tried = sorted(
+                ((n, v) for n, v in scores.items() if np.isfinite(v)), key=lambda kv: -kv[1]
+            )
+            held_back = [n for n, v in scores.items() if not np.isfinite(v)]
+            text = ", ".join(f"{n} {v:+.3f}" for n, v in tried)
+            if held_back:
+                text += f" (not tried, confounded: {', '.join(held_back)})"
+            lines.append(f"{k}. {text}")
+        if self.confounded:
+            lines += ["", "## Candidates the data cannot tell apart from a selected one", ""]
+            lines += [f"- {name}: {why}" for name, why in self.confounded.items()]
+        if self.skipped:
+            lines += ["", "## Candidates not tried", ""]
+            lines += [f"- {name}: {why}" for name, why in self.skipped.items()]
+        return "\n".join(lines) + "\n"

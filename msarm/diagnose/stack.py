@@ -1,0 +1,430 @@
+"""The normalised stack of channel groups and the fits on it (used by :mod:`.select`).
+
+The residuals of the diagnosis come in channel groups (joint torque, drive, cable length),
+each divided by its training spread and set side by side (:class:`Layout`); every candidate is
+placed in its groups' columns (:class:`Embedded`). :class:`Sampled` holds the (thinned)
+samples the selection fits and scores on, with the linear terms' designs and the nonlinear
+terms' IPOPT problems cached; :func:`fit_together` fits a set of terms jointly;
+:class:`Confounding` tells when a candidate cannot be told apart from those chosen. These are
+the diagnosis's internals: their interface may change.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.diagnose.builder import GROUPS
+from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect, NumpyOps, Ops
+from msarm.diagnose.fitting import _NonlinearProblem, _solve_linear
+from msarm.diagnose.signals import Signals
+from msarm.model import RobotModel
+
+__all__ = [
+    "CONFOUNDING_LIMIT",
+    "MAX_FIT_SAMPLES",
+    "Confounding",
+    "DiagnosisData",
+    "Embedded",
+    "FittedModel",
+    "Layout",
+    "OwnColumns",
+    "Sampled",
+    "Stacked",
+    "channel_rmse",
+    "fit_together",
+    "group_scores",
+    "mean_score",
+    "own_gain",
+    "pooled_rmse",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Largest canonical correlation between a candidate's regressor and those of the terms
+#: already selected (training runs) for the candidate to be tried: above it, the data cannot
+#: tell the two apart (e.g. a load-cell scale error, whose regressor is the measured cable
+#: torque, against the links' mass error, whose regressor spans the inverse dynamics that
+#: torque balances), and their joint fit would trade one for the other [-].
+CONFOUNDING_LIMIT = 0.99
+#: The selection fits and scores on at most this many training (and held-out) samples,
+#: evenly thinned: 20 runs of 20 s at 250 Hz are 100,000 samples, and the residuals' content
+#: lies far below the thinned rate (12.5 Hz or more).
+MAX_FIT_SAMPLES = 20_000
+#: Of the fitting samples, every this many enter the confounding test.
+_CONFOUNDING_STRIDE = 8
+
+
+class Layout:
+    """Where each group's columns sit in the stacked residual, and its normalising spread."""
+
+    def __init__(self, groups: dict[str, FloatArray]) -> None:
+        self.groups = tuple(g for g in GROUPS if g in groups)
+        self.slices: dict[str, slice] = {}
+        self.spread: dict[str, float] = {}
+        start = 0
+        for g in self.groups:
+            r = groups[g]
+            self.slices[g] = slice(start, start + r.shape[1])
+            start += r.shape[1]
+            spread = float(np.sqrt(np.sum(r**2) / max(len(r), 1)))
+            self.spread[g] = spread if spread > 0 else 1.0
+        self.width = start
+
+    def stack(self, groups: dict[str, FloatArray]) -> FloatArray:
+        """Group residuals ``{g: (T, k_g)}`` -> the normalised stack ``(T, W)``."""
+        return np.concatenate([groups[g] / self.spread[g] for g in self.groups], axis=1)
+
+    def unstack(self, stacked: FloatArray) -> dict[str, FloatArray]:
+        """The normalised stack ``(T, W)`` -> group residuals in their units."""
+        return {g: stacked[:, self.slices[g]] * self.spread[g] for g in self.groups}
+
+
+class Embedded(CandidateEffect):
+    """A term's prediction placed in its groups' columns of the normalised stack."""
+
+    def __init__(self, term: CandidateEffect, layout: Layout) -> None:
+        self.term, self.layout = term, layout
+        self.name = term.name  # type: ignore[misc]
+        self.description = term.description  # type: ignore[misc]
+        self.linear = term.linear  # type: ignore[misc]
+        self.parameter_names = term.parameter_names
+        self.channels = tuple(range(layout.width))
+        self.groups = layout.groups
+
+    def width(self, signals: Signals) -> int:  # noqa: D102
+        return self.layout.width
+
+    def check(self, signals: Signals) -> None:  # noqa: D102
+        self.term.check(signals)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        inner = self.term.design(signals)
+        out = np.zeros((inner.shape[0], self.layout.width, inner.shape[2]))
+        start = 0
+        for g in self.term.groups:
+            cols = self.layout.slices[g]
+            size = cols.stop - cols.start
+            out[:, cols, :] = inner[:, start : start + size, :] / self.layout.spread[g]
+            start += size
+        return out
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
+        if self.linear and isinstance(ops, NumpyOps):
+            return np.einsum("tnp,p->tn", self.design(signals), np.asarray(theta, dtype=float))
+        inner = self.term.torque(signals, theta, ops)
+        T = signals.n_samples
+        blocks, start = [], 0
+        placed = {}
+        for g in self.term.groups:
+            cols = self.layout.slices[g]
+            size = cols.stop - cols.start
+            placed[g] = inner[:, start : start + size] * (1.0 / self.layout.spread[g])
+            start += size
+        for g in self.layout.groups:
+            if g in placed:
+                blocks.append(placed[g])
+            else:
+                cols = self.layout.slices[g]
+                blocks.append(ops.const(np.zeros((T, cols.stop - cols.start))))
+        return ops.hcat(blocks)
+
+    def initial_guess(  # noqa: D102
+        self, signals: Signals, residual: FloatArray | None = None
+    ) -> FloatArray:
+        if residual is None:
+            return self.term.initial_guess(signals)
+        parts = self.layout.unstack(residual)
+        own = np.concatenate([parts[g] for g in self.term.groups], axis=1)
+        return self.term.initial_guess(signals, own)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        return self.term.bounds()
+
+    def own_columns(self) -> NDArray[np.intp]:
+        """Columns of the stack the term's groups occupy, in the term's group order."""
+        return np.concatenate(
+            [np.arange(self.layout.width)[self.layout.slices[g]] for g in self.term.groups]
+        )
+
+
+class OwnColumns(CandidateEffect):
+    """An embedded nonlinear term restricted to its own columns (smaller IPOPT problems).
+
+    The columns it does not touch add a constant to the fit's objective, so the optimum on
+    its own columns is the optimum on the whole stack.
+    """
+
+    def __init__(self, embedded: Embedded) -> None:
+        self.embedded = embedded
+        self.name = embedded.name  # type: ignore[misc]
+        self.linear = False  # type: ignore[misc]
+        self.parameter_names = embedded.parameter_names
+        self.columns = embedded.own_columns()
+        self.channels = tuple(range(len(self.columns)))
+        layout = embedded.layout
+        self.factors = [1.0 / layout.spread[g] for g in embedded.term.groups]
+        self.sizes = [layout.slices[g].stop - layout.slices[g].start for g in embedded.term.groups]
+
+    def width(self, signals: Signals) -> int:  # noqa: D102
+        return len(self.columns)
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
+        inner = self.embedded.term.torque(signals, theta, ops)
+        blocks, start = [], 0
+        for factor, size in zip(self.factors, self.sizes, strict=True):
+            blocks.append(inner[:, start : start + size] * factor)
+            start += size
+        return ops.hcat(blocks)
+
+    def initial_guess(  # noqa: D102
+        self, signals: Signals, residual: FloatArray | None = None
+    ) -> FloatArray:
+        if residual is None:
+            return self.embedded.term.initial_guess(signals)
+        scale = np.repeat(1.0 / np.asarray(self.factors), self.sizes)
+        return self.embedded.term.initial_guess(signals, residual * scale)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        return self.embedded.term.bounds()
+
+
+class Stacked(CandidateEffect):
+    """Several linear terms as one: their design matrices side by side."""
+
+    name = "stacked"
+    description = "sum of linear terms, fitted together"
+    linear = True
+
+    def __init__(self, terms: Sequence[CandidateEffect]) -> None:
+        self.terms = tuple(terms)
+        self.parameter_names = tuple(f"{t.name}:{p}" for t in self.terms for p in t.parameter_names)
+        self.channels = tuple(sorted({c for t in self.terms for c in t.channels}))
+        self.sizes = [t.n_parameters for t in self.terms]
+
+    def width(self, signals: Signals) -> int:  # noqa: D102
+        return self.terms[0].width(signals)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        return np.concatenate([t.design(signals) for t in self.terms], axis=2)
+
+    def check(self, signals: Signals) -> None:  # noqa: D102
+        for t in self.terms:
+            t.check(signals)
+
+    def split(self, theta: FloatArray) -> list[FloatArray]:
+        """The parameters of each term, in order."""
+        return np.split(np.asarray(theta, dtype=float), np.cumsum(self.sizes)[:-1])
+
+
+class Sampled:
+    """The samples the selection fits and scores on, with the linear terms' designs cached.
+
+    Long logs are thinned evenly to at most ``max_samples`` training and held-out samples
+    (designs are computed on the whole runs first, so terms with memory, such as the Dahl
+    state or the delay taps, see every sample; nonlinear terms are evaluated on the thinned
+    samples and must be per-sample).
+    """
+
+    def __init__(self, data: DiagnosisData, max_samples: int) -> None:
+        self.full = {"train": data.train, "hold": data.hold}
+        self.rows = {
+            split: _even_rows(sig.n_samples, max_samples) for split, sig in self.full.items()
+        }
+        self.signals = {split: sig.take(self.rows[split]) for split, sig in self.full.items()}
+        self.residual = {
+            "train": data.r_train[self.rows["train"]],
+            "hold": data.r_hold[self.rows["hold"]],
+        }
+        self._designs: dict[tuple[int, str], FloatArray] = {}
+        self._problems: dict[int, _NonlinearProblem] = {}
+
+    def fit_nonlinear(
+        self,
+        term: Embedded,
+        residual: FloatArray,
+        initial: FloatArray | None = None,
+        weights: FloatArray | None = None,
+    ) -> tuple[FloatArray, str]:
+        """Fit a nonlinear term to the training ``residual`` (stack columns) by IPOPT.
+
+        The problem (on the term's own columns) is built once per term and reused.
+        """
+        if id(term) not in self._problems:
+            own = OwnColumns(term)
+            self._problems[id(term)] = _NonlinearProblem(
+                own, self.signals["train"], self.residual["train"][:, own.columns]
+            )
+        problem = self._problems[id(term)]
+        columns = problem.effect.columns
+        theta, _, message = problem.solve(initial, weights, residual[:, columns])
+        return theta, message
+
+    def design(self, term: CandidateEffect, split: str) -> FloatArray:
+        """A linear term's design on the ``"train"`` or ``"hold"`` samples (computed once)."""
+        key = (id(term), split)
+        if key not in self._designs:
+            self._designs[key] = term.design(self.full[split])[self.rows[split]]
+        return self._designs[key]
+
+    def predict(self, term: CandidateEffect, theta: FloatArray, split: str) -> FloatArray:
+        """A term's prediction on the ``"train"`` or ``"hold"`` samples, ``(T, W)``."""
+        if term.linear:
+            return np.einsum("tnp,p->tn", self.design(term, split), theta)
+        return np.asarray(term.torque(self.signals[split], theta), dtype=float)
+
+
+def _even_rows(n: int, limit: int) -> NDArray[np.intp]:
+    if n <= limit:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, limit).round().astype(np.intp))
+
+
+@dataclass(frozen=True)
+class FittedModel:
+    """A fitted combination of terms: parameters by term, in the given order."""
+
+    terms: tuple[CandidateEffect, ...]
+    parameters: tuple[FloatArray, ...]
+    messages: tuple[str, ...]
+
+    def predict(self, sampled: Sampled, split: str) -> FloatArray:
+        """The terms' summed prediction on a split of ``sampled``, ``(T, W)``."""
+        out = np.zeros_like(sampled.residual[split])
+        for term, theta in zip(self.terms, self.parameters, strict=True):
+            out += sampled.predict(term, theta, split)
+        return out
+
+
+def fit_together(terms: Sequence[CandidateEffect], sampled: Sampled) -> FittedModel:
+    """Joint fit: linear terms by one stacked least squares, then nonlinear ones in turn."""
+    linear = [t for t in terms if t.linear]
+    nonlinear = [t for t in terms if not t.linear]
+    parameters: dict[int, FloatArray] = {}
+    messages: dict[int, str] = {}
+    left = sampled.residual["train"]
+    if linear:
+        design = np.concatenate([sampled.design(t, "train") for t in linear], axis=2)
+        theta = _solve_linear(design, left)
+        for term, part in zip(linear, Stacked(linear).split(theta), strict=True):
+            parameters[id(term)], messages[id(term)] = part, "least squares (joint)"
+        left = left - np.einsum("tnp,p->tn", design, theta)
+    for term in nonlinear:
+        theta, message = sampled.fit_nonlinear(term, left)
+        parameters[id(term)], messages[id(term)] = theta, message
+        left = left - sampled.predict(term, theta, "train")
+    return FittedModel(
+        terms=tuple(terms),
+        parameters=tuple(parameters[id(t)] for t in terms),
+        messages=tuple(messages[id(t)] for t in terms),
+    )
+
+
+def group_scores(layout: Layout, residual: FloatArray, prediction: FloatArray) -> dict[str, float]:
+    """Explained energy of each group, ``1 - sum (r - pred)^2 / sum r^2`` [-].
+
+    About zero, not about the mean: a constant offset (a load-cell bias) is part of the gap.
+    """
+    out = {}
+    for g in layout.groups:
+        r = residual[:, layout.slices[g]]
+        e = r - prediction[:, layout.slices[g]]
+        energy = float(np.sum(r**2))
+        out[g] = 1.0 - float(np.sum(e**2)) / energy if energy > 0 else 0.0
+    return out
+
+
+class Confounding:
+    """Orthonormal bases of linear terms' training regressors, for the confounding test."""
+
+    def __init__(self, sampled: Sampled) -> None:
+        self.sampled = sampled
+        self.cache: dict[int, FloatArray] = {}
+
+    def basis(self, term: CandidateEffect) -> FloatArray:
+        """An orthonormal basis of a linear term's (thinned) training regressor."""
+        if id(term) not in self.cache:
+            design = self.sampled.design(term, "train")[::_CONFOUNDING_STRIDE]
+            matrix = design.reshape(-1, design.shape[2])
+            matrix = matrix / np.maximum(np.linalg.norm(matrix, axis=0), 1e-300)
+            u, singular, _ = np.linalg.svd(matrix, full_matrices=False)
+            keep = singular > 1e-8 * max(float(singular.max(initial=0.0)), 1e-300)
+            self.cache[id(term)] = u[:, keep]
+        return self.cache[id(term)]
+
+    def confounder(
+        self, candidate: CandidateEffect, chosen: Sequence[CandidateEffect]
+    ) -> str | None:
+        """Why ``candidate`` cannot be told apart from the chosen terms, or None."""
+        linear = [t for t in chosen if t.linear]
+        if not candidate.linear or not linear:
+            return None
+        own = self.basis(candidate)
+        if own.shape[1] == 0:
+            return None
+        together = np.concatenate([self.basis(t) for t in linear], axis=1)
+        span, singular, _ = np.linalg.svd(together, full_matrices=False)
+        span = span[:, singular > 1e-8 * singular.max(initial=1.0)]
+        correlation = float(np.linalg.svd(own.T @ span, compute_uv=False).max(initial=0.0))
+        if correlation <= CONFOUNDING_LIMIT:
+            return None
+        names = ", ".join(t.name for t in linear)
+        return (
+            f"its regressor lies in the span of {names} (canonical correlation "
+            f"{correlation:.4f} > {CONFOUNDING_LIMIT})"
+        )
+
+
+def own_gain(groups: Sequence[str], before: dict[str, float], after: dict[str, float]) -> float:
+    """Gain of the explained share, averaged over the groups a term acts on [-]."""
+    return float(np.mean([after[g] - before[g] for g in groups]))
+
+
+def mean_score(layout: Layout, residual: FloatArray, prediction: FloatArray) -> float:
+    """The selection score: the mean over groups of their explained variance [-]."""
+    return float(np.mean(list(group_scores(layout, residual, prediction).values())))
+
+
+def channel_rmse(values: FloatArray) -> FloatArray:
+    """RMS of each column, ``(T, k) -> (k,)``."""
+    return np.sqrt(np.mean(values**2, axis=0))
+
+
+def pooled_rmse(values: FloatArray) -> float:
+    """RMS over all entries."""
+    return float(np.sqrt(np.mean(values**2)))
+
+
+@dataclass(frozen=True, eq=False)
+class DiagnosisData:
+    """Everything the selection works on, read once from the logs (see :func:`load_data`).
+
+    Attributes:
+        model: The nominal robot model.
+        train: Signals of the training runs.
+        hold: Signals of the held-out runs.
+        layout: The channel groups, their columns and normalising spreads.
+        r_train: Normalised, stacked training residual, ``(T_train, W)``.
+        r_hold: Normalised, stacked held-out residual, ``(T_hold, W)``.
+        candidates: The usable candidates (each embedded in the stack).
+        skipped: Candidates not usable on these logs, with the reason.
+        train_runs: Training log names.
+        holdout_runs: Held-out log names.
+        channel_names: Channel names of each group.
+    """
+
+    model: RobotModel
+    train: Signals
+    hold: Signals
+    layout: Layout
+    r_train: FloatArray
+    r_hold: FloatArray
+    candidates: tuple[Embedded, ...]
+    skipped: dict[str, str]
+    train_runs: tuple[str, ...]
+    holdout_runs: tuple[str, ...]
+    channel_names: dict[str, tuple[str, ...]]
