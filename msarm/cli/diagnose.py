@@ -28,7 +28,7 @@ from msarm.cli.common import console
 from msarm.errors import InputError
 
 if TYPE_CHECKING:
-    from msarm.diagnose.select import Diagnosis
+    from msarm.diagnose.result import Diagnosis
     from msarm.diagnose.where import GapBreakdown
     from msarm.model import RobotModel
 
