@@ -44,6 +44,7 @@ def test_tiny_benchmark_names_the_withheld_effects(report):
     assert ours["false_alarms"] == 0
     assert ours["mean_shrink"] > 0.3
     assert ours["mean_excess_shrink"] > ours["mean_shrink"]
+    assert set(ours["shrink_by_effect"]) == {"winch_friction", "sensor_bias"}
     assert set(summary["noise_floor"]) >= {"joint", "drive"}
     assert (out / "confusion.png").read_bytes().startswith(b"\x89PNG")
     saved = json.loads((out / "results.json").read_text())

@@ -247,6 +247,11 @@ def diagnose_bench(
         for e in ours["top1_by_effect"]
     )
     console.print(f"top-1 by effect (msarm/PySINDy): {by_effect}")
+    shrink = ", ".join(
+        f"{e} {ours['shrink_by_effect'][e]:.0%}/{theirs['shrink_by_effect'].get(e, 0):.0%}"
+        for e in ours["shrink_by_effect"]
+    )
+    console.print(f"held-out gap shrink by effect (msarm/PySINDy): {shrink}")
     for failure in report["failed"]:
         console.print(
             f"not scored (simulation diverged): {failure['scenario']}: {failure['error']}"

@@ -314,11 +314,13 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         single = [r for r in rows if len(r["effects"]) == 1]
         pairs = [r for r in rows if len(r["effects"]) == 2]
         shrinks, excess = [], []
+        shrink_by_effect: dict[str, list[float]] = {}
         for r in single:
             groups = EFFECT_GROUPS[r["effects"][0]]
             answer = r[method]
             shrinks.append(_shrink(answer["gap_before"], answer["gap_after"], groups))
             excess.append(_excess_shrink(answer["gap_before"], answer["gap_after"], groups, floor))
+            shrink_by_effect.setdefault(r["effects"][0], []).append(shrinks[-1])
         extra = []
         for r in [*single, *pairs]:
             allowed = {c for e in r["effects"] for c in EFFECT_CANDIDATES[e]}
@@ -332,6 +334,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 float(np.mean([r[method]["score"]["top1"] for r in single])) if single else None
             ),
             "top1_by_effect": {e: float(np.mean(v)) for e, v in per_effect.items()},
+            "shrink_by_effect": {e: float(np.nanmean(v)) for e, v in shrink_by_effect.items()},
             "pair_scenarios": len(pairs),
             "both_found": (
                 float(np.mean([r[method]["score"]["both"] for r in pairs])) if pairs else None
