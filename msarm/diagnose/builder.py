@@ -26,7 +26,6 @@ from msarm.diagnose.signals import Signals
 from msarm.errors import InputError, LogError
 from msarm.io.logs import read_log
 from msarm.model import RobotModel
-from msarm.muscle.geometry import cable_geometry
 
 __all__ = ["GROUPS", "GROUP_UNITS", "channels_from_logs", "signals_from_logs"]
 
@@ -46,7 +45,7 @@ def _one_run(
     if not path.is_file():
         raise InputError(f"{source}: no such log file")
     log = read_log(path)
-    residuals = residuals_from_log(model, log, source=source, spec=spec)
+    residuals = residuals_from_log(model, log, source=source, spec=spec, with_geometry=True)
     valid = residuals.valid
     if not valid.any():
         raise LogError(f"{source}: no valid sample to diagnose")
@@ -62,27 +61,16 @@ def _one_run(
     else:
         motor = log.matrix("motor_angle", cables)
     q = residuals.q[valid]
-    T, m, n = q.shape[0], model.n_cables, model.n_joints
-    lengths, wrap = np.empty((T, m)), np.empty((T, m))
-    jacobian = np.empty((T, m, n))
-    data = model.create_data()
-    for k in range(T):
-        geometry = cable_geometry(model, data, q[k], with_wrap_angles=True)
-        lengths[k], jacobian[k], wrap[k] = (
-            geometry.lengths,
-            geometry.jacobian,
-            geometry.wrap_angles,
-        )
     arrays = {
         "t": residuals.t[valid],
         "q": q,
         "qd": residuals.qd[valid],
         "qdd": residuals.qdd[valid],
         "tension": residuals.tension[valid],
-        "lengths": lengths,
+        "lengths": residuals.lengths[valid],
         "cable_velocity": residuals.cable_velocity[valid],
-        "jacobian": jacobian,
-        "wrap": wrap,
+        "jacobian": residuals.jacobian[valid],
+        "wrap": residuals.wrap[valid],
         "motor_angle": motor[valid],
     }
     if residuals.tension_cmd is not None:

@@ -42,7 +42,7 @@ from msarm.compensation.target import TargetSpec, torque_error
 from msarm.errors import LogError
 from msarm.io.logs import TIME, RunLog, read_log
 from msarm.model import RobotModel
-from msarm.muscle.geometry import cable_kinematics
+from msarm.muscle.geometry import cable_kinematics, wrap_angles
 
 __all__ = [
     "RESIDUAL_UNITS",
@@ -145,6 +145,11 @@ class Residuals:
             segment takes its own) [N], shape ``(T, m)``; None without ``tension_cmd``.
         motor_speed: Filtered motor speeds [rad/s], shape ``(T, m)``; None without
             ``motor_angle``.
+        lengths: Nominal cable path lengths ``l(q)`` [m], shape ``(T, m)``; None unless
+            asked for (``with_geometry``).
+        jacobian: Nominal cable Jacobians ``J_c(q)`` [m/rad], shape ``(T, m, n)``; likewise.
+        wrap: Wrap angles ``Theta(q)`` of the cables' paths [rad], shape ``(T, m)``;
+            likewise.
     """
 
     source: str
@@ -164,6 +169,9 @@ class Residuals:
     tension: FloatArray
     tension_cmd: FloatArray | None = None
     motor_speed: FloatArray | None = None
+    lengths: FloatArray | None = None
+    jacobian: FloatArray | None = None
+    wrap: FloatArray | None = None
 
     def __len__(self) -> int:
         """Number of samples ``T``."""
@@ -201,6 +209,7 @@ def residuals_from_log(
     log: RunLog | str | Path,
     source: str | None = None,
     spec: ResidualSpec | None = None,
+    with_geometry: bool = False,
 ) -> Residuals:
     """Compute the residuals of one log against the nominal model.
 
@@ -210,6 +219,9 @@ def residuals_from_log(
             sidecar is never opened).
         source: Name of the log in messages; default the file name, or ``"log"``.
         spec: Filter, drum radius and replay settings.
+        with_geometry: Also keep the nominal cable lengths, Jacobians and wrap angles at each
+            logged posture (``lengths``, ``jacobian``, ``wrap``), computed in the same pass
+            as the cable velocities.
 
     Returns:
         The residuals and context of every sample.
@@ -267,6 +279,9 @@ def residuals_from_log(
         "drive": np.full((n_samples, m), np.nan) if has_command else None,
         "tension_cmd": np.full((n_samples, m), np.nan) if has_command else None,
         "motor_speed": np.full((n_samples, m), np.nan) if has_motor else None,
+        "lengths": np.full((n_samples, m), np.nan) if with_geometry else None,
+        "jacobian": np.full((n_samples, m, n), np.nan) if with_geometry else None,
+        "wrap": np.full((n_samples, m), np.nan) if with_geometry else None,
         "replay": np.full((n_samples, n), np.nan) if spec.replay else None,
         "qd": np.full((n_samples, n), np.nan),
         "qdd": np.full((n_samples, n), np.nan),
@@ -293,6 +308,11 @@ def residuals_from_log(
         for k in range(stop - start):
             lengths[k] = work.kinematics(q[k])
             out["cable_velocity"][start + k] = work.jacobian @ qd[k]
+            if with_geometry:
+                out["jacobian"][start + k] = work.jacobian
+                out["wrap"][start + k] = wrap_angles(model.mj_model, work.data.mj)
+        if with_geometry:
+            out["lengths"][part] = lengths
         if motor_all is not None:
             motor = motor_all[part]
             estimate = lengths[0] - spec.drum_radius * (motor - motor[0])
@@ -328,6 +348,9 @@ def residuals_from_log(
         tension=tension_all,
         tension_cmd=out["tension_cmd"],
         motor_speed=out["motor_speed"],
+        lengths=out["lengths"],
+        jacobian=out["jacobian"],
+        wrap=out["wrap"],
     )
 
 
