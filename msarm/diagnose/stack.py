@@ -75,6 +75,10 @@ class Layout:
             self.spread[g] = spread if spread > 0 else 1.0
         self.width = start
 
+    def size(self, group: str) -> int:
+        """Number of columns of a group."""
+        return self.slices[group].stop - self.slices[group].start
+
     def stack(self, groups: dict[str, FloatArray]) -> FloatArray:
         """Group residuals ``{g: (T, k_g)}`` -> the normalised stack ``(T, W)``."""
         return np.concatenate([groups[g] / self.spread[g] for g in self.groups], axis=1)
@@ -102,36 +106,33 @@ class Embedded(CandidateEffect):
     def check(self, signals: Signals) -> None:  # noqa: D102
         self.term.check(signals)
 
-    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
-        inner = self.term.design(signals)
-        out = np.zeros((inner.shape[0], self.layout.width, inner.shape[2]))
-        start = 0
+    def own_parts(self, inner: Any) -> dict[str, Any]:
+        """The term's own output ``(T, W_term, ...)`` split by group, in stack units."""
+        parts, start = {}, 0
         for g in self.term.groups:
-            cols = self.layout.slices[g]
-            size = cols.stop - cols.start
-            out[:, cols, :] = inner[:, start : start + size, :] / self.layout.spread[g]
+            size = self.layout.size(g)
+            parts[g] = inner[:, start : start + size] / self.layout.spread[g]
             start += size
+        return parts
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        parts = self.own_parts(self.term.design(signals))
+        first = next(iter(parts.values()))
+        out = np.zeros((first.shape[0], self.layout.width, first.shape[2]))
+        for g, part in parts.items():
+            out[:, self.layout.slices[g], :] = part
         return out
 
     def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
         if self.linear and isinstance(ops, NumpyOps):
             return np.einsum("tnp,p->tn", self.design(signals), np.asarray(theta, dtype=float))
-        inner = self.term.torque(signals, theta, ops)
-        T = signals.n_samples
-        blocks, start = [], 0
-        placed = {}
-        for g in self.term.groups:
-            cols = self.layout.slices[g]
-            size = cols.stop - cols.start
-            placed[g] = inner[:, start : start + size] * (1.0 / self.layout.spread[g])
-            start += size
-        for g in self.layout.groups:
-            if g in placed:
-                blocks.append(placed[g])
-            else:
-                cols = self.layout.slices[g]
-                blocks.append(ops.const(np.zeros((T, cols.stop - cols.start))))
-        return ops.hcat(blocks)
+        parts = self.own_parts(self.term.torque(signals, theta, ops))
+        zeros = {
+            g: ops.const(np.zeros((signals.n_samples, self.layout.size(g))))
+            for g in self.layout.groups
+            if g not in parts
+        }
+        return ops.hcat([parts[g] if g in parts else zeros[g] for g in self.layout.groups])
 
     def initial_guess(  # noqa: D102
         self, signals: Signals, residual: FloatArray | None = None
@@ -166,28 +167,22 @@ class OwnColumns(CandidateEffect):
         self.parameter_names = embedded.parameter_names
         self.columns = embedded.own_columns()
         self.channels = tuple(range(len(self.columns)))
-        layout = embedded.layout
-        self.factors = [1.0 / layout.spread[g] for g in embedded.term.groups]
-        self.sizes = [layout.slices[g].stop - layout.slices[g].start for g in embedded.term.groups]
 
     def width(self, signals: Signals) -> int:  # noqa: D102
         return len(self.columns)
 
     def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
         inner = self.embedded.term.torque(signals, theta, ops)
-        blocks, start = [], 0
-        for factor, size in zip(self.factors, self.sizes, strict=True):
-            blocks.append(inner[:, start : start + size] * factor)
-            start += size
-        return ops.hcat(blocks)
+        return ops.hcat(list(self.embedded.own_parts(inner).values()))
 
     def initial_guess(  # noqa: D102
         self, signals: Signals, residual: FloatArray | None = None
     ) -> FloatArray:
         if residual is None:
             return self.embedded.term.initial_guess(signals)
-        scale = np.repeat(1.0 / np.asarray(self.factors), self.sizes)
-        return self.embedded.term.initial_guess(signals, residual * scale)
+        layout = self.embedded.layout
+        spread = [np.full(layout.size(g), layout.spread[g]) for g in self.embedded.term.groups]
+        return self.embedded.term.initial_guess(signals, residual * np.concatenate(spread))
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
         return self.embedded.term.bounds()
