@@ -441,15 +441,7 @@ class DahlFriction(CandidateEffect):
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)
-        cache = self.__dict__.setdefault("_cache", [])  # the state is a loop over samples
-        for seen, design in cache:
-            if seen is signals:
-                return design
-        out = _per_joint_design(signals, self.channels, self.state(signals))
-        out.setflags(write=False)
-        cache.append((signals, out))
-        del cache[:-4]
-        return out
+        return _per_joint_design(signals, self.channels, self.state(signals))
 
 
 @register
@@ -898,18 +890,9 @@ class InertiaError(CandidateEffect):
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)
-        # Signals are immutable: the regressor of the last few is kept (forward selection
-        # asks for the same signals at every step).
-        cache = self.__dict__.setdefault("_cache", [])
-        for seen, design in cache:
-            if seen is signals:
-                return design
         out = np.empty((signals.n_samples, self.n_joints, len(self.columns)))
         for k in range(signals.n_samples):
             out[k] = self._regressor(signals.q[k], signals.qd[k], signals.qdd[k])[:, self.columns]
-        out.setflags(write=False)
-        cache.append((signals, out))
-        del cache[:-4]
         return out
 
 
