@@ -222,16 +222,9 @@ class ArmPlant:
             ``q``, ``qdot`` [rad, rad/s]; ``tension_motor``, ``tension_insertion`` [N];
             ``stretch`` [m] (negative: slack); ``wrap_angle`` [rad]; ``winch_angle`` [rad].
         """
-        state = self._state
-        return {
-            "q": self.mj_data.qpos.copy(),
-            "qdot": self.mj_data.qvel.copy(),
-            "tension_motor": state.tension_motor.copy(),
-            "tension_insertion": self.tension_insertion.copy(),
-            "stretch": self.mj_data.ten_length - self.unstretched_length(),
-            "wrap_angle": state.wrap_angles.copy(),
-            "winch_angle": state.winch_angle.copy(),
-        }
+        truth = {key: value.copy() for key, value in self._truth_views().items()}
+        truth["stretch"] = self._state.lengths - self.unstretched_length()
+        return truth
 
     def record_ground_truth(self, out: Mapping[str, FloatArray]) -> None:
         """Write the ground truth of :meth:`ground_truth` into ``out``, without copies.
@@ -243,8 +236,17 @@ class ArmPlant:
             out: Destination arrays keyed like :meth:`ground_truth`'s (any subset of its keys),
                 shape ``(n,)`` for ``q``/``qdot`` and ``(m,)`` for the others, written in place.
         """
+        views = self._truth_views()
+        for key, target in out.items():
+            if key == "stretch":
+                np.subtract(self._state.lengths, self.unstretched_length(), out=target)
+            else:
+                target[...] = views[key]
+
+    def _truth_views(self) -> dict[str, FloatArray]:
+        """Live views of the ground truth's arrays, all but the stretch (which is computed)."""
         state = self._state
-        sources = {
+        return {
             "q": state.q,
             "qdot": state.qdot,
             "tension_motor": state.tension_motor,
@@ -252,11 +254,6 @@ class ArmPlant:
             "wrap_angle": state.wrap_angles,
             "winch_angle": state.winch_angle,
         }
-        for key, target in out.items():
-            if key == "stretch":
-                np.subtract(state.lengths, self.unstretched_length(), out=target)
-            else:
-                target[...] = sources[key]
 
     def unstretched_length(self) -> FloatArray:
         """Unstretched cable lengths [m], shape ``(m,)``: the path length minus the stretch."""
