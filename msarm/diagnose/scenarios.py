@@ -240,6 +240,17 @@ def _uniform(rng: np.random.Generator, effect: str, key: str) -> float:
     return float(rng.uniform(low, high))
 
 
+#: Effect classes that are one config block, drawn parameter by parameter from
+#: :data:`PARAMETER_RANGES` (in its order), with these fixed values besides.
+_PLAIN_BLOCKS: dict[str, tuple[type, dict[str, Any]]] = {
+    "sheath_friction": (SheathFrictionConfig, {}),
+    "winch_friction": (WinchFrictionConfig, {}),
+    "elasticity": (ElasticityConfig, {}),
+    "joint_friction": (JointFrictionConfig, {}),
+    "cogging": (CoggingConfig, {"periods_per_revolution": COGGING_PERIODS}),
+}
+
+
 def _draw_effect(
     effect: str, rng: np.random.Generator, effects: EffectsConfig
 ) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -253,38 +264,11 @@ def _draw_effect(
     Returns:
         The config blocks to replace (``{block: config}``) and the drawn values.
     """
-    if effect == "sheath_friction":
-        mu = _uniform(rng, effect, "mu")
-        return {effect: SheathFrictionConfig(enabled=True, mu=mu)}, {"mu": mu}
-    if effect == "winch_friction":
-        coulomb = _uniform(rng, effect, "coulomb")
-        viscous = _uniform(rng, effect, "viscous")
-        block = WinchFrictionConfig(enabled=True, coulomb=coulomb, viscous=viscous)
-        return {effect: block}, {"coulomb": coulomb, "viscous": viscous}
-    if effect == "elasticity":
-        stiffness = _uniform(rng, effect, "stiffness")
-        block = ElasticityConfig(enabled=True, stiffness=stiffness)
-        return {effect: block}, {"stiffness": stiffness}
-    if effect == "joint_friction":
-        coulomb = _uniform(rng, effect, "coulomb")
-        viscous = _uniform(rng, effect, "viscous")
-        block = JointFrictionConfig(enabled=True, coulomb=coulomb, viscous=viscous)
-        return {effect: block}, {"coulomb": coulomb, "viscous": viscous}
-    if effect == "cogging":
-        amplitude = _uniform(rng, effect, "amplitude")
-        phase = _uniform(rng, effect, "phase")
-        block = CoggingConfig(
-            enabled=True,
-            amplitude=amplitude,
-            periods_per_revolution=COGGING_PERIODS,
-            phase=phase,
-        )
-        values = {
-            "amplitude": amplitude,
-            "periods_per_revolution": COGGING_PERIODS,
-            "phase": phase,
-        }
-        return {effect: block}, values
+    if effect in _PLAIN_BLOCKS:
+        config_class, fixed = _PLAIN_BLOCKS[effect]
+        drawn = {key: _uniform(rng, effect, key) for key in PARAMETER_RANGES[effect]}
+        values = {**drawn, **fixed}
+        return {effect: config_class(enabled=True, **values)}, values
     if effect == "sensor_bias":
         sign = 1.0 if rng.random() < 0.5 else -1.0
         bias = sign * _uniform(rng, effect, "tension_bias")
