@@ -13,6 +13,7 @@ from msarm.diagnose.builder import channels_from_logs
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
+    CableSlack,
     CommandDelay,
     DriveCogging,
     WinchFriction,
@@ -56,6 +57,8 @@ def _cases():
         (SensorBiasScale(shared=True, drive=True), np.array([1.5, 0.03])),
         (CableBacklash(DRUM), np.array([4e-4])),
         (CableBacklash(DRUM, shared=False), rng.uniform(1e-4, 6e-4, size=9)),
+        (CableSlack(tension_scale=4.0), np.array([3e-4])),
+        (CableSlack(tension_scale=4.0, shared=False), rng.uniform(1e-4, 6e-4, size=9)),
     ]
 
 
@@ -71,6 +74,8 @@ IDS = [
     "sensor_drive",
     "backlash",
     "backlash_per_cable",
+    "slack",
+    "slack_per_cable",
 ]
 
 
@@ -84,7 +89,7 @@ def test_noise_free_recovery(signals, case):
     np.testing.assert_allclose(result.parameters, truth, rtol=1e-6, atol=1e-9 * np.abs(truth).max())
 
 
-@pytest.mark.parametrize("case", [0, 2, 6], ids=["winch", "cogging", "elasticity"])
+@pytest.mark.parametrize("case", [0, 2, 6, 11], ids=["winch", "cogging", "elasticity", "slack"])
 def test_noisy_recovery_within_bootstrap_std(signals, case):
     effect, truth = _cases()[case]
     clean = effect.torque(signals, truth)

@@ -31,7 +31,14 @@ from msarm.diagnose.effects import CandidateEffect, register
 from msarm.diagnose.signals import Signals, direction_memory
 from msarm.errors import InputError
 
-__all__ = ["CableBacklash", "CableElasticity", "CommandDelay", "DriveCogging", "WinchFriction"]
+__all__ = [
+    "CableBacklash",
+    "CableElasticity",
+    "CableSlack",
+    "CommandDelay",
+    "DriveCogging",
+    "WinchFriction",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -309,3 +316,50 @@ class CableBacklash(CandidateEffect):
         self._check_cables(signals, self.n_cables)
         z = self.state(signals)
         return _per_cable_or_shared([0.5 * (z - signals.run_mean(z))], self.shared)
+
+
+@register
+class CableSlack(CandidateEffect):
+    """Slack, a dead zone of the cable: length paid out that carries no tension until taken up.
+
+    A cable with a slack ``s`` [m] in its dead zone is stretched only once the slack is taken
+    up, so the motor encoder's length exceeds the path length by ``s`` while the cable is
+    slack and by nothing once it is taut. The dead zone is smoothed over a tension scale
+    ``F_0`` [N] (a toe region): ``e_l = s (g(F) - mean_run g(F))`` with
+    ``g(F) = exp(-max(F, 0) / F_0)``, ``g = 1`` at zero tension and ``-> 0`` once ``F >> F_0``.
+    Demeaned per run like the length residual. Linear in ``s`` for a fixed ``F_0``, shared by
+    all cables or per cable. The term is seen only where tensions come near zero: on logs whose
+    cables never drop below a few ``F_0`` it explains nothing and is not selected.
+    """
+
+    name = "slack"
+    description = (
+        "e_l = s (g - mean_run g), g = exp(-F/F_0): slack s [m] paid out beyond the path while "
+        "the cable is slack, taken up over a tension scale F_0 (a dead zone)"
+    )
+    linear = True
+    groups = ("length",)
+
+    def __init__(self, n_cables: int = 9, tension_scale: float = 1.0, shared: bool = True) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+            tension_scale: ``F_0``, the tension over which the slack is taken up [N].
+            shared: One slack for all cables.
+        """
+        if not tension_scale > 0:
+            raise InputError(f"tension_scale: expected > 0 N, got {tension_scale}")
+        self.tension_scale = float(tension_scale)
+        self.n_cables, self.shared = int(n_cables), bool(shared)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = _names(("slack",), self.shared, self.n_cables)
+
+    def dead_zone(self, signals: Signals) -> FloatArray:
+        """``g(F)`` [-] of every cable, 1 when slack and 0 when taut, shape ``(T, m)``."""
+        return np.exp(-np.maximum(signals.tension, 0.0) / self.tension_scale)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        g = self.dead_zone(signals)
+        return _per_cable_or_shared([g - signals.run_mean(g)], self.shared)

@@ -67,7 +67,6 @@ __all__ = [
     "DahlFriction",
     "InertiaError",
     "MotorCogging",
-    "NOT_IMPLEMENTED",
     "NumpyOps",
     "Ops",
     "SensorBiasScale",
@@ -894,9 +893,3 @@ class InertiaError(CandidateEffect):
         for k in range(signals.n_samples):
             out[k] = self._regressor(signals.q[k], signals.qd[k], signals.qdd[k])[:, self.columns]
         return out
-
-
-#: Effects listed in the brief that are not implemented yet.
-NOT_IMPLEMENTED: tuple[str, ...] = (
-    "slack dead zone (elasticity explains taut cables only; slack is what is left)",
-)

@@ -52,6 +52,7 @@ from msarm.diagnose.builder import GROUPS, channels_from_logs
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
+    CableSlack,
     CommandDelay,
     DriveCogging,
     WinchFriction,
@@ -127,6 +128,7 @@ DEFAULT_CANDIDATES = (
     "command_delay",
     "elasticity",
     "backlash",
+    "slack",
 )
 
 
@@ -143,8 +145,8 @@ def available_candidates(
     late against the encoders, first order). Joint and drive: ``sensor`` (load-cell bias and
     scale shared by all cables). Drive terms: ``winch_friction``, ``motor_cogging``
     (:data:`DEFAULT_COGGING_PERIODS` periods per revolution) and ``command_delay``. Cable
-    length: ``elasticity`` and ``backlash``. Drive terms use ``spec.drum_radius`` and
-    ``spec.drive_gain``.
+    length: ``elasticity``, ``backlash`` and ``slack`` (a dead zone). Drive terms use
+    ``spec.drum_radius`` and ``spec.drive_gain``.
 
     Args:
         model: The nominal robot model.
@@ -165,6 +167,7 @@ def available_candidates(
         CommandDelay(n_cables=m),
         CableElasticity(n_cables=m),
         CableBacklash(spec.drum_radius, n_cables=m),
+        CableSlack(n_cables=m),
         MotorCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, n_cables=m, n_joints=n),
         TensionDelay(n_cables=m, n_joints=n),
     ]
