@@ -443,6 +443,10 @@ class DahlFriction(CandidateEffect):
         return _per_joint_design(signals, self.channels, self.state(signals))
 
 
+#: Samples (evenly spread) on which a nonlinear term's starting parameters are scanned.
+GUESS_SAMPLES = 4000
+
+
 @register
 class StribeckFriction(CandidateEffect):
     """Joint Stribeck friction (nonlinear).
@@ -508,23 +512,25 @@ class StribeckFriction(CandidateEffect):
     ) -> FloatArray:
         # For a fixed Stribeck velocity the term is linear in (c, s, b): scan v on a log grid,
         # solve least squares for the rest, start from the best (the fit is multimodal in v).
+        # A start needs no more than GUESS_SAMPLES evenly spread samples; every grid point's
+        # least squares is solved at once, A (V, T, p) by reduced QR.
         lower, _ = self.bounds()
         guess: list[float] = []
+        rows = np.unique(np.linspace(0, signals.n_samples - 1, GUESS_SAMPLES).astype(int))
+        grid = np.geomspace(float(lower[2]), self.max_stribeck_velocity, 40)
         for j in self.channels:
-            w = signals.qd[:, j]
-            sign = np.tanh(w / self.eps)
-            v_low, v_high = float(lower[2]), self.max_stribeck_velocity
-            best = (np.inf, [0.0, 0.0, float(np.sqrt(v_low * v_high))] + [0.0] * self.viscous)
+            best = [0.0, 0.0, float(np.sqrt(grid[0] * grid[-1]))] + [0.0] * self.viscous
             if residual is not None:
-                for v in np.geomspace(v_low, v_high, 40):
-                    bump = np.exp(-((w / v) ** 2)) * sign
-                    columns = [sign - bump, bump] + ([w] if self.viscous else [])
-                    A = np.stack(columns, axis=1)
-                    x, *_ = np.linalg.lstsq(A, residual[:, j], rcond=None)
-                    cost = float(np.sum((A @ x - residual[:, j]) ** 2))
-                    if cost < best[0]:
-                        best = (cost, [x[0], x[1], v] + ([x[2]] if self.viscous else []))
-            guess += best[1]
+                w, r = signals.qd[rows, j], residual[rows, j]
+                sign = np.tanh(w / self.eps)
+                bump = np.exp(-((w[None, :] / grid[:, None]) ** 2)) * sign
+                columns = [sign - bump, bump] + [np.broadcast_to(w, bump.shape)] * self.viscous
+                Q, R = np.linalg.qr(np.stack(columns, axis=2))
+                projected = np.einsum("vtp,t->vp", Q, r)
+                k = int(np.argmax(np.sum(projected**2, axis=1)))  # least cost: most explained
+                x = np.linalg.solve(R[k], projected[k])
+                best = [x[0], x[1], grid[k]] + ([x[2]] if self.viscous else [])
+            guess += best
         return np.asarray(guess, dtype=float)
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
