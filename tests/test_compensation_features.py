@@ -64,7 +64,9 @@ def test_features_from_a_hand_made_log_are_the_hand_computed_values(arm):
             "joint_memory",
             "cable_length_error",
             "tension",
-        )
+            "sign_error",
+        ),
+        sign_error_angle=0.02,
     )
     x = FeatureExtractor(arm, spec).from_log(hand_log(arm))
     q_ref = hand_log(arm).matrix("q_ref")
@@ -88,6 +90,9 @@ def test_features_from_a_hand_made_log_are_the_hand_computed_values(arm):
         expected = l0 - 0.003 * theta - arm.geometry(q[k]).lengths
         np.testing.assert_allclose(x[k, 20:29], expected, atol=1e-15)
     np.testing.assert_array_equal(x[:, 29:38], hand_log(arm).matrix("tension_motor"))
+    # sign of the tracking error, from the measured q: q_ref - q = 0.01 rad everywhere
+    np.testing.assert_allclose(x[:, 38:42], np.tanh(0.01 / 0.02), rtol=1e-12)
+    assert x.shape == (3, 42)
 
 
 def test_online_features_equal_offline_features(arm):

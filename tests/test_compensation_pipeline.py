@@ -46,7 +46,7 @@ def test_training_writes_a_checkpoint_for_this_model(trained):
     assert all(r2 > 0 for r2 in report.test_r2)  # explains some held-out T_f variance
 
 
-def test_feedforward_improves_tracking_on_the_held_out_tasks(trained):
+def test_feedforward_improves_tracking_and_final_error_on_the_held_out_tasks(trained):
     arm, recipe, report, folder = trained
     feedforward = load_feedforward(recipe.checkpoint, arm)
     comparison = compare_feedforward(
@@ -56,6 +56,7 @@ def test_feedforward_improves_tracking_on_the_held_out_tasks(trained):
         without, with_ff = comparison.metrics[task][WITHOUT], comparison.metrics[task][WITH]
         assert with_ff.completed
         assert np.mean(with_ff.joint_rmse) < 0.8 * np.mean(without.joint_rmse)
+        assert with_ff.final_error_mm < without.final_error_mm
     assert (folder / "compare" / "error_statistics.png").is_file()
 
 
@@ -85,3 +86,13 @@ def test_train_command_reads_a_recipe(tmp_path, trained):
     result = CliRunner().invoke(app, ["train", "--config", str(path), "--json"])
     assert result.exit_code == 0, result.output
     assert '"test_r2"' in result.output
+
+
+def test_compare_refuses_extra_tasks_that_were_trained_on(tmp_path, trained):
+    _, recipe, _, _ = trained
+    compensator = Compensator.load(recipe.checkpoint)
+    compensator.metadata["split"]["train"] = [3001, *compensator.metadata["split"]["train"]]
+    path = compensator.save(tmp_path / "trained_on_3001.pt")
+    result = CliRunner().invoke(app, ["compare", "--ff", str(path), "--extra", "2"])
+    assert result.exit_code != 0
+    assert "random-[3001]" in result.output and "were trained on" in result.output

@@ -18,6 +18,8 @@ group (paper 003 eq. 8)     value                                            siz
 ``tension`` (U_F)           load-cell tensions ``F_sensor`` [N]              m
 ``joint_memory``            Dahl-type memory of each joint's last direction  n
 ``cable_memory``            Dahl-type memory of each cable's last direction  m
+``sign_error``              ``tanh((q_r - q) / eps_e)``: the smoothed sign   n
+                            of each joint's tracking error (measured ``q``)
 ==========================  ===============================================  ==========
 
 The choice of inputs. All of paper 003's groups are available (43 inputs with 4 joints and
@@ -27,14 +29,20 @@ its ``dtau`` raises the commanded tensions, which raise those inputs, which rais
 Trained on runs without feedforward, a network with those inputs predicts the torque error
 well offline (R^2 about 0.95-0.98 on held-out runs) and drives the arm unstable in closed
 loop (final errors of 170-500 mm where the plain controller has 1-6 mm; see the README). The
-default inputs (:data:`DEFAULT_GROUPS`, 38) are therefore the robot's motion state: ``q``
-(wrap angles, moment arms and gravity load: posture-dependent capstan friction), ``qdot``
-and its smoothed signs (the friction direction), the sign of each cable's velocity, and two
-Dahl-type direction memories (paper 001 eq. 12-14 use the same idea for friction at a
-direction change): a resting cable sticks on the side of its last motion, which the
-instantaneous velocity no longer shows. The sign functions are smoothed (``tanh``) so that
-the network's input is continuous. ``theta_0``, ``q_0`` and the memories start at the first
-sample of a run: :meth:`reset` starts a new run.
+default inputs (:data:`DEFAULT_GROUPS`, 29) are the motion state of the task's reference:
+``q`` (wrap angles, moment arms and gravity load: posture-dependent capstan friction),
+``qdot`` and its smoothed signs (the friction direction), the sign of each cable's velocity,
+and the smoothed sign of each joint's tracking error. The last one is the only measured
+input: once the reference rests, the friction the arm still has to overcome is in the
+direction it must still move, which no function of the reference tells (a cable at rest
+sticks in its sheath on either side); without it the network can only predict the average
+torque at rest, and the final error does not improve (README). It makes the compensator a
+learned feedback on the error's sign, bounded by ``tanh``, not a pure feedforward. Two
+Dahl-type direction memories (``joint_memory``, ``cable_memory``; paper 001 eq. 12-14 use the
+same idea for friction at a direction change) remember which way each joint or cable last
+moved; they were the default before ``sign_error`` and are still available. The sign
+functions are smoothed (``tanh``) so that the network's input is continuous. ``theta_0``,
+``q_0`` and the memories start at the first sample of a run: :meth:`reset` starts a new run.
 
 The same code computes the features online (one tick, :meth:`FeatureExtractor.__call__`) and
 offline from a log (:meth:`FeatureExtractor.from_log`); a test keeps them equal.
@@ -67,18 +75,18 @@ FEATURE_GROUPS = {
     "tension": "cable",
     "joint_memory": "joint",
     "cable_memory": "cable",
+    "sign_error": "joint",
 }
 #: The default inputs: the state of paper 003 eq. 8 without the two groups that the
 #: compensator's own output feeds back into (``cable_length_error`` and ``tension``, see the
-#: module docstring), plus the direction memories.
+#: module docstring), plus the sign of the tracking error.
 DEFAULT_GROUPS = (
     "q",
     "qdot",
     "sign_qdot",
     "exp_sign_qdot",
     "exp_sign_ldot",
-    "joint_memory",
-    "cable_memory",
+    "sign_error",
 )
 
 
@@ -97,6 +105,7 @@ class FeatureSpec:
             from: ``"reference"`` (the task's reference: a true feedforward, independent of
             the robot's response) or ``"measured"`` (encoders and the controller's velocity
             estimate: a learned feedback).
+        sign_error_angle: ``eps_e`` of ``tanh((q_r - q) / eps_e)`` [rad] (``sign_error``).
     """
 
     groups: tuple[str, ...] = DEFAULT_GROUPS
@@ -106,6 +115,7 @@ class FeatureSpec:
     memory_angle: float = 0.05
     memory_length: float = 0.001
     source: str = "reference"
+    sign_error_angle: float = 0.005
 
     def __post_init__(self) -> None:
         unknown = [g for g in self.groups if g not in FEATURE_GROUPS]
@@ -123,6 +133,7 @@ class FeatureSpec:
             "drum_radius",
             "memory_angle",
             "memory_length",
+            "sign_error_angle",
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -221,6 +232,7 @@ class FeatureExtractor:
             "tension": tension,
             "joint_memory": joint_memory,
             "cable_memory": cable_memory,
+            "sign_error": np.tanh((reference[0] - q_meas) / spec.sign_error_angle),
         }
         return np.concatenate([values[group] for group in spec.groups])  # type: ignore[misc]
 
