@@ -91,8 +91,8 @@ def test_train_command_reads_a_recipe(tmp_path, trained):
 def test_compare_refuses_extra_tasks_that_were_trained_on(tmp_path, trained):
     _, recipe, _, _ = trained
     compensator = Compensator.load(recipe.checkpoint)
-    compensator.metadata["split"]["train"] = [3001, *compensator.metadata["split"]["train"]]
-    path = compensator.save(tmp_path / "trained_on_3001.pt")
+    compensator.metadata["split"]["train"] = [5001, *compensator.metadata["split"]["train"]]
+    path = compensator.save(tmp_path / "trained_on_5001.pt")
     result = CliRunner().invoke(app, ["compare", "--ff", str(path), "--extra", "2"])
     assert result.exit_code != 0
-    assert "random-[3001]" in result.output and "were trained on" in result.output
+    assert "random-[5001]" in result.output and "were trained on" in result.output
