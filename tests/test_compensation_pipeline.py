@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,22 +12,25 @@ from typer.testing import CliRunner
 from msarm.cli import app
 from msarm.compensation.checkpoint import CheckpointError, Compensator
 from msarm.compensation.compare import WITH, WITHOUT, compare_feedforward
-from msarm.compensation.dataset import DataConfig
-from msarm.compensation.feedforward import load_feedforward
-from msarm.compensation.network import NetworkConfig
+from msarm.compensation.feedforward import load_feedforward, trained_controller
 from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
-from msarm.io.config import write_config
+from msarm.control import ArmControllerConfig
+from msarm.io.config import load_config, write_config
 from msarm.model import load_arm
 from msarm.plant import DEFAULT_PLANT
+
+RECIPE = Path(__file__).resolve().parents[1] / "training" / "compensator.yaml"
 
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """A compensator trained on the paper-sized data set (14 runs: 10/2/2), one round."""
+    """The shipped recipe (paper-sized data set, 14 runs: 10/2/2; its features, controller
+    gains and iterative rounds), with its files in a temporary folder."""
     folder = tmp_path_factory.mktemp("compensator")
-    recipe = CompensatorRecipe(
-        data=DataConfig(n_runs=14, first_seed=1000, folder=str(folder / "data"), rounds=0),
-        network=NetworkConfig(max_epochs=100, patience=20),
+    shipped = load_config(RECIPE, CompensatorRecipe)
+    recipe = replace(
+        shipped,
+        data=replace(shipped.data, folder=str(folder / "data")),
         checkpoint=str(folder / "compensator.pt"),
     )
     arm = load_arm()
@@ -43,6 +47,10 @@ def test_training_writes_a_checkpoint_for_this_model(trained):
     }
     compensator = Compensator.load(recipe.checkpoint, expected_model_sha256=arm.sha256)
     assert compensator.metadata["feature_spec"]["groups"] == list(recipe.features.groups)
+    # the gains it was trained with travel with it (compare and track --ff run them)
+    assert trained_controller(compensator) == recipe.controller != ArmControllerConfig()
+    del compensator.metadata["recipe"]
+    assert trained_controller(compensator) == ArmControllerConfig()
     assert all(r2 > 0 for r2 in report.test_r2)  # explains some held-out T_f variance
 
 
@@ -81,7 +89,11 @@ def test_resumed_training_gives_the_same_compensator(trained, tmp_path):
 def test_train_command_reads_a_recipe(tmp_path, trained):
     _, recipe, _, _ = trained
     path = tmp_path / "recipe.yaml"
-    short = replace(recipe, network=replace(recipe.network, max_epochs=3))
+    short = replace(
+        recipe,
+        data=replace(recipe.data, rounds=0),
+        network=replace(recipe.network, max_epochs=3),
+    )
     write_config(replace(short, checkpoint=str(tmp_path / "cli.pt")), path)
     result = CliRunner().invoke(app, ["train", "--config", str(path), "--json"])
     assert result.exit_code == 0, result.output

@@ -142,8 +142,7 @@ def compare_command(
     from rich.progress import Progress
 
     from msarm.compensation.compare import WITH, WITHOUT, compare_feedforward
-    from msarm.compensation.feedforward import load_feedforward
-    from msarm.control import ArmControllerConfig
+    from msarm.compensation.feedforward import load_feedforward, trained_controller
     from msarm.model import load_arm
 
     if not ff.is_file():
@@ -160,7 +159,7 @@ def compare_command(
             f"expected fewer extra tasks (the compensator's runs are {sorted(seen)})"
         )
     held_out += [s for s in more if s not in held_out]
-    gains = _controller_from(meta) or ArmControllerConfig()
+    gains = trained_controller(feedforward.compensator)
     n_runs = 2 * (4 + len(held_out))
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task("compare", total=n_runs)
@@ -193,16 +192,6 @@ def compare_command(
         )
     for kind, path in result.files.items():
         out_console.print(f"{kind}: {path}")
-
-
-def _controller_from(meta: dict):
-    from msarm.control import ArmControllerConfig
-    from msarm.io.config import load_config
-
-    recipe = meta.get("recipe", {})
-    if "controller" not in recipe:
-        return None
-    return load_config(recipe["controller"], ArmControllerConfig)
 
 
 def comparison_table(result, joint_names) -> Table:

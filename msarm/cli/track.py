@@ -83,7 +83,11 @@ def track_command(
     plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
     seed: Annotated[int, typer.Option(help="Seed of the plant's sensor noise.")] = 0,
     controller: Annotated[
-        Path | None, typer.Option(help="YAML file of controller gains (ArmControllerConfig).")
+        Path | None,
+        typer.Option(
+            help="YAML file of controller gains (ArmControllerConfig); default: the defaults, "
+            "or with --ff the gains the compensator was trained with."
+        ),
     ] = None,
     ff: Annotated[
         Path | None, typer.Option("--ff", help="Feedforward compensator checkpoint.")
@@ -109,16 +113,14 @@ def track_command(
     arm = load_arm()
     task_obj = get_task(task, arm)
     plant_config = resolve_plant(plant)
-    gains = (
-        ArmControllerConfig()
-        if controller is None
-        else load_config(controller, ArmControllerConfig)
-    )
+    gains = None if controller is None else load_config(controller, ArmControllerConfig)
     feedforward = None
     if ff is not None:
-        from msarm.compensation.feedforward import load_feedforward
+        from msarm.compensation.feedforward import load_feedforward, trained_controller
 
         feedforward = load_feedforward(ff, arm)
+        gains = gains or trained_controller(feedforward.compensator)
+    gains = gains or ArmControllerConfig()
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
     out_dir = out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}"
     with Progress(transient=True, disable=json_output) as bar:

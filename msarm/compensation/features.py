@@ -28,11 +28,12 @@ cable's stretch, hence its tension), are outputs of the very loop the compensato
 its ``dtau`` raises the commanded tensions, which raise those inputs, which raise ``dtau``.
 Trained on runs without feedforward, a network with those inputs predicts the torque error
 well offline (R^2 about 0.95-0.98 on held-out runs) and drives the arm unstable in closed
-loop (final errors of 170-500 mm where the plain controller has 1-6 mm; see the README). The
-default inputs (:data:`DEFAULT_GROUPS`, 29) are the motion state of the task's reference:
-``q`` (wrap angles, moment arms and gravity load: posture-dependent capstan friction),
-``qdot`` and its smoothed signs (the friction direction), the sign of each cable's velocity,
-and the smoothed sign of each joint's tracking error. The last one is the only measured
+loop (final errors of 170-500 mm where the plain controller has 1-6 mm, both with the
+default gains; see the README). The default inputs (:data:`DEFAULT_GROUPS`, 29) are the
+motion state of the task's reference: ``q`` (wrap angles, moment arms and gravity load:
+posture-dependent capstan friction), ``qdot`` and its smoothed signs (the friction
+direction), the sign of each cable's velocity, and the smoothed sign of each joint's
+tracking error. The last one is the only measured
 input: once the reference rests, the friction the arm still has to overcome is in the
 direction it must still move, which no function of the reference tells (a cable at rest
 sticks in its sheath on either side); without it the network can only predict the average

@@ -14,9 +14,11 @@ from numpy.typing import NDArray
 from msarm.compensation.checkpoint import Compensator
 from msarm.compensation.fast import FastCompensator
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
+from msarm.control import ArmControllerConfig
+from msarm.io.config import load_config
 from msarm.model import RobotModel
 
-__all__ = ["LearnedFeedforward", "feature_spec_of", "load_feedforward"]
+__all__ = ["LearnedFeedforward", "feature_spec_of", "load_feedforward", "trained_controller"]
 
 FloatArray = NDArray[np.float64]
 
@@ -26,6 +28,18 @@ def feature_spec_of(compensator: Compensator) -> FeatureSpec:
     raw = dict(compensator.metadata["feature_spec"])
     raw["groups"] = tuple(raw["groups"])
     return FeatureSpec(**raw)
+
+
+def trained_controller(compensator: Compensator) -> ArmControllerConfig:
+    """The controller gains a compensator was trained with (its recipe's), else the defaults.
+
+    The feedforward learned the torque error that this controller leaves, so it is run, and
+    compared, with the same gains.
+    """
+    recipe = compensator.metadata.get("recipe", {})
+    if "controller" not in recipe:
+        return ArmControllerConfig()
+    return load_config(recipe["controller"], ArmControllerConfig)
 
 
 class LearnedFeedforward:
