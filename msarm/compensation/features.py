@@ -33,11 +33,11 @@ default gains; see the README). The default inputs (:data:`DEFAULT_GROUPS`, 29) 
 motion state of the task's reference: ``q`` (wrap angles, moment arms and gravity load:
 posture-dependent capstan friction), ``qdot`` and its smoothed signs (the friction
 direction), the sign of each cable's velocity, and the smoothed sign of each joint's
-tracking error. The last one is the only measured
-input: once the reference rests, the friction the arm still has to overcome is in the
-direction it must still move, which no function of the reference tells (a cable at rest
-sticks in its sheath on either side); without it the network can only predict the average
-torque at rest, and the final error does not improve (README). It makes the compensator a
+tracking error. The last one is the only measured input: once the reference rests, the
+friction the arm still has to overcome is in the direction it must still move, which no
+function of the reference tells (a cable at rest sticks in its sheath on either side);
+without it the network can only predict the average torque at rest, and the final error
+does not improve (README). It makes the compensator a
 learned feedback on the error's sign, bounded by ``tanh``, not a pure feedforward. Two
 Dahl-type direction memories (``joint_memory``, ``cable_memory``; paper 001 eq. 12-14 use the
 same idea for friction at a direction change) remember which way each joint or cable last
