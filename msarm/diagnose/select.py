@@ -69,7 +69,6 @@ from msarm.diagnose.effects import (
     TensionDelay,
     ViscousFriction,
 )
-from msarm.diagnose.fitting import _solve_linear
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.result import Diagnosis, SelectedEffect
 from msarm.diagnose.signals import Signals
@@ -82,7 +81,6 @@ from msarm.diagnose.stack import (
     FittedModel,
     Layout,
     Sampled,
-    Stacked,
     channel_rmse,
     fit_together,
     group_scores,
@@ -112,6 +110,8 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
+#: Rounds of the joint fit by blocks in each bootstrap draw (it starts from the full fit).
+BOOTSTRAP_ROUNDS = 2
 #: Cogging periods per motor revolution of the default cogging candidates (motor datasheet).
 DEFAULT_COGGING_PERIODS = 24
 #: The candidates tried by default, by name (see :func:`available_candidates`).
@@ -320,25 +320,13 @@ def _bootstrap(
     """Bootstrap over training runs: each term's parameter std and its confidence."""
     terms = model.terms
     train, hold = sampled.signals["train"], sampled.signals["hold"]
-    r_train, r_hold = sampled.residual["train"], sampled.residual["hold"]
+    r_hold = sampled.residual["hold"]
     nan_std = [np.full(t.n_parameters, np.nan) for t in terms]
     labels = np.unique(train.run)
     if n_boot < 2 or labels.size < 2 or not terms:
         return nan_std, [float("nan")] * len(terms)
     rng = np.random.default_rng(seed)
     members = [np.flatnonzero(train.run == label) for label in labels]
-    linear = [k for k, t in enumerate(terms) if t.linear]
-    nonlinear = [k for k, t in enumerate(terms) if not t.linear]
-    if linear:
-        stacked = Stacked([terms[k] for k in linear])
-        design = np.concatenate([sampled.design(terms[k], "train") for k in linear], axis=2)
-    left = r_train
-    for k in linear:
-        left = left - sampled.predict(terms[k], model.parameters[k], "train")
-    lefts = {}
-    for k in nonlinear:
-        lefts[k] = left
-        left = left - sampled.predict(terms[k], model.parameters[k], "train")
     hold_runs = [hold.run == label for label in np.unique(hold.run)]
     samples = [np.empty((n_boot, t.n_parameters)) for t in terms]
     needed = np.zeros(len(terms))
@@ -346,15 +334,9 @@ def _bootstrap(
         weights = np.zeros(train.n_samples)
         for k in rng.integers(0, labels.size, size=labels.size):
             weights[members[k]] += 1.0
-        if linear:
-            root = np.sqrt(weights)
-            theta = _solve_linear(design * root[:, None, None], r_train * root[:, None])
-            for k, part in zip(linear, stacked.split(theta), strict=True):
-                samples[k][b] = part
-        for k in nonlinear:
-            samples[k][b], _ = sampled.fit_nonlinear(
-                terms[k], lefts[k], model.parameters[k], weights
-            )
+        refit = fit_together(terms, sampled, weights, model.parameters, BOOTSTRAP_ROUNDS)
+        for k, theta in enumerate(refit.parameters):
+            samples[k][b] = theta
         parts = [sampled.predict(term, samples[k][b], "hold") for k, term in enumerate(terms)]
         full = np.sum(parts, axis=0)
         for mask in hold_runs:

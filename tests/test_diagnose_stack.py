@@ -1,0 +1,78 @@
+"""The selection's joint fit by blocks (msarm.diagnose.stack.fit_together)."""
+
+from __future__ import annotations
+
+import numpy as np
+from test_diagnose_effects import _make_signals
+
+from msarm.diagnose.effects import StribeckFriction, ViscousFriction
+from msarm.diagnose.stack import (
+    DiagnosisData,
+    Embedded,
+    Layout,
+    Sampled,
+    fit_together,
+    group_scores,
+)
+
+
+def _data(arm, truth_terms, thetas):
+    """Diagnosis data whose joint residual is exactly the given terms' sum (half held out)."""
+    signals = _make_signals(arm, seed=4)
+    torque = sum(np.asarray(t.torque(signals, p)) for t, p in zip(truth_terms, thetas, strict=True))
+    layout = Layout({"joint": torque})
+    stacked = layout.stack({"joint": torque})
+    train, hold = signals.run < 2, signals.run >= 2
+    candidates = tuple(Embedded(t, layout) for t in truth_terms)
+    data = DiagnosisData(
+        model=arm,
+        train=signals.take(train),
+        hold=signals.take(hold),
+        layout=layout,
+        r_train=stacked[train],
+        r_hold=stacked[hold],
+        candidates=candidates,
+        skipped={},
+        train_runs=("a", "b"),
+        holdout_runs=("c",),
+        channel_names={"joint": tuple(arm.joint_names)},
+    )
+    return data, candidates
+
+
+def _train_error(sampled, model):
+    return float(np.sum((sampled.residual["train"] - model.predict(sampled, "train")) ** 2))
+
+
+def test_blocks_refitted_in_turn_beat_one_pass(arm):
+    viscous, stribeck = ViscousFriction(), StribeckFriction()
+    v_true = np.array([0.05, 0.08, 0.04, 0.06])
+    s_true = np.tile([0.2, 0.35, 0.3], 4)  # coulomb, static, Stribeck velocity per joint
+    data, (v_term, s_term) = _data(arm, [viscous, stribeck], [v_true, s_true])
+    sampled = Sampled(data, 20_000)
+    one_pass = fit_together([v_term, s_term], sampled, rounds=1)
+    joint = fit_together([v_term, s_term], sampled)
+    # one pass: the viscous block, fitted first, takes up part of the Coulomb friction
+    assert np.all(one_pass.parameters[0] > 4 * v_true)
+    # refitting the blocks in turn lowers the error and moves every estimate towards the truth
+    assert _train_error(sampled, joint) < 0.5 * _train_error(sampled, one_pass)
+    assert np.all(np.abs(joint.parameters[0] - v_true) < np.abs(one_pass.parameters[0] - v_true))
+    hold = {
+        name: group_scores(data.layout, sampled.residual["hold"], m.predict(sampled, "hold"))
+        for name, m in (("one pass", one_pass), ("joint", joint))
+    }
+    assert hold["joint"]["joint"] > hold["one pass"]["joint"]
+    # warm-started from the truth, the fit stays there (the truth is its fixed point)
+    exact = fit_together([v_term, s_term], sampled, initial=[v_true, s_true])
+    np.testing.assert_allclose(exact.parameters[0], v_true, rtol=1e-6)
+    np.testing.assert_allclose(exact.parameters[1], s_true, rtol=1e-6)
+
+
+def test_weights_and_a_single_block(arm):
+    viscous = ViscousFriction()
+    v_true = np.array([0.05, 0.08, 0.04, 0.06])
+    data, (v_term,) = _data(arm, [viscous], [v_true])
+    sampled = Sampled(data, 20_000)
+    weights = np.where(sampled.signals["train"].run == 0, 2.0, 0.0)  # one run counted twice
+    for model in (fit_together([v_term], sampled), fit_together([v_term], sampled, weights)):
+        np.testing.assert_allclose(model.parameters[0], v_true, rtol=1e-9)
