@@ -318,8 +318,8 @@ def fit_together(
     than :data:`BACKFIT_TOLERANCE` (relative) or after ``rounds`` rounds. Each block fit is
     optimal given the others, so the error never rises; with one block the first round is
     the answer, and so it is when the blocks act on different columns. Strongly correlated
-    blocks (a viscous term beside a Stribeck term) converge
-    slowly: the fit is then better than one pass, not yet the joint optimum.
+    blocks (a viscous term beside a Stribeck term) converge slowly: the fit is then better
+    than one pass, not yet the joint optimum.
 
     Args:
         terms: The terms, each embedded in the stack.
@@ -347,8 +347,8 @@ def fit_together(
         np.concatenate([sampled.design(t, "train") for t in linear], axis=2) if linear else None
     )
 
-    def left_by(block: int) -> FloatArray:
-        """The residual less every block's prediction but ``block``'s."""
+    def left_by(block: int | None) -> FloatArray:
+        """The residual less every block's prediction but ``block``'s (all when None)."""
         return r - sum((v for k, v in prediction.items() if k != block), np.zeros_like(r))
 
     best = np.inf
@@ -364,7 +364,7 @@ def fit_together(
             )
             parameters[id(term)] = theta
             prediction[id(term)] = sampled.predict(term, theta, "train")
-        error = float(np.sum(w[:, None] * left_by(-1) ** 2))
+        error = float(np.sum(w[:, None] * left_by(None) ** 2))
         if not error < best * (1.0 - BACKFIT_TOLERANCE):
             break
         best = error
