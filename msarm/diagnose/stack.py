@@ -245,6 +245,7 @@ class Sampled:
         }
         self._designs: dict[tuple[int, str], FloatArray] = {}
         self._problems: dict[int, _NonlinearProblem] = {}
+        self._joint_design: tuple[tuple[int, ...], FloatArray] | None = None
 
     def fit_nonlinear(
         self,
@@ -273,6 +274,17 @@ class Sampled:
         if key not in self._designs:
             self._designs[key] = term.design(self.full[split])[self.rows[split]]
         return self._designs[key]
+
+    def joint_design(self, terms: Sequence[CandidateEffect]) -> FloatArray:
+        """Linear terms' training designs side by side, ``(T, W, sum p)``.
+
+        The last set asked for is kept: a bootstrap refits the same set at every draw.
+        """
+        key = tuple(map(id, terms))
+        if self._joint_design is None or self._joint_design[0] != key:
+            design = np.concatenate([self.design(t, "train") for t in terms], axis=2)
+            self._joint_design = (key, design)
+        return self._joint_design[1]
 
     def predict(self, term: CandidateEffect, theta: FloatArray, split: str) -> FloatArray:
         """A term's prediction on the ``"train"`` or ``"hold"`` samples, ``(T, W)``."""
@@ -332,7 +344,6 @@ def fit_together(
     """
     r = sampled.residual["train"]
     w = np.ones(r.shape[0]) if weights is None else np.asarray(weights, dtype=float)
-    root = np.sqrt(w)[:, None]
     linear = [t for t in terms if t.linear]
     nonlinear = [t for t in terms if not t.linear]
     parameters: dict[int, FloatArray] = {}
@@ -343,9 +354,10 @@ def fit_together(
             parameters[id(term)] = np.asarray(theta, dtype=float)
             if not term.linear:
                 prediction[id(term)] = sampled.predict(term, parameters[id(term)], "train")
-    design = (
-        np.concatenate([sampled.design(t, "train") for t in linear], axis=2) if linear else None
-    )
+    design = sampled.joint_design(linear) if linear else None
+    if design is not None and weights is not None:
+        root = np.sqrt(w)[:, None]
+        weighted = design * root[:, :, None]  # the weighted least squares' design, once
 
     def left_by(block: int | None) -> FloatArray:
         """The residual less every block's prediction but ``block``'s (all when None)."""
@@ -354,7 +366,11 @@ def fit_together(
     best = np.inf
     for _ in range(rounds if _coupled(linear, nonlinear) else 1):
         if design is not None:
-            theta = _solve_linear(design * root[:, :, None], left_by(_LINEAR_BLOCK) * root)
+            left = left_by(_LINEAR_BLOCK)
+            if weights is None:
+                theta = _solve_linear(design, left)
+            else:
+                theta = _solve_linear(weighted, left * root)
             for term, part in zip(linear, Stacked(linear).split(theta), strict=True):
                 parameters[id(term)] = part
             prediction[_LINEAR_BLOCK] = np.einsum("tnp,p->tn", design, theta)
