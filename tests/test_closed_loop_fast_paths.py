@@ -10,7 +10,7 @@ import pytest
 from msarm.control import MuscleSpaceController
 from msarm.control.kernels import activation_and_reach, filter_and_pid, force_bounds
 from msarm.errors import InputError
-from msarm.plant import DEFAULT_PLANT, ArmPlant
+from msarm.plant import DEFAULT_PLANT, ArmPlant, Effect, SimulationDivergedError
 from msarm.plant.config import SensorNoiseConfig
 from msarm.plant.effects import SensorNoise, SensorReadings
 
@@ -123,6 +123,46 @@ def test_plant_steps_the_same_one_step_at_a_time_or_many(arm):
         plants[1].step(1)
     for key, value in plants[0].ground_truth().items():
         np.testing.assert_array_equal(value, plants[1].ground_truth()[key], err_msg=key)
+
+
+class _NoWinchTorque(Effect):
+    """A user effect that adds nothing: it only makes the plant step in its Python loop."""
+
+    name = "nothing"
+
+    def winch_torque(self, state):
+        return np.zeros(state.lengths.shape), np.zeros(state.lengths.shape)
+
+
+def test_compiled_step_loop_gives_the_python_loops_bits(arm):
+    compiled = ArmPlant(arm, DEFAULT_PLANT, seed=0)
+    python = ArmPlant(arm, DEFAULT_PLANT, seed=0, extra_effects=[_NoWinchTorque()])
+    assert compiled.compiled and not python.compiled
+    rng = np.random.default_rng(5)
+    for plant in (compiled, python):
+        plant.reset(POSTURE, tensions=np.full(arm.n_cables, 25.0))
+    for _ in range(150):  # 0.6 s of changing commands, 4 plant steps each
+        command = rng.uniform(10.0, 80.0, arm.n_cables)
+        for plant in (compiled, python):
+            plant.command(command)
+            plant.step(4)
+    assert compiled.time == python.time
+    want = python.ground_truth()
+    for key, value in compiled.ground_truth().items():
+        np.testing.assert_array_equal(_bits(value), _bits(want[key]), err_msg=key)
+    np.testing.assert_array_equal(_bits(compiled.motor_torque), _bits(python.motor_torque))
+
+
+@pytest.mark.parametrize("extra", [[], [_NoWinchTorque()]], ids=["compiled", "python"])
+def test_both_step_loops_stop_on_divergence_with_time_and_state(arm, extra):
+    plant = ArmPlant(arm, DEFAULT_PLANT, seed=0, extra_effects=extra)
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 25.0))
+    plant.step(4)
+    plant.mj_data.xfrc_applied[-1, 0] = np.inf  # an infinite push on the hand
+    with pytest.raises(SimulationDivergedError, match="diverged at t = 0.00") as caught:
+        plant.step(4)
+    assert 0.0 < caught.value.time <= 0.008
+    assert set(caught.value.state) == {"q", "qdot", "winch_angle"}
 
 
 def test_controller_refuses_references_of_the_wrong_shape(arm):

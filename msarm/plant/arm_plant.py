@@ -26,9 +26,10 @@ from numpy.typing import ArrayLike, NDArray
 from msarm.errors import InputError, MsarmError
 from msarm.model import RobotModel
 from msarm.muscle.geometry import wrap_angles
-from msarm.plant.cable_kernel import PARAMS, step_cables
+from msarm.plant.cable_kernel import PARAMS, step_cables, step_plant
 from msarm.plant.config import PlantConfig
 from msarm.plant.effects import CableState, Effect, SensorReadings, build_effects
+from msarm.plant.mujoco_c import step_functions
 
 __all__ = ["ArmPlant", "SimulationDivergedError"]
 
@@ -143,6 +144,24 @@ class ArmPlant:
         self.tension_insertion = np.zeros(m)
         self.motor_torque = np.zeros(m)
         self._kernel_args = self._cable_kernel_args()
+        # the whole step loop compiled (MuJoCo called through its C addresses) when MuJoCo's
+        # library is found and no user hook must run in Python between the two halves
+        functions = step_functions()
+        self._compiled_args = (
+            None
+            if functions is None or self._has_user_hooks
+            else (
+                functions.step1,
+                functions.step2,
+                self.mj_model._address,
+                self.mj_data._address,
+                *self._kernel_args,
+                self.mj_data.qpos,
+                self.mj_data.qvel,
+                self.mj_data.warning.number,
+                _BADQACC,
+            )
+        )
         # live view of MuJoCo's warning counters (read after every period)
         self._warnings = self.mj_data.warning.number
 
@@ -151,6 +170,14 @@ class ArmPlant:
     def time(self) -> float:
         """Simulated time [s]."""
         return float(self.mj_data.time)
+
+    @property
+    def compiled(self) -> bool:
+        """Whether :meth:`step` runs its whole loop compiled (see :mod:`msarm.plant.mujoco_c`).
+
+        False where MuJoCo's library was not found or a user effect hooks into the step.
+        """
+        return self._compiled_args is not None
 
     @property
     def n_cables(self) -> int:
@@ -281,6 +308,10 @@ class ArmPlant:
         Raises:
             SimulationDivergedError: NaN in the state or a MuJoCo instability warning.
         """
+        if self._compiled_args is not None:
+            if step_plant(n_steps, *self._compiled_args):
+                self._raise_diverged()
+            return
         model, data = self.mj_model, self.mj_data
         step1, step2, args = mujoco.mj_step1, mujoco.mj_step2, self._kernel_args
         hooks = self._user_hooks if self._has_user_hooks else None
@@ -348,22 +379,27 @@ class ArmPlant:
         )
 
     def _check_finite(self) -> None:
-        data, state = self.mj_data, self._state
+        state = self._state
         # one sum is NaN or inf exactly when some element is (a cheap check every period)
         total = float(state.q.sum() + state.qdot.sum() + state.winch_speed.sum())
         unstable = self._warnings[_BADQACC] > 0
         if unstable or not math.isfinite(total):
-            state = {
-                "q": data.qpos.tolist(),
-                "qdot": data.qvel.tolist(),
-                "winch_angle": self._state.winch_angle.tolist(),
-            }
-            raise SimulationDivergedError(
-                f"simulation diverged at t = {self.time:.4f} s: q = {state['q']}, "
-                f"qdot = {state['qdot']}",
-                self.time,
-                state,
-            )
+            self._raise_diverged()
+
+    def _raise_diverged(self) -> None:
+        """Raise :class:`SimulationDivergedError` with the time and the state."""
+        data = self.mj_data
+        state = {
+            "q": data.qpos.tolist(),
+            "qdot": data.qvel.tolist(),
+            "winch_angle": self._state.winch_angle.tolist(),
+        }
+        raise SimulationDivergedError(
+            f"simulation diverged at t = {self.time:.4f} s: q = {state['q']}, "
+            f"qdot = {state['qdot']}",
+            self.time,
+            state,
+        )
 
     @staticmethod
     def _vector(value: ArrayLike, size: int, name: str) -> FloatArray:

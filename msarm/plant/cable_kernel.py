@@ -35,7 +35,9 @@ import math
 
 import numba
 
-__all__ = ["PARAMS", "step_cables"]
+from msarm.plant.mujoco_c import call_model_data
+
+__all__ = ["PARAMS", "step_cables", "step_plant"]
 
 #: Layout of the scalar parameter vector of :func:`step_cables`.
 PARAMS = (
@@ -211,3 +213,120 @@ def step_cables(
         start = jac_rowadr[i]
         for p in range(jac_rownnz[i]):
             qfrc[jac_colind[start + p]] -= jac_data[start + p] * tension_insertion[i]
+
+
+@numba.njit(cache=True)
+def step_plant(
+    n_steps,
+    step1,
+    step2,
+    model,
+    data,
+    params,
+    lengths,
+    velocities,
+    wrap,
+    command,
+    torque_limit,
+    length_ref,
+    stretch_motor0,
+    stretch_insertion0,
+    user_torque,
+    user_slope,
+    user_factor,
+    theta,
+    omega,
+    slide,
+    tension_motor,
+    tension_insertion,
+    motor_torque,
+    jac_data,
+    jac_rownnz,
+    jac_rowadr,
+    jac_colind,
+    qfrc,
+    qpos,
+    qvel,
+    warning_counts,
+    unstable_warning,
+):
+    """``n_steps`` whole plant steps, compiled: ``mj_step1``, :func:`step_cables`, ``mj_step2``.
+
+    The same operations in the same order as the plant's Python loop, so the same bits.
+    Afterwards it tells whether the simulation diverged, as the plant's check does: a NaN or
+    infinity in the joint angles, joint speeds or winch speeds, or MuJoCo's instability warning.
+
+    Args:
+        n_steps: Number of plant steps.
+        step1: Address of MuJoCo's ``mj_step1`` (:func:`msarm.plant.mujoco_c.step_functions`).
+        step2: Address of MuJoCo's ``mj_step2``.
+        model: Address of the ``mjModel`` (``MjModel._address``).
+        data: Address of the ``mjData`` (``MjData._address``) whose arrays the cable
+            arguments view (``ten_length``, ``ten_velocity``, ``ten_J``, ``qfrc_applied``).
+        params: The remaining arguments are those of :func:`step_cables`, in its order.
+        lengths: See :func:`step_cables`.
+        velocities: See :func:`step_cables`.
+        wrap: See :func:`step_cables`.
+        command: See :func:`step_cables`.
+        torque_limit: See :func:`step_cables`.
+        length_ref: See :func:`step_cables`.
+        stretch_motor0: See :func:`step_cables`.
+        stretch_insertion0: See :func:`step_cables`.
+        user_torque: See :func:`step_cables`.
+        user_slope: See :func:`step_cables`.
+        user_factor: See :func:`step_cables`.
+        theta: See :func:`step_cables`.
+        omega: See :func:`step_cables`.
+        slide: See :func:`step_cables`.
+        tension_motor: See :func:`step_cables`.
+        tension_insertion: See :func:`step_cables`.
+        motor_torque: See :func:`step_cables`.
+        jac_data: See :func:`step_cables`.
+        jac_rownnz: See :func:`step_cables`.
+        jac_rowadr: See :func:`step_cables`.
+        jac_colind: See :func:`step_cables`.
+        qfrc: See :func:`step_cables`.
+        qpos: MuJoCo's joint angles [rad], ``(n,)`` (a view of ``MjData.qpos``).
+        qvel: MuJoCo's joint speeds [rad/s], ``(n,)`` (a view of ``MjData.qvel``).
+        warning_counts: MuJoCo's warning counters (a view of ``MjData.warning.number``).
+        unstable_warning: Index of the instability warning (``mjWARN_BADQACC``).
+
+    Returns:
+        True if the simulation diverged.
+    """
+    for _ in range(n_steps):
+        call_model_data(step1, model, data)
+        step_cables(
+            params,
+            lengths,
+            velocities,
+            wrap,
+            command,
+            torque_limit,
+            length_ref,
+            stretch_motor0,
+            stretch_insertion0,
+            user_torque,
+            user_slope,
+            user_factor,
+            theta,
+            omega,
+            slide,
+            tension_motor,
+            tension_insertion,
+            motor_torque,
+            jac_data,
+            jac_rownnz,
+            jac_rowadr,
+            jac_colind,
+            qfrc,
+        )
+        call_model_data(step2, model, data)
+    total = 0.0
+    for value in qpos:
+        total += value
+    for value in qvel:
+        total += value
+    for value in omega:
+        total += value
+    return warning_counts[unstable_warning] > 0 or not math.isfinite(total)
