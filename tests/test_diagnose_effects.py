@@ -9,6 +9,7 @@ import pytest
 from msarm.diagnose.effects import (
     CANDIDATES,
     CableCapstanFriction,
+    CableCapstanHysteresis,
     CandidateEffect,
     CasadiOps,
     CoulombFriction,
@@ -23,7 +24,7 @@ from msarm.diagnose.effects import (
     register,
 )
 from msarm.diagnose.fitting import bootstrap, fit
-from msarm.diagnose.signals import Signals
+from msarm.diagnose.signals import Signals, play_memory
 from msarm.errors import InputError
 from msarm.model import load_arm
 
@@ -114,6 +115,8 @@ def _cases(arm):
         (CableCapstanFriction(), np.array([0.12])),
         (CableCapstanFriction(per_cable=True), rng.uniform(0.05, 0.3, size=9)),
         (CableCapstanFriction(linearised=True), np.array([0.12])),
+        (CableCapstanHysteresis(), np.array([0.02, 0.06, 0.03, 0.01])),
+        (CableCapstanHysteresis(linearised=True), np.array([0.02, 0.06, 0.03, 0.01])),
         (MotorCogging(n_periods=6, drum_radius=DRUM), rng.normal(0, 0.02, size=18)),
         (MotorCogging(n_periods=6, drum_radius=DRUM, shared=True), np.array([0.02, -0.01])),
         (SensorBiasScale(), np.concatenate([rng.normal(0, 1.0, 9), rng.normal(0, 0.05, 9)])),
@@ -135,6 +138,8 @@ def _case_ids():
         "capstan",
         "capstan_per_cable",
         "capstan_linearised",
+        "capstan_hysteresis",
+        "capstan_hysteresis_linearised",
         "cogging",
         "cogging_shared",
         "sensor",
@@ -163,10 +168,11 @@ def test_noise_free_recovery(arm, signals, case):
     [
         (CoulombFriction(), np.array([0.3, 0.5, 0.2, 0.4])),
         (CableCapstanFriction(), np.array([0.12])),
+        (CableCapstanHysteresis(), np.array([0.02, 0.06, 0.03, 0.01])),
         (StribeckFriction(joints=[1]), np.array([0.3, 0.6, 0.15])),
         (SensorBiasScale(shared=True), np.array([0.8, 0.04])),
     ],
-    ids=["coulomb", "capstan", "stribeck", "sensor_shared"],
+    ids=["coulomb", "capstan", "capstan_hysteresis", "stribeck", "sensor_shared"],
 )
 def test_noisy_recovery_within_bootstrap_std(signals, effect, truth):
     clean = effect.torque(signals, truth)
@@ -394,3 +400,41 @@ def test_dahl_state_lags_behind_a_reversal():
     assert z[-1] == pytest.approx(-1.0, abs=1e-6)
     steep = DahlFriction(n_joints=1, rate=1e5).state(signals)[:, 0]
     np.testing.assert_allclose(steep[5:995], 1.0, atol=1e-6)  # a large a: Coulomb
+
+
+def test_play_memory_by_hand():
+    """Anchor a = clip(a, x - w, x + w), z = (a - x) / w; a restarts at x in each run."""
+    x = np.array([0.0, 1.0, 2.0, 1.5, 0.5, 0.5, 3.0, 2.9])[:, None]
+    run = np.array([0, 0, 0, 0, 0, 0, 1, 1])
+    z = play_memory(x, run, 0.5)[:, 0]
+    # anchors: 0, 0.5, 1.5, 1.5, 1.0, 1.0 | 3.0, 3.0
+    np.testing.assert_allclose(z, [0.0, -1.0, -1.0, 0.0, 1.0, 1.0, 0.0, 0.2], atol=1e-12)
+    with pytest.raises(InputError, match="play width"):
+        play_memory(x, run, 0.0)
+
+
+def test_capstan_hysteresis_keeps_the_friction_of_a_cable_at_rest():
+    """Pulled in, then at rest: the stiction term still delivers less; the smooth one does not."""
+    T = 300
+    length = np.concatenate([np.linspace(0.30, 0.29, 100), np.full(T - 100, 0.29)])[:, None]
+    base = dict(
+        t=np.arange(T) * 0.004,
+        q=np.zeros((T, 1)),
+        qd=np.zeros((T, 1)),
+        qdd=np.zeros((T, 1)),
+        tension=np.full((T, 1), 40.0),
+        lengths=length,
+        cable_velocity=np.gradient(length, 0.004, axis=0),
+        jacobian=np.full((T, 1, 1), -0.03),
+        wrap=np.full((T, 1), 3.0),
+        motor_angle=np.zeros((T, 1)),
+        dt=0.004,
+    )
+    signals = Signals(**base)
+    still = slice(150, None)
+    held = CableCapstanHysteresis(n_cables=1, n_joints=1, widths=(1e-4,))
+    r = held.torque(signals, np.array([0.1]))  # r = J^T (F_insertion - F)
+    delivered_less = 40.0 * (np.exp(-0.3) - 1.0) * -0.03
+    np.testing.assert_allclose(r[still, 0], delivered_less, rtol=1e-12)
+    smooth = CableCapstanFriction(n_cables=1, n_joints=1).torque(signals, np.array([0.1]))
+    np.testing.assert_allclose(smooth[still, 0], 0.0, atol=1e-12)

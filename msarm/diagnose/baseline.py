@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.effects import CableCapstanFriction, CandidateEffect
+from msarm.diagnose.effects import CableCapstanFriction, CableCapstanHysteresis, CandidateEffect
 from msarm.diagnose.stack import DiagnosisData, Embedded, pooled_rmse
 from msarm.errors import InputError
 
@@ -82,6 +82,13 @@ def _linear_form(term: CandidateEffect) -> CandidateEffect | None:
             n_joints=term.n_joints,
             eps=term.eps,
             per_cable=term.per_cable,
+            linearised=True,
+        )
+    if isinstance(term, CableCapstanHysteresis):
+        return CableCapstanHysteresis(
+            n_cables=term.n_cables,
+            n_joints=term.n_joints,
+            widths=term.widths,
             linearised=True,
         )
     return None

@@ -65,7 +65,7 @@ __all__ = [
 
 #: Plant effect -> the candidate names that count as naming it.
 EFFECT_CANDIDATES: dict[str, tuple[str, ...]] = {
-    "sheath_friction": ("capstan",),
+    "sheath_friction": ("capstan", "capstan_hysteresis"),
     "winch_friction": ("winch_friction",),
     "elasticity": ("elasticity",),
     "joint_friction": ("coulomb", "viscous", "stribeck", "dahl"),

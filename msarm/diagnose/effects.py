@@ -55,12 +55,14 @@ import numpy as np
 import pinocchio
 from numpy.typing import NDArray
 
-from msarm.diagnose.signals import Signals, direction_memory
+from msarm.diagnose.signals import Signals, direction_memory, play_memory
 from msarm.errors import InputError
 
 __all__ = [
     "CANDIDATES",
+    "CAPSTAN_PLAY_WIDTHS",
     "CableCapstanFriction",
+    "CableCapstanHysteresis",
     "CandidateEffect",
     "CasadiOps",
     "CoulombFriction",
@@ -630,6 +632,105 @@ class CableCapstanFriction(CandidateEffect):
         self, signals: Signals, residual: FloatArray | None = None
     ) -> FloatArray:
         return np.full(self.n_parameters, 0.05)
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        return np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_mu)
+
+
+#: Half-widths of the play operators of :class:`CableCapstanHysteresis` [m of cable travel].
+CAPSTAN_PLAY_WIDTHS = (2e-5, 6e-5, 2e-4, 6e-4)
+
+
+@register
+class CableCapstanHysteresis(CandidateEffect):
+    """Sheath (capstan) friction with stiction: a cable at rest keeps the friction it had.
+
+    :class:`CableCapstanFriction` takes the direction of the friction from the cable's
+    velocity, so it predicts no loss while a cable rests. In a sheath with stiction the cable
+    sticks instead: the insertion keeps the tension of the last slip, less than the motor's
+    after the cable was pulled in, more after it was paid out. Here the direction is a
+    Prandtl-Ishlinskii superposition of play operators on the cable's path length ``l``
+    (:func:`msarm.diagnose.signals.play_memory`, half-widths ``w_k`` of
+    :data:`CAPSTAN_PLAY_WIDTHS`, ``z_k = +1`` once the cable has been pulled in by ``2 w_k``,
+    held while it rests):
+
+    ``r = J_c^T (F (exp(-Theta(q) s) - 1)),   s = sum_k mu_k z_k``
+
+    Parameters: ``mu_k >= 0`` [-], one per width; their sum is the friction coefficient of a
+    cable in steady sliding, and their spread over the widths the travel over which the
+    friction turns at a reversal. With ``linearised``, the first order in ``mu``,
+    ``r = sum_k mu_k J_c^T (-F Theta z_k)``, fitted by least squares.
+    """
+
+    name = "capstan_hysteresis"
+    description = (
+        "r = J_c^T (F (exp(-Theta s) - 1)), s = sum_k mu_k z_k(l): capstan sheath friction "
+        "whose direction is a sum of play operators on the cable length (held at rest)"
+    )
+    linear = False
+
+    def __init__(
+        self,
+        n_cables: int = 9,
+        n_joints: int = 4,
+        widths: Sequence[float] = CAPSTAN_PLAY_WIDTHS,
+        linearised: bool = False,
+        max_mu: float = 2.0,
+    ) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+            n_joints: Number of joints ``n``.
+            widths: Half-widths ``w_k`` of the play operators [m], each > 0.
+            linearised: Use the first-order (linear) term.
+            max_mu: Upper bound of each ``mu_k`` in the nonlinear fit.
+        """
+        self.n_cables, self.n_joints = int(n_cables), int(n_joints)
+        self.channels = tuple(range(self.n_joints))
+        self.widths = tuple(_positive("widths", float(w)) for w in widths)
+        if not self.widths:
+            raise InputError("capstan_hysteresis needs at least one play width")
+        self.max_mu = _positive("max_mu", max_mu)
+        self.parameter_names = tuple(f"mu[{w * 1e6:g} um]" for w in self.widths)
+        # Instance attribute shadows the class default: the linearised term is linear.
+        self.linear = bool(linearised)  # type: ignore[misc]
+
+    def memory(self, signals: Signals) -> list[FloatArray]:
+        """The play operators' states ``z_k`` [-], one ``(T, m)`` array per width."""
+        return [play_memory(signals.lengths, signals.run, w) for w in self.widths]
+
+    def check(self, signals: Signals) -> None:  # noqa: D102
+        self._check_joints(signals, self.n_joints)
+        self._check_cables(signals, self.n_cables)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        if not self.linear:
+            return super().design(signals)
+        self.check(signals)
+        loss = -signals.tension * signals.wrap
+        return np.stack(
+            [np.einsum("tm,tmn->tn", loss * z, signals.jacobian) for z in self.memory(signals)],
+            axis=2,
+        )
+
+    def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
+        if self.linear:
+            return super().torque(signals, theta, ops)
+        self.check(signals)
+        if isinstance(ops, NumpyOps):
+            theta = self._check_theta(theta)
+        exponent = None
+        for k, z in enumerate(self.memory(signals)):
+            part = theta[k] * ops.const(-signals.wrap * z)
+            exponent = part if exponent is None else exponent + part
+        g = ops.const(signals.tension) * (ops.exp(exponent) - 1.0)
+        return ops.cable_to_joint(signals.jacobian, g)
+
+    def initial_guess(  # noqa: D102
+        self, signals: Signals, residual: FloatArray | None = None
+    ) -> FloatArray:
+        return np.full(self.n_parameters, 0.1 / self.n_parameters)
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
         return np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_mu)

@@ -59,6 +59,7 @@ from msarm.diagnose.cable_effects import (
 )
 from msarm.diagnose.effects import (
     CableCapstanFriction,
+    CableCapstanHysteresis,
     CandidateEffect,
     CoulombFriction,
     DahlFriction,
@@ -121,6 +122,7 @@ DEFAULT_CANDIDATES = (
     "stribeck",
     "dahl",
     "capstan",
+    "capstan_hysteresis",
     "sensor",
     "inertia",
     "winch_friction",
@@ -139,7 +141,9 @@ def available_candidates(
 
     Joint-torque terms: Coulomb and viscous joint friction, Stribeck friction (nonlinear),
     Dahl friction (pre-sliding hysteresis, 100 1/rad),
-    capstan sheath friction (one shared ``mu``, nonlinear), the links' mass error (base set of
+    capstan sheath friction (one shared ``mu``, nonlinear), capstan friction with stiction
+    (``capstan_hysteresis``: the direction held by play operators on the cable length while
+    a cable rests, nonlinear), the links' mass error (base set of
     masses and first moments), and two terms that act on the joints through the load cells'
     reading: ``cogging`` (a cogging force behind the load cell) and ``delay`` (tensions logged
     late against the encoders, first order). Joint and drive: ``sensor`` (load-cell bias and
@@ -160,6 +164,7 @@ def available_candidates(
         StribeckFriction(n_joints=n),
         DahlFriction(n_joints=n),
         CableCapstanFriction(n_cables=m, n_joints=n),
+        CableCapstanHysteresis(n_cables=m, n_joints=n),
         SensorBiasScale(n_cables=m, n_joints=n, shared=True, drive=True),
         InertiaError(model, subset="mass"),
         WinchFriction(spec.drum_radius, spec.drive_gain, n_cables=m),

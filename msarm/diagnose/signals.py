@@ -11,12 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from msarm.errors import InputError
 
-__all__ = ["Signals", "direction_memory"]
+__all__ = ["Signals", "direction_memory", "play_memory"]
 
 FloatArray = NDArray[np.float64]
 
@@ -239,4 +240,45 @@ def direction_memory(
                 h = rate * (times[k] - times[k - 1])
                 current = (current + h * speed[i]) / (1.0 + h * np.abs(speed[i]))
             z[i] = current
+    return z
+
+
+def play_memory(position: FloatArray, run: NDArray[np.int64], width: float) -> FloatArray:
+    """A play (backlash) operator's memory of the direction of travel, per channel, in [-1, 1].
+
+    An anchor ``a`` follows the position ``x`` with a play of ``width`` on either side,
+    ``a_k = min(max(a_{k-1}, x_k - width), x_k + width)``, starting at ``a = x`` at each run's
+    first sample; the memory is ``z = (a - x) / width``: ``+1`` once ``x`` has fallen by
+    ``2 width`` or more, ``-1`` once it has risen as much, and held while ``x`` rests (unlike a
+    memory driven by a measured velocity, noise of the position far below ``width`` leaves it
+    alone). It depends on the sequence of positions only, not on their timing.
+
+    Args:
+        position: Positions ``x``, shape ``(T, k)`` [unit].
+        run: Run labels, shape ``(T,)``; each run contiguous.
+        width: Half the play ``w`` [unit], > 0.
+
+    Returns:
+        ``z`` [-], shape ``(T, k)``.
+
+    Raises:
+        InputError: ``width`` is not a finite number > 0.
+    """
+    if not (np.isfinite(width) and width > 0.0):
+        raise InputError(f"play width must be a finite number > 0, got {width}")
+    position = np.ascontiguousarray(position, dtype=np.float64)
+    return _play(position, np.ascontiguousarray(run, dtype=np.int64), float(width))
+
+
+@numba.njit(cache=True)
+def _play(position, run, width):
+    z = np.zeros_like(position)
+    anchor = position[0].copy()
+    for i in range(position.shape[0]):
+        if i > 0 and run[i] != run[i - 1]:
+            anchor[:] = position[i]
+        for c in range(position.shape[1]):
+            x = position[i, c]
+            anchor[c] = min(max(anchor[c], x - width), x + width)
+            z[i, c] = (anchor[c] - x) / width
     return z
