@@ -438,3 +438,11 @@ def test_capstan_hysteresis_keeps_the_friction_of_a_cable_at_rest():
     np.testing.assert_allclose(r[still, 0], delivered_less, rtol=1e-12)
     smooth = CableCapstanFriction(n_cables=1, n_joints=1).torque(signals, np.array([0.1]))
     np.testing.assert_allclose(smooth[still, 0], 0.0, atol=1e-12)
+
+
+def test_nonlinear_fit_reports_a_parameter_at_its_bound_on_the_bound(signals):
+    """IPOPT relaxes bounds by ~1e-8; a friction coefficient that wants to be < 0 is 0."""
+    effect = CableCapstanFriction()
+    opposite = -effect.torque(signals, np.array([0.1]))  # friction that would need mu < 0
+    result = fit(effect, signals, opposite)
+    assert result.parameters[0] == 0.0

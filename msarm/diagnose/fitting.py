@@ -226,8 +226,10 @@ class _NonlinearProblem:
         values = np.concatenate([w, r.reshape(-1, order="F")])
         solution = self.solver(x0=x0, p=values, lbx=self.lower, ubx=self.upper)
         stats = self.solver.stats()
+        # IPOPT relaxes the bounds by up to 1e-8 (bound_relax_factor): a parameter at a bound
+        # comes back just outside it (a friction coefficient of -1e-8); report it on the bound.
         return (
-            np.asarray(solution["x"], dtype=float).reshape(-1),
+            np.clip(np.asarray(solution["x"], dtype=float).reshape(-1), self.lower, self.upper),
             bool(stats["success"]),
             str(stats["return_status"]),
         )
