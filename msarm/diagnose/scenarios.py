@@ -120,6 +120,8 @@ DEFAULT_PAIRS: tuple[tuple[str, str], ...] = (
     ("sheath_friction", "cogging"),
     ("elasticity", "joint_friction"),
     ("sensor_bias", "joint_friction"),
+    # elastic cables give the sheath its stiction (a capstan law that sticks in between)
+    ("sheath_friction", "elasticity"),
 )
 
 #: Ranges of the drawn parameters, per effect class: ``(low, high)``, drawn uniformly.
