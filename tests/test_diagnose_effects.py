@@ -24,7 +24,7 @@ from msarm.diagnose.effects import (
     register,
 )
 from msarm.diagnose.fitting import bootstrap, fit
-from msarm.diagnose.signals import Signals, play_memory
+from msarm.diagnose.signals import Signals, stick_slip_tension
 from msarm.errors import InputError
 from msarm.model import load_arm
 
@@ -115,8 +115,8 @@ def _cases(arm):
         (CableCapstanFriction(), np.array([0.12])),
         (CableCapstanFriction(per_cable=True), rng.uniform(0.05, 0.3, size=9)),
         (CableCapstanFriction(linearised=True), np.array([0.12])),
-        (CableCapstanHysteresis(), np.array([0.02, 0.06, 0.03, 0.01])),
-        (CableCapstanHysteresis(linearised=True), np.array([0.02, 0.06, 0.03, 0.01])),
+        (CableCapstanHysteresis(), np.array([0.1, 0.3, 0.4, 0.2])),
+        (CableCapstanHysteresis(linearised=True), np.array([0.1, 0.3, 0.4, 0.2])),
         (MotorCogging(n_periods=6, drum_radius=DRUM), rng.normal(0, 0.02, size=18)),
         (MotorCogging(n_periods=6, drum_radius=DRUM, shared=True), np.array([0.02, -0.01])),
         (SensorBiasScale(), np.concatenate([rng.normal(0, 1.0, 9), rng.normal(0, 0.05, 9)])),
@@ -168,7 +168,7 @@ def test_noise_free_recovery(arm, signals, case):
     [
         (CoulombFriction(), np.array([0.3, 0.5, 0.2, 0.4])),
         (CableCapstanFriction(), np.array([0.12])),
-        (CableCapstanHysteresis(), np.array([0.02, 0.06, 0.03, 0.01])),
+        (CableCapstanHysteresis(), np.array([0.1, 0.3, 0.4, 0.2])),
         (StribeckFriction(joints=[1]), np.array([0.3, 0.6, 0.15])),
         (SensorBiasScale(shared=True), np.array([0.8, 0.04])),
     ],
@@ -402,27 +402,32 @@ def test_dahl_state_lags_behind_a_reversal():
     np.testing.assert_allclose(steep[5:995], 1.0, atol=1e-6)  # a large a: Coulomb
 
 
-def test_play_memory_by_hand():
-    """Anchor a = clip(a, x - w, x + w), z = (a - x) / w; a restarts at x in each run."""
-    x = np.array([0.0, 1.0, 2.0, 1.5, 0.5, 0.5, 3.0, 2.9])[:, None]
-    run = np.array([0, 0, 0, 0, 0, 0, 1, 1])
-    z = play_memory(x, run, 0.5)[:, 0]
-    # anchors: 0, 0.5, 1.5, 1.5, 1.0, 1.0 | 3.0, 3.0
-    np.testing.assert_allclose(z, [0.0, -1.0, -1.0, 0.0, 1.0, 1.0, 0.0, 0.2], atol=1e-12)
-    with pytest.raises(InputError, match="play width"):
-        play_memory(x, run, 0.0)
+def test_stick_slip_tension_by_hand():
+    """log T = clip(log T_prev, log F - mu Theta, log F + mu Theta); balanced at a run's start."""
+    band = np.log(1.1)  # mu Theta: the ends may differ by 10 %
+    F = np.array([10.0, 12.0, 11.0, 8.0, 8.0, 20.0, 21.0])[:, None]
+    run = np.array([0, 0, 0, 0, 0, 1, 1])
+    out = stick_slip_tension(F, np.full(F.shape, 2.0), run, band / 2.0)[:, 0]
+    # pulled up: follows 12 / 1.1; sticks at 11; pulled down: follows 8 * 1.1; a new run
+    # starts balanced at 20 and sticks at 21 (21 / 1.1 < 20)
+    want = [10.0, 12.0 / 1.1, 12.0 / 1.1, 8.0 * 1.1, 8.0 * 1.1, 20.0, 20.0]
+    np.testing.assert_allclose(out, want, rtol=1e-12)
+    np.testing.assert_allclose(stick_slip_tension(F, np.ones(F.shape), run, 0.0), F, rtol=1e-14)
+    with pytest.raises(InputError, match="mu"):
+        stick_slip_tension(F, np.ones(F.shape), run, -0.1)
 
 
 def test_capstan_hysteresis_keeps_the_friction_of_a_cable_at_rest():
-    """Pulled in, then at rest: the stiction term still delivers less; the smooth one does not."""
+    """Pulled in, then held: the stiction term still delivers less; the smooth one does not."""
     T = 300
+    rising = np.concatenate([np.linspace(20.0, 40.0, 100), np.full(T - 100, 40.0)])[:, None]
     length = np.concatenate([np.linspace(0.30, 0.29, 100), np.full(T - 100, 0.29)])[:, None]
     base = dict(
         t=np.arange(T) * 0.004,
         q=np.zeros((T, 1)),
         qd=np.zeros((T, 1)),
         qdd=np.zeros((T, 1)),
-        tension=np.full((T, 1), 40.0),
+        tension=rising,
         lengths=length,
         cable_velocity=np.gradient(length, 0.004, axis=0),
         jacobian=np.full((T, 1, 1), -0.03),
@@ -432,8 +437,8 @@ def test_capstan_hysteresis_keeps_the_friction_of_a_cable_at_rest():
     )
     signals = Signals(**base)
     still = slice(150, None)
-    held = CableCapstanHysteresis(n_cables=1, n_joints=1, widths=(1e-4,))
-    r = held.torque(signals, np.array([0.1]))  # r = J^T (F_insertion - F)
+    held = CableCapstanHysteresis(n_cables=1, n_joints=1, mus=(0.1,))
+    r = held.torque(signals, np.array([1.0]))  # r = J^T (T_insertion - F)
     delivered_less = 40.0 * (np.exp(-0.3) - 1.0) * -0.03
     np.testing.assert_allclose(r[still, 0], delivered_less, rtol=1e-12)
     smooth = CableCapstanFriction(n_cables=1, n_joints=1).torque(signals, np.array([0.1]))

@@ -88,7 +88,7 @@ def _linear_form(term: CandidateEffect) -> CandidateEffect | None:
         return CableCapstanHysteresis(
             n_cables=term.n_cables,
             n_joints=term.n_joints,
-            widths=term.widths,
+            mus=term.mus,
             linearised=True,
         )
     return None

@@ -55,12 +55,12 @@ import numpy as np
 import pinocchio
 from numpy.typing import NDArray
 
-from msarm.diagnose.signals import Signals, direction_memory, play_memory
+from msarm.diagnose.signals import Signals, direction_memory, stick_slip_tension
 from msarm.errors import InputError
 
 __all__ = [
     "CANDIDATES",
-    "CAPSTAN_PLAY_WIDTHS",
+    "CAPSTAN_STICTION_MUS",
     "CableCapstanFriction",
     "CableCapstanHysteresis",
     "CandidateEffect",
@@ -637,35 +637,36 @@ class CableCapstanFriction(CandidateEffect):
         return np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_mu)
 
 
-#: Half-widths of the play operators of :class:`CableCapstanHysteresis` [m of cable travel].
-CAPSTAN_PLAY_WIDTHS = (2e-5, 6e-5, 2e-4, 6e-4)
+#: Friction coefficients of the stick-slip elements of :class:`CableCapstanHysteresis` [-].
+CAPSTAN_STICTION_MUS = (0.03, 0.06, 0.12, 0.24)
 
 
 @register
 class CableCapstanHysteresis(CandidateEffect):
-    """Sheath (capstan) friction with stiction: a cable at rest keeps the friction it had.
+    """Sheath (capstan) friction with stiction: stick-slip elements in log tension.
 
     :class:`CableCapstanFriction` takes the direction of the friction from the cable's
-    velocity, so it predicts no loss while a cable rests. In a sheath with stiction the cable
-    sticks instead: the insertion keeps the tension of the last slip, less than the motor's
-    after the cable was pulled in, more after it was paid out. Here the direction is a
-    Prandtl-Ishlinskii superposition of play operators on the cable's path length ``l``
-    (:func:`msarm.diagnose.signals.play_memory`, half-widths ``w_k`` of
-    :data:`CAPSTAN_PLAY_WIDTHS`, ``z_k = +1`` once the cable has been pulled in by ``2 w_k``,
-    held while it rests):
+    velocity, so it predicts no loss while a cable rests. In a sheath with static friction the
+    cable sticks instead while the tensions at its ends differ by less than the capstan factor
+    ``exp(mu Theta)``, and the insertion keeps the tension of the last slip. One such element
+    is :func:`msarm.diagnose.signals.stick_slip_tension` ``S_mu(F)`` of the motor-side tension
+    ``F``; friction spread along a sheath sticks and slips at several thresholds, so the term
+    is a Prandtl-Ishlinskii sum of elements at the coefficients ``mu_k`` of
+    :data:`CAPSTAN_STICTION_MUS`:
 
-    ``r = J_c^T (F (exp(-Theta(q) s) - 1)),   s = sum_k mu_k z_k``
+    ``T_insertion = F + sum_k a_k (S_mu_k(F) - F)``,
+    ``r = J_c^T (T_insertion - F) = sum_k a_k J_c^T (S_mu_k(F) - F)``
 
-    Parameters: ``mu_k >= 0`` [-], one per width; their sum is the friction coefficient of a
-    cable in steady sliding, and their spread over the widths the travel over which the
-    friction turns at a reversal. With ``linearised``, the first order in ``mu``,
-    ``r = sum_k mu_k J_c^T (-F Theta z_k)``, fitted by least squares.
+    Parameters: the weights ``a_k >= 0`` [-] (one element of friction ``mu`` alone is
+    ``a = 1`` at that ``mu``); linear in them, fitted by IPOPT within the bounds (a least
+    squares would trade weights of opposite signs between the strongly correlated elements).
+    With ``linearised`` the same design is fitted by plain least squares.
     """
 
     name = "capstan_hysteresis"
     description = (
-        "r = J_c^T (F (exp(-Theta s) - 1)), s = sum_k mu_k z_k(l): capstan sheath friction "
-        "whose direction is a sum of play operators on the cable length (held at rest)"
+        "r = sum_k a_k J_c^T (S_mu_k(F) - F): sheath friction with stiction, stick-slip "
+        "elements (a play in log tension of half-width mu_k Theta) of weights a_k >= 0"
     )
     linear = False
 
@@ -673,67 +674,73 @@ class CableCapstanHysteresis(CandidateEffect):
         self,
         n_cables: int = 9,
         n_joints: int = 4,
-        widths: Sequence[float] = CAPSTAN_PLAY_WIDTHS,
+        mus: Sequence[float] = CAPSTAN_STICTION_MUS,
         linearised: bool = False,
-        max_mu: float = 2.0,
+        max_weight: float = 10.0,
     ) -> None:
         """Build the term.
 
         Args:
             n_cables: Number of cables ``m``.
             n_joints: Number of joints ``n``.
-            widths: Half-widths ``w_k`` of the play operators [m], each > 0.
-            linearised: Use the first-order (linear) term.
-            max_mu: Upper bound of each ``mu_k`` in the nonlinear fit.
+            mus: Friction coefficients ``mu_k`` of the elements [-], each > 0.
+            linearised: Fit the weights by plain least squares (no bounds).
+            max_weight: Upper bound of each weight in the bounded fit.
         """
         self.n_cables, self.n_joints = int(n_cables), int(n_joints)
         self.channels = tuple(range(self.n_joints))
-        self.widths = tuple(_positive("widths", float(w)) for w in widths)
-        if not self.widths:
-            raise InputError("capstan_hysteresis needs at least one play width")
-        self.max_mu = _positive("max_mu", max_mu)
-        self.parameter_names = tuple(f"mu[{w * 1e6:g} um]" for w in self.widths)
+        self.mus = tuple(_positive("mus", float(mu)) for mu in mus)
+        if not self.mus:
+            raise InputError("capstan_hysteresis needs at least one friction coefficient")
+        self.max_weight = _positive("max_weight", max_weight)
+        self.parameter_names = tuple(f"a[mu={mu:g}]" for mu in self.mus)
         # Instance attribute shadows the class default: the linearised term is linear.
         self.linear = bool(linearised)  # type: ignore[misc]
-
-    def memory(self, signals: Signals) -> list[FloatArray]:
-        """The play operators' states ``z_k`` [-], one ``(T, m)`` array per width."""
-        return [play_memory(signals.lengths, signals.run, w) for w in self.widths]
 
     def check(self, signals: Signals) -> None:  # noqa: D102
         self._check_joints(signals, self.n_joints)
         self._check_cables(signals, self.n_cables)
 
+    def _columns(self, signals: Signals) -> FloatArray:
+        """``J_c^T (S_mu_k(F) - F)`` of every element [N m], shape ``(T, n, K)``."""
+        self.check(signals)
+        return np.stack(
+            [
+                np.einsum(
+                    "tm,tmn->tn",
+                    stick_slip_tension(signals.tension, signals.wrap, signals.run, mu)
+                    - signals.tension,
+                    signals.jacobian,
+                )
+                for mu in self.mus
+            ],
+            axis=2,
+        )
+
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         if not self.linear:
             return super().design(signals)
-        self.check(signals)
-        loss = -signals.tension * signals.wrap
-        return np.stack(
-            [np.einsum("tm,tmn->tn", loss * z, signals.jacobian) for z in self.memory(signals)],
-            axis=2,
-        )
+        return self._columns(signals)
 
     def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
         if self.linear:
             return super().torque(signals, theta, ops)
-        self.check(signals)
         if isinstance(ops, NumpyOps):
             theta = self._check_theta(theta)
-        exponent = None
-        for k, z in enumerate(self.memory(signals)):
-            part = theta[k] * ops.const(-signals.wrap * z)
-            exponent = part if exponent is None else exponent + part
-        g = ops.const(signals.tension) * (ops.exp(exponent) - 1.0)
-        return ops.cable_to_joint(signals.jacobian, g)
+        columns = self._columns(signals)
+        total = None
+        for k in range(columns.shape[2]):
+            part = theta[k] * ops.const(columns[:, :, k])
+            total = part if total is None else total + part
+        return total
 
     def initial_guess(  # noqa: D102
         self, signals: Signals, residual: FloatArray | None = None
     ) -> FloatArray:
-        return np.full(self.n_parameters, 0.1 / self.n_parameters)
+        return np.full(self.n_parameters, 1.0 / self.n_parameters)
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
-        return np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_mu)
+        return np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_weight)
 
 
 # --------------------------------------------------------------------------- motor cogging

@@ -140,11 +140,10 @@ def available_candidates(
     """Every built-in candidate, configured for ``model``, by name.
 
     Joint-torque terms: Coulomb and viscous joint friction, Stribeck friction (nonlinear),
-    Dahl friction (pre-sliding hysteresis, 100 1/rad),
-    capstan sheath friction (one shared ``mu``, nonlinear), capstan friction with stiction
-    (``capstan_hysteresis``: the direction held by play operators on the cable length while
-    a cable rests, nonlinear), the links' mass error (base set of
-    masses and first moments), and two terms that act on the joints through the load cells'
+    Dahl friction (pre-sliding hysteresis, 100 1/rad), capstan sheath friction (one shared
+    ``mu``, nonlinear), capstan friction with stiction (``capstan_hysteresis``: stick-slip
+    elements in log tension, weights bounded >= 0), the links' mass error (base set of masses
+    and first moments), and two terms that act on the joints through the load cells'
     reading: ``cogging`` (a cogging force behind the load cell) and ``delay`` (tensions logged
     late against the encoders, first order). Joint and drive: ``sensor`` (load-cell bias and
     scale shared by all cables). Drive terms: ``winch_friction``, ``motor_cogging``

@@ -9,6 +9,7 @@ while the motor pulls the cable in).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 
 import numba
@@ -17,7 +18,7 @@ from numpy.typing import NDArray
 
 from msarm.errors import InputError
 
-__all__ = ["Signals", "direction_memory", "play_memory"]
+__all__ = ["Signals", "direction_memory", "stick_slip_tension"]
 
 FloatArray = NDArray[np.float64]
 
@@ -243,42 +244,59 @@ def direction_memory(
     return z
 
 
-def play_memory(position: FloatArray, run: NDArray[np.int64], width: float) -> FloatArray:
-    """A play (backlash) operator's memory of the direction of travel, per channel, in [-1, 1].
+def stick_slip_tension(
+    tension: FloatArray, wrap: FloatArray, run: NDArray[np.int64], mu: float, floor: float = 1e-3
+) -> FloatArray:
+    """The tension a capstan stick-slip element passes on: a play operator in log tension.
 
-    An anchor ``a`` follows the position ``x`` with a play of ``width`` on either side,
-    ``a_k = min(max(a_{k-1}, x_k - width), x_k + width)``, starting at ``a = x`` at each run's
-    first sample; the memory is ``z = (a - x) / width``: ``+1`` once ``x`` has fallen by
-    ``2 width`` or more, ``-1`` once it has risen as much, and held while ``x`` rests (unlike a
-    memory driven by a measured velocity, noise of the position far below ``width`` leaves it
-    alone). It depends on the sequence of positions only, not on their timing.
+    A cable in a sheath with static friction ``mu`` over a wrap angle ``Theta`` slips once
+    the tensions at its two ends differ by the capstan factor ``exp(mu Theta)`` and sticks
+    in between: the far end keeps its tension while the near end's tension ``F`` stays within
+    the band. Per cable, within each run (starting balanced, ``T_out = F``):
+
+    ``log T_out,k = min(max(log T_out,k-1, log F_k - mu Theta_k), log F_k + mu Theta_k)``
+
+    (``F`` below ``floor`` is taken as ``floor``). After the near end pulled the cable in,
+    ``T_out = F exp(-mu Theta)``; after it paid out, ``F exp(mu Theta)``; at rest, whatever
+    the last slip left.
 
     Args:
-        position: Positions ``x``, shape ``(T, k)`` [unit].
+        tension: Near-end (motor-side) tensions ``F`` [N], shape ``(T, m)``.
+        wrap: Wrap angles ``Theta`` [rad], shape ``(T, m)``.
         run: Run labels, shape ``(T,)``; each run contiguous.
-        width: Half the play ``w`` [unit], > 0.
+        mu: Friction coefficient [-], >= 0.
+        floor: Least tension taken for the logarithm [N], > 0.
 
     Returns:
-        ``z`` [-], shape ``(T, k)``.
+        ``T_out`` [N], shape ``(T, m)``.
 
     Raises:
-        InputError: ``width`` is not a finite number > 0.
+        InputError: ``mu`` < 0 or ``floor`` <= 0, or either not finite.
     """
-    if not (np.isfinite(width) and width > 0.0):
-        raise InputError(f"play width must be a finite number > 0, got {width}")
-    position = np.ascontiguousarray(position, dtype=np.float64)
-    return _play(position, np.ascontiguousarray(run, dtype=np.int64), float(width))
+    if not (np.isfinite(mu) and mu >= 0.0):
+        raise InputError(f"mu must be a finite number >= 0, got {mu}")
+    if not (np.isfinite(floor) and floor > 0.0):
+        raise InputError(f"floor must be a finite number > 0 N, got {floor}")
+    return _stick_slip(
+        np.ascontiguousarray(tension, dtype=np.float64),
+        np.ascontiguousarray(wrap, dtype=np.float64),
+        np.ascontiguousarray(run, dtype=np.int64),
+        float(mu),
+        float(floor),
+    )
 
 
 @numba.njit(cache=True)
-def _play(position, run, width):
-    z = np.zeros_like(position)
-    anchor = position[0].copy()
-    for i in range(position.shape[0]):
-        if i > 0 and run[i] != run[i - 1]:
-            anchor[:] = position[i]
-        for c in range(position.shape[1]):
-            x = position[i, c]
-            anchor[c] = min(max(anchor[c], x - width), x + width)
-            z[i, c] = (anchor[c] - x) / width
-    return z
+def _stick_slip(tension, wrap, run, mu, floor):
+    out = np.empty_like(tension)
+    level = np.empty(tension.shape[1])
+    for i in range(tension.shape[0]):
+        start = i == 0 or run[i] != run[i - 1]
+        for c in range(tension.shape[1]):
+            near = math.log(max(tension[i, c], floor))
+            if start:
+                level[c] = near
+            band = mu * wrap[i, c]
+            level[c] = min(max(level[c], near - band), near + band)
+            out[i, c] = math.exp(level[c])
+    return out

@@ -155,9 +155,10 @@ class ArmPlant:
                 functions.step2,
                 self.mj_model._address,
                 self.mj_data._address,
-                *self._kernel_args,
+                self._kernel_args,
                 self.mj_data.qpos,
                 self.mj_data.qvel,
+                self._state.winch_speed,
                 self.mj_data.warning.number,
                 _BADQACC,
             )

@@ -222,31 +222,10 @@ def step_plant(
     step2,
     model,
     data,
-    params,
-    lengths,
-    velocities,
-    wrap,
-    command,
-    torque_limit,
-    length_ref,
-    stretch_motor0,
-    stretch_insertion0,
-    user_torque,
-    user_slope,
-    user_factor,
-    theta,
-    omega,
-    slide,
-    tension_motor,
-    tension_insertion,
-    motor_torque,
-    jac_data,
-    jac_rownnz,
-    jac_rowadr,
-    jac_colind,
-    qfrc,
+    cable_args,
     qpos,
     qvel,
+    winch_speed,
     warning_counts,
     unstable_warning,
 ):
@@ -263,31 +242,10 @@ def step_plant(
         model: Address of the ``mjModel`` (``MjModel._address``).
         data: Address of the ``mjData`` (``MjData._address``) whose arrays the cable
             arguments view (``ten_length``, ``ten_velocity``, ``ten_J``, ``qfrc_applied``).
-        params: The remaining arguments are those of :func:`step_cables`, in its order.
-        lengths: See :func:`step_cables`.
-        velocities: See :func:`step_cables`.
-        wrap: See :func:`step_cables`.
-        command: See :func:`step_cables`.
-        torque_limit: See :func:`step_cables`.
-        length_ref: See :func:`step_cables`.
-        stretch_motor0: See :func:`step_cables`.
-        stretch_insertion0: See :func:`step_cables`.
-        user_torque: See :func:`step_cables`.
-        user_slope: See :func:`step_cables`.
-        user_factor: See :func:`step_cables`.
-        theta: See :func:`step_cables`.
-        omega: See :func:`step_cables`.
-        slide: See :func:`step_cables`.
-        tension_motor: See :func:`step_cables`.
-        tension_insertion: See :func:`step_cables`.
-        motor_torque: See :func:`step_cables`.
-        jac_data: See :func:`step_cables`.
-        jac_rownnz: See :func:`step_cables`.
-        jac_rowadr: See :func:`step_cables`.
-        jac_colind: See :func:`step_cables`.
-        qfrc: See :func:`step_cables`.
+        cable_args: The arguments of :func:`step_cables`, in its order (a tuple).
         qpos: MuJoCo's joint angles [rad], ``(n,)`` (a view of ``MjData.qpos``).
         qvel: MuJoCo's joint speeds [rad/s], ``(n,)`` (a view of ``MjData.qvel``).
+        winch_speed: The winch speeds [rad/s], ``(m,)`` (``omega`` of ``cable_args``).
         warning_counts: MuJoCo's warning counters (a view of ``MjData.warning.number``).
         unstable_warning: Index of the instability warning (``mjWARN_BADQACC``).
 
@@ -296,37 +254,13 @@ def step_plant(
     """
     for _ in range(n_steps):
         call_model_data(step1, model, data)
-        step_cables(
-            params,
-            lengths,
-            velocities,
-            wrap,
-            command,
-            torque_limit,
-            length_ref,
-            stretch_motor0,
-            stretch_insertion0,
-            user_torque,
-            user_slope,
-            user_factor,
-            theta,
-            omega,
-            slide,
-            tension_motor,
-            tension_insertion,
-            motor_torque,
-            jac_data,
-            jac_rownnz,
-            jac_rowadr,
-            jac_colind,
-            qfrc,
-        )
+        step_cables(*cable_args)
         call_model_data(step2, model, data)
     total = 0.0
     for value in qpos:
         total += value
     for value in qvel:
         total += value
-    for value in omega:
+    for value in winch_speed:
         total += value
     return warning_counts[unstable_warning] > 0 or not math.isfinite(total)
