@@ -90,6 +90,7 @@ def _make_signals(arm, seed: int = 0) -> Signals:
         motor_angle=motor_angle,
         dt=DT,
         run=cat["run"],
+        tension_cmd=cat["F"],  # drives that render their commands exactly
     )
 
 
@@ -427,7 +428,8 @@ def test_capstan_hysteresis_keeps_the_friction_of_a_cable_at_rest():
         q=np.zeros((T, 1)),
         qd=np.zeros((T, 1)),
         qdd=np.zeros((T, 1)),
-        tension=rising,
+        tension=rising + np.random.default_rng(0).normal(0.0, 0.3, rising.shape),  # load cells
+        tension_cmd=rising,
         lengths=length,
         cable_velocity=np.gradient(length, 0.004, axis=0),
         jacobian=np.full((T, 1, 1), -0.03),
@@ -443,6 +445,10 @@ def test_capstan_hysteresis_keeps_the_friction_of_a_cable_at_rest():
     np.testing.assert_allclose(r[still, 0], delivered_less, rtol=1e-12)
     smooth = CableCapstanFriction(n_cables=1, n_joints=1).torque(signals, np.array([0.1]))
     np.testing.assert_allclose(smooth[still, 0], 0.0, atol=1e-12)
+    # the elements follow the commands, not the noisy load cells; logs without commands: refused
+    without = Signals(**{**base, "tension_cmd": None})
+    with pytest.raises(InputError, match="tension_cmd"):
+        held.check(without)
 
 
 def test_nonlinear_fit_reports_a_parameter_at_its_bound_on_the_bound(signals):

@@ -657,6 +657,12 @@ class CableCapstanHysteresis(CandidateEffect):
     ``T_insertion = F + sum_k a_k (S_mu_k(F) - F)``,
     ``r = J_c^T (T_insertion - F) = sum_k a_k J_c^T (S_mu_k(F) - F)``
 
+    ``F`` here is the tension the drives were commanded (``Signals.tension_cmd``), not the
+    load cells' reading: while a cable sticks, ``S(F) - F`` is ``-F`` plus a constant, and with
+    the reading it would carry the load cells' noise, which is in the residual too, so the term
+    would "explain" sensor noise on held-out runs as well (it did, on the benchmark's null
+    plants). Logs without commands cannot use the term.
+
     Parameters: the weights ``a_k >= 0`` [-] (one element of friction ``mu`` alone is
     ``a = 1`` at that ``mu``); linear in them, fitted by IPOPT within the bounds (a least
     squares would trade weights of opposite signs between the strongly correlated elements).
@@ -665,8 +671,8 @@ class CableCapstanHysteresis(CandidateEffect):
 
     name = "capstan_hysteresis"
     description = (
-        "r = sum_k a_k J_c^T (S_mu_k(F) - F): sheath friction with stiction, stick-slip "
-        "elements (a play in log tension of half-width mu_k Theta) of weights a_k >= 0"
+        "r = sum_k a_k J_c^T (S_mu_k(F) - F), F the commanded tension: sheath friction with "
+        "stiction, stick-slip elements (a play in log tension of half-width mu_k Theta)"
     )
     linear = False
 
@@ -700,16 +706,17 @@ class CableCapstanHysteresis(CandidateEffect):
     def check(self, signals: Signals) -> None:  # noqa: D102
         self._check_joints(signals, self.n_joints)
         self._check_cables(signals, self.n_cables)
+        signals.require("tension_cmd", self.name)
 
     def _columns(self, signals: Signals) -> FloatArray:
         """``J_c^T (S_mu_k(F) - F)`` of every element [N m], shape ``(T, n, K)``."""
         self.check(signals)
+        command = signals.tension_cmd
         return np.stack(
             [
                 np.einsum(
                     "tm,tmn->tn",
-                    stick_slip_tension(signals.tension, signals.wrap, signals.run, mu)
-                    - signals.tension,
+                    stick_slip_tension(command, signals.wrap, signals.run, mu) - command,
                     signals.jacobian,
                 )
                 for mu in self.mus
