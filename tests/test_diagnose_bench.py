@@ -111,7 +111,11 @@ def test_baseline_runs_on_the_same_data(arm, report):
     held = [p for p in logs if p.parent.name.startswith("holdout")]
     data = load_data(arm, train, held)
     result = sindy_baseline(data)
-    assert result.names[0] == "winch_friction"
+    # the library regression names the true effect; with no held-out check it ranks terms
+    # fitted to the joint group's noise before it on these 4 s runs (the stick-slip capstan's
+    # four correlated elements and a mass error: 0.55 and 0.32 of its model's energy, 0.09 for
+    # winch friction)
+    assert "winch_friction" in result.names
     assert "stribeck" in result.excluded and "capstan" in result.library
     assert result.group_shrink("drive") > 0.3
     with pytest.raises(InputError, match="threshold"):
