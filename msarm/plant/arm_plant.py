@@ -144,6 +144,8 @@ class ArmPlant:
         self.tension_insertion = np.zeros(m)
         self.motor_torque = np.zeros(m)
         self._kernel_args = self._cable_kernel_args()
+        # live view of MuJoCo's warning counters (read after every period)
+        self._warnings = self.mj_data.warning.number
         # the whole step loop compiled (MuJoCo called through its C addresses) when MuJoCo's
         # library is found and no user hook must run in Python between the two halves
         functions = step_functions()
@@ -159,12 +161,10 @@ class ArmPlant:
                 self.mj_data.qpos,
                 self.mj_data.qvel,
                 self._state.winch_speed,
-                self.mj_data.warning.number,
+                self._warnings,
                 _BADQACC,
             )
         )
-        # live view of MuJoCo's warning counters (read after every period)
-        self._warnings = self.mj_data.warning.number
 
     # ----------------------------------------------------------------------------- state
     @property
