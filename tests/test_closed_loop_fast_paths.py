@@ -153,15 +153,30 @@ def test_compiled_step_loop_gives_the_python_loops_bits(arm):
     np.testing.assert_array_equal(_bits(compiled.motor_torque), _bits(python.motor_torque))
 
 
+def _push_the_hand_infinitely(plant):
+    plant.mj_data.xfrc_applied[-1, 0] = np.inf
+
+
+def _nan_joint_speed(plant):
+    plant.mj_data.qvel[1] = np.nan
+
+
 @pytest.mark.parametrize("extra", [[], [_NoWinchTorque()]], ids=["compiled", "python"])
-def test_both_step_loops_stop_on_divergence_with_time_and_state(arm, extra):
+@pytest.mark.parametrize(
+    "poison, found",
+    [(_push_the_hand_infinitely, "acceleration at DOF 0"), (_nan_joint_speed, "velocity at DOF 1")],
+    ids=["acceleration", "velocity"],
+)
+def test_both_step_loops_stop_on_divergence_with_time_and_state(arm, extra, poison, found):
+    """MuJoCo resets its state on a bad one; the plant still stops, naming the period's end."""
     plant = ArmPlant(arm, DEFAULT_PLANT, seed=0, extra_effects=extra)
     plant.reset(POSTURE, tensions=np.full(arm.n_cables, 25.0))
     plant.step(4)
-    plant.mj_data.xfrc_applied[-1, 0] = np.inf  # an infinite push on the hand
-    with pytest.raises(SimulationDivergedError, match="diverged at t = 0.00") as caught:
+    poison(plant)
+    with pytest.raises(SimulationDivergedError, match="diverged at t = 0.0080 s") as caught:
         plant.step(4)
-    assert 0.0 < caught.value.time <= 0.008
+    assert found in str(caught.value) and "reset its state" in str(caught.value)
+    assert caught.value.time == pytest.approx(0.008)
     assert set(caught.value.state) == {"q", "qdot", "winch_angle"}
 
 

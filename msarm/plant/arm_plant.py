@@ -50,8 +50,14 @@ class SimulationDivergedError(MsarmError):
         self.state = state
 
 
-#: Index of MuJoCo's "bad acceleration" (instability) warning counter.
-_BADQACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
+#: MuJoCo's instability warnings (a NaN, infinite or huge joint position, velocity or
+#: acceleration, after which MuJoCo resets its state) by index: what went bad.
+_UNSTABLE = {
+    int(mujoco.mjtWarning.mjWARN_BADQPOS): "position",
+    int(mujoco.mjtWarning.mjWARN_BADQVEL): "velocity",
+    int(mujoco.mjtWarning.mjWARN_BADQACC): "acceleration",
+}
+_UNSTABLE_INDEX = np.array(sorted(_UNSTABLE), dtype=np.int64)
 
 
 def _overrides(effect: Effect, hook: str) -> bool:
@@ -162,7 +168,7 @@ class ArmPlant:
                 self.mj_data.qvel,
                 self._state.winch_speed,
                 self._warnings,
-                _BADQACC,
+                _UNSTABLE_INDEX,
             )
         )
 
@@ -309,9 +315,11 @@ class ArmPlant:
         Raises:
             SimulationDivergedError: NaN in the state or a MuJoCo instability warning.
         """
+        # MuJoCo resets its state (time included) when it finds a bad one: take the time first
+        end = float(self.mj_data.time) + n_steps * self.config.timestep
         if self._compiled_args is not None:
             if step_plant(n_steps, *self._compiled_args):
-                self._raise_diverged()
+                self._raise_diverged(end)
             return
         model, data = self.mj_model, self.mj_data
         step1, step2, args = mujoco.mj_step1, mujoco.mj_step2, self._kernel_args
@@ -323,7 +331,7 @@ class ArmPlant:
                 hooks()
             step_cables(*args)
             step2(model, data)
-        self._check_finite()
+        self._check_finite(end)
 
     def update_wrap_angles(self) -> None:
         """Recompute the cables' wrap angles at the current posture.
@@ -379,26 +387,35 @@ class ArmPlant:
             data.qfrc_applied,
         )
 
-    def _check_finite(self) -> None:
+    def _check_finite(self, end: float) -> None:
         state = self._state
         # one sum is NaN or inf exactly when some element is (a cheap check every period)
         total = float(state.q.sum() + state.qdot.sum() + state.winch_speed.sum())
-        unstable = self._warnings[_BADQACC] > 0
-        if unstable or not math.isfinite(total):
-            self._raise_diverged()
+        if self._warnings[_UNSTABLE_INDEX].any() or not math.isfinite(total):
+            self._raise_diverged(end)
 
-    def _raise_diverged(self) -> None:
-        """Raise :class:`SimulationDivergedError` with the time and the state."""
+    def _raise_diverged(self, end: float) -> None:
+        """Raise :class:`SimulationDivergedError`: the period that ended at ``end`` [s], the state.
+
+        Where MuJoCo found a bad joint state it has reset its own (time included), so the time
+        named is the end of the period, and the message says what MuJoCo found.
+        """
         data = self.mj_data
         state = {
             "q": data.qpos.tolist(),
             "qdot": data.qvel.tolist(),
             "winch_angle": self._state.winch_angle.tolist(),
         }
+        found = [
+            f"MuJoCo found a NaN, infinite or huge joint {kind} at DOF "
+            f"{int(data.warning.lastinfo[index])} and reset its state"
+            for index, kind in _UNSTABLE.items()
+            if self._warnings[index] > 0
+        ]
         raise SimulationDivergedError(
-            f"simulation diverged at t = {self.time:.4f} s: q = {state['q']}, "
-            f"qdot = {state['qdot']}",
-            self.time,
+            f"simulation diverged at t = {end:.4f} s: q = {state['q']}, "
+            f"qdot = {state['qdot']}" + "".join(f"; {text}" for text in found),
+            end,
             state,
         )
 

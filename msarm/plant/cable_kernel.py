@@ -227,13 +227,14 @@ def step_plant(
     qvel,
     winch_speed,
     warning_counts,
-    unstable_warning,
+    unstable_warnings,
 ):
     """``n_steps`` whole plant steps, compiled: ``mj_step1``, :func:`step_cables`, ``mj_step2``.
 
     The same operations in the same order as the plant's Python loop, so the same bits.
     Afterwards it tells whether the simulation diverged, as the plant's check does: a NaN or
-    infinity in the joint angles, joint speeds or winch speeds, or MuJoCo's instability warning.
+    infinity in the joint angles, joint speeds or winch speeds, or one of MuJoCo's instability
+    warnings.
 
     Args:
         n_steps: Number of plant steps.
@@ -247,7 +248,8 @@ def step_plant(
         qvel: MuJoCo's joint speeds [rad/s], ``(n,)`` (a view of ``MjData.qvel``).
         winch_speed: The winch speeds [rad/s], ``(m,)`` (``omega`` of ``cable_args``).
         warning_counts: MuJoCo's warning counters (a view of ``MjData.warning.number``).
-        unstable_warning: Index of the instability warning (``mjWARN_BADQACC``).
+        unstable_warnings: Indices of the instability warnings (``mjWARN_BADQPOS``,
+            ``mjWARN_BADQVEL``, ``mjWARN_BADQACC``), int64.
 
     Returns:
         True if the simulation diverged.
@@ -263,4 +265,7 @@ def step_plant(
         total += value
     for value in winch_speed:
         total += value
-    return warning_counts[unstable_warning] > 0 or not math.isfinite(total)
+    for index in unstable_warnings:
+        if warning_counts[index] > 0:
+            return True
+    return not math.isfinite(total)
