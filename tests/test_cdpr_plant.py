@@ -305,3 +305,18 @@ def test_bad_input_is_refused(cdpr):
         plant.reset((r, R), tensions=-np.ones(cdpr.n_cables))
     with pytest.raises(ValueError, match="timestep"):
         CdprPlantConfig(timestep=0.002)
+
+
+def test_a_nan_platform_speed_stops_the_run_though_mujoco_resets_its_state(cdpr):
+    """MuJoCo resets a bad state silently (time included); the plant stops, naming it."""
+    from msarm.plant.arm_plant import SimulationDivergedError
+
+    r, R = off_home_pose(cdpr)
+    plant = CdprPlant(cdpr, QUIET, seed=0)
+    plant.reset((r, R))
+    plant.step(5)
+    end = plant.time + 5 * plant.mj_model.opt.timestep
+    plant.mj_data.qvel[2] = np.nan
+    with pytest.raises(SimulationDivergedError, match="velocity at DOF 2") as caught:
+        plant.step(5)
+    assert caught.value.time == pytest.approx(end)

@@ -29,6 +29,7 @@ from msarm.muscle.geometry import wrap_angles
 from msarm.plant.cable_kernel import PARAMS, step_cables, step_plant
 from msarm.plant.config import PlantConfig
 from msarm.plant.effects import CableState, Effect, SensorReadings, build_effects
+from msarm.plant.instability import UNSTABLE_INDEX, instability_found
 from msarm.plant.mujoco_c import step_functions
 
 __all__ = ["ArmPlant", "SimulationDivergedError"]
@@ -48,16 +49,6 @@ class SimulationDivergedError(MsarmError):
         super().__init__(message)
         self.time = time
         self.state = state
-
-
-#: MuJoCo's instability warnings (a NaN, infinite or huge joint position, velocity or
-#: acceleration, after which MuJoCo resets its state) by index: what went bad.
-_UNSTABLE = {
-    int(mujoco.mjtWarning.mjWARN_BADQPOS): "position",
-    int(mujoco.mjtWarning.mjWARN_BADQVEL): "velocity",
-    int(mujoco.mjtWarning.mjWARN_BADQACC): "acceleration",
-}
-_UNSTABLE_INDEX = np.array(sorted(_UNSTABLE), dtype=np.int64)
 
 
 def _overrides(effect: Effect, hook: str) -> bool:
@@ -168,7 +159,7 @@ class ArmPlant:
                 self.mj_data.qvel,
                 self._state.winch_speed,
                 self._warnings,
-                _UNSTABLE_INDEX,
+                UNSTABLE_INDEX,
             )
         )
 
@@ -391,7 +382,7 @@ class ArmPlant:
         state = self._state
         # one sum is NaN or inf exactly when some element is (a cheap check every period)
         total = float(state.q.sum() + state.qdot.sum() + state.winch_speed.sum())
-        if self._warnings[_UNSTABLE_INDEX].any() or not math.isfinite(total):
+        if self._warnings[UNSTABLE_INDEX].any() or not math.isfinite(total):
             self._raise_diverged(end)
 
     def _raise_diverged(self, end: float) -> None:
@@ -406,12 +397,7 @@ class ArmPlant:
             "qdot": data.qvel.tolist(),
             "winch_angle": self._state.winch_angle.tolist(),
         }
-        found = [
-            f"MuJoCo found a NaN, infinite or huge joint {kind} at DOF "
-            f"{int(data.warning.lastinfo[index])} and reset its state"
-            for index, kind in _UNSTABLE.items()
-            if self._warnings[index] > 0
-        ]
+        found = instability_found(data)
         raise SimulationDivergedError(
             f"simulation diverged at t = {end:.4f} s: q = {state['q']}, "
             f"qdot = {state['qdot']}" + "".join(f"; {text}" for text in found),

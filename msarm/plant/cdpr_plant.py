@@ -85,6 +85,7 @@ from msarm.cdpr.robot_model import (
 from msarm.errors import InputError
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, DRIVE_MODES, CdprPlantConfig
+from msarm.plant.instability import instability_found
 
 __all__ = ["CdprPlant", "CdprSensorReadings", "SimulationDivergedError"]
 
@@ -642,9 +643,11 @@ class CdprPlant:
         """
         if not self._is_reset:
             raise InputError("call CdprPlant.reset(pose, tensions) before step()")
+        # MuJoCo resets its state (time included) when it finds a bad one: take the time first
+        end = self.time + int(n_steps) * self.mj_model.opt.timestep
         for _ in range(int(n_steps)):
             self._step_once()
-        self._check_finite()
+        self._check_finite(end)
 
     # ------------------------------------------------------------------------- reading
     def sense(self) -> CdprSensorReadings:
@@ -823,11 +826,12 @@ class CdprPlant:
             data.qfrc_applied += self._qfrc_ext
         mujoco.mj_step2(model, data)
 
-    def _check_finite(self) -> None:
+    def _check_finite(self, end: float) -> None:
+        """Raise :class:`SimulationDivergedError` naming ``end`` [s] if the state went bad."""
         data, st = self.mj_data, self._st
         total = float(data.qpos.sum() + data.qvel.sum() + st[_S_SPEED].sum())
-        unstable = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
-        if unstable or not math.isfinite(total):
+        found = instability_found(data)
+        if found or not math.isfinite(total):
             state = {
                 "qpos": data.qpos.tolist(),
                 "qvel": data.qvel.tolist(),
@@ -835,9 +839,9 @@ class CdprPlant:
                 "tension": st[_S_TENSION].tolist(),
             }
             raise SimulationDivergedError(
-                f"CDPR simulation diverged at t = {self.time:.4f} s: qpos = {state['qpos']}, "
-                f"qvel = {state['qvel']}",
-                self.time,
+                f"CDPR simulation diverged at t = {end:.4f} s: qpos = {state['qpos']}, "
+                f"qvel = {state['qvel']}" + "".join(f"; {text}" for text in found),
+                end,
                 state,
             )
 
