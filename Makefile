@@ -32,8 +32,9 @@ lint: install
 test: install lint
 	$(PY) -m pytest -n 2 --dist loadfile -q
 
-# Speed and accuracy benchmarks; the withheld-effect diagnosis benchmark simulates its 28
-# scenarios once (cached under runs/bench-diagnose) and takes about 4 minutes the first time.
+# Speed and accuracy benchmarks; the withheld-effect diagnosis benchmark simulates its 29
+# scenarios once (cached under runs/bench-diagnose) and takes about 11 minutes the first time
+# on the 2-core development machine (8 minutes to re-score cached logs).
 bench: install
 	$(VENV)/bin/msarm bench allocation
 	$(VENV)/bin/msarm bench sim
