@@ -76,3 +76,24 @@ def test_weights_and_a_single_block(arm):
     weights = np.where(sampled.signals["train"].run == 0, 2.0, 0.0)  # one run counted twice
     for model in (fit_together([v_term], sampled), fit_together([v_term], sampled, weights)):
         np.testing.assert_allclose(model.parameters[0], v_true, rtol=1e-9)
+
+
+def test_a_none_start_leaves_that_term_to_its_own_guess(arm):
+    """The selection's warm start: fitted terms start where they ended, a new one from None."""
+    viscous, stribeck = ViscousFriction(), StribeckFriction()
+    v_true = np.array([0.05, 0.08, 0.04, 0.06])
+    s_true = np.tile([0.2, 0.35, 0.3], 4)
+    data, (v_term, s_term) = _data(arm, [viscous, stribeck], [v_true, s_true])
+    sampled = Sampled(data, 20_000)
+    cold = fit_together([v_term, s_term], sampled)
+    assert not np.allclose(cold.parameters[1], s_true, rtol=1e-2)  # backfitting is slow here
+    # None everywhere, or a start for the linear term only (not a prediction): the cold fit
+    for start in ([None, None], [v_true, None]):
+        same = fit_together([v_term, s_term], sampled, initial=start)
+        for a, b in zip(same.parameters, cold.parameters, strict=True):
+            np.testing.assert_array_equal(a, b)
+    # the nonlinear term started at the truth with the linear one left to its guess: the
+    # linear block is fitted to what the truth leaves, and both stay at the truth
+    warm = fit_together([v_term, s_term], sampled, initial=[None, s_true])
+    np.testing.assert_allclose(warm.parameters[0], v_true, rtol=1e-6)
+    np.testing.assert_allclose(warm.parameters[1], s_true, rtol=1e-6)

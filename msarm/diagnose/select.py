@@ -516,16 +516,22 @@ def select_effects(
     remaining = list(embedded)
     bases = Confounding(sampled)
     confounded: dict[str, str] = {}
+    chosen_fit: FittedModel | None = None
     while remaining:
         gain_of: dict[str, float] = {}
         after: dict[str, dict[str, float]] = {}
+        fits: dict[str, FittedModel] = {}
+        # the terms chosen so far start where their last fit ended; the candidate from its guess
+        start = None if chosen_fit is None else [*chosen_fit.parameters, None]
         for candidate in remaining:
             clash = bases.confounder(candidate, chosen)
             if clash is not None:
                 confounded[candidate.name] = clash
                 gain_of[candidate.name] = float("nan")
                 continue
-            fitted = fit_together([*chosen, candidate], sampled)
+            fitted = fits[candidate.name] = fit_together(
+                [*chosen, candidate], sampled, initial=start
+            )
             after[candidate.name] = group_scores(
                 layout, sampled.residual["hold"], fitted.predict(sampled, "hold")
             )
@@ -541,11 +547,13 @@ def select_effects(
             break
         chosen.append(best)
         remaining.remove(best)
+        chosen_fit = fits[best.name]
         current = after[best.name]
         explained.append(float(np.mean(list(current.values()))))
         gains.append(gain_of[best.name])
 
-    final = fit_together(chosen, sampled)
+    # the chosen terms' fit is the one their last step made
+    final = chosen_fit if chosen_fit is not None else fit_together(chosen, sampled)
     stds, confidence = _bootstrap(final, sampled, layout, int(n_boot), threshold, seed)
     cumulative = np.zeros_like(r_hold)
     waterfall = [{g: pooled_rmse(v) for g, v in layout.unstack(r_hold).items()}]

@@ -319,7 +319,7 @@ def fit_together(
     terms: Sequence[CandidateEffect],
     sampled: Sampled,
     weights: FloatArray | None = None,
-    initial: Sequence[FloatArray] | None = None,
+    initial: Sequence[FloatArray | None] | None = None,
     rounds: int = BACKFIT_ROUNDS,
 ) -> FittedModel:
     """Joint fit of ``terms`` to the training residual, by blocks until the fit settles.
@@ -339,7 +339,8 @@ def fit_together(
         weights: Per-sample weights of the training samples, ``(T,)`` (a bootstrap's run
             counts); all 1 when ``None``.
         initial: Starting parameters of each term (nonlinear ones start there; the first
-            round then refits the linear block to what they leave).
+            round then refits the linear block to what they leave); a ``None`` entry starts
+            that term from its own initial guess (a candidate added to fitted terms).
         rounds: Most rounds.
     """
     r = sampled.residual["train"]
@@ -351,6 +352,8 @@ def fit_together(
     prediction: dict[int, FloatArray] = {}
     if initial is not None:
         for term, theta in zip(terms, initial, strict=True):
+            if theta is None:
+                continue
             parameters[id(term)] = np.asarray(theta, dtype=float)
             if not term.linear:
                 prediction[id(term)] = sampled.predict(term, parameters[id(term)], "train")
