@@ -26,6 +26,7 @@ from scipy.signal import savgol_filter
 from msarm.errors import InputError
 from msarm.io.logs import RunLog
 from msarm.model import RobotModel
+from msarm.muscle.batch_kinematics import cable_kinematics_batch
 
 __all__ = ["TargetSpec", "torque_error"]
 
@@ -83,9 +84,9 @@ def torque_error(
     out = np.empty_like(q)
     index = model.pin_q_index
     inverse = np.argsort(index)
+    jacobians = cable_kinematics_batch(model, q_raw, with_wrap_angles=False).jacobian
     for k in range(len(q)):
-        geometry_jacobian = model.geometry(q_raw[k], with_wrap_angles=False).jacobian
-        delivered = -geometry_jacobian.T @ tension[k]
+        delivered = -jacobians[k].T @ tension[k]
         needed = pinocchio.rnea(
             model.pin_model, data.pin, q[k][index], qd[k][index], qdd[k][index]
         )[inverse]

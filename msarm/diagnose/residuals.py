@@ -42,7 +42,8 @@ from msarm.compensation.target import TargetSpec, torque_error
 from msarm.errors import LogError
 from msarm.io.logs import TIME, RunLog, read_log
 from msarm.model import RobotModel
-from msarm.muscle.geometry import cable_kinematics, wrap_angles
+from msarm.muscle.batch_kinematics import cable_kinematics_batch
+from msarm.muscle.geometry import cable_kinematics
 
 __all__ = [
     "RESIDUAL_UNITS",
@@ -304,15 +305,13 @@ def residuals_from_log(
         qd = savgol_filter(q, window, order, deriv=1, delta=dt, axis=0)
         out["qd"][part] = qd
         out["qdd"][part] = savgol_filter(q, window, order, deriv=2, delta=dt, axis=0)
-        lengths = np.empty((stop - start, m))
-        for k in range(stop - start):
-            lengths[k] = work.kinematics(q[k])
-            out["cable_velocity"][start + k] = work.jacobian @ qd[k]
-            if with_geometry:
-                out["jacobian"][start + k] = work.jacobian
-                out["wrap"][start + k] = wrap_angles(model.mj_model, work.data.mj)
+        kinematics = cable_kinematics_batch(model, q, with_wrap_angles=with_geometry)
+        lengths = kinematics.lengths
+        out["cable_velocity"][part] = np.matmul(kinematics.jacobian, qd[:, :, None])[:, :, 0]
         if with_geometry:
             out["lengths"][part] = lengths
+            out["jacobian"][part] = kinematics.jacobian
+            out["wrap"][part] = kinematics.wrap_angles
         if motor_all is not None:
             motor = motor_all[part]
             estimate = lengths[0] - spec.drum_radius * (motor - motor[0])

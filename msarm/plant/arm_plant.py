@@ -25,12 +25,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError, MsarmError
 from msarm.model import RobotModel
+from msarm.mujoco_c import step_functions
 from msarm.muscle.geometry import wrap_angles
 from msarm.plant.cable_kernel import PARAMS, step_cables, step_plant
 from msarm.plant.config import PlantConfig
 from msarm.plant.effects import CableState, Effect, SensorReadings, build_effects
 from msarm.plant.instability import UNSTABLE_INDEX, instability_found
-from msarm.plant.mujoco_c import step_functions
 
 __all__ = ["ArmPlant", "SimulationDivergedError"]
 
@@ -171,7 +171,7 @@ class ArmPlant:
 
     @property
     def compiled(self) -> bool:
-        """Whether :meth:`step` runs its whole loop compiled (see :mod:`msarm.plant.mujoco_c`).
+        """Whether :meth:`step` runs its whole loop compiled (see :mod:`msarm.mujoco_c`).
 
         False where MuJoCo's library was not found or a user effect hooks into the step.
         """

@@ -35,7 +35,7 @@ import math
 
 import numba
 
-from msarm.plant.mujoco_c import call_model_data
+from msarm.mujoco_c import call_model_data
 
 __all__ = ["PARAMS", "step_cables", "step_plant"]
 
@@ -238,7 +238,7 @@ def step_plant(
 
     Args:
         n_steps: Number of plant steps.
-        step1: Address of MuJoCo's ``mj_step1`` (:func:`msarm.plant.mujoco_c.step_functions`).
+        step1: Address of MuJoCo's ``mj_step1`` (:func:`msarm.mujoco_c.step_functions`).
         step2: Address of MuJoCo's ``mj_step2``.
         model: Address of the ``mjModel`` (``MjModel._address``).
         data: Address of the ``mjData`` (``MjData._address``) whose arrays the cable

@@ -1,0 +1,172 @@
+"""Cable kinematics of many postures at once: l(q), J_c(q) and the wrap angles, compiled.
+
+The diagnosis and the compensator's target need the cable lengths, the muscle Jacobian and
+the wrap angles at every logged posture: 5000 postures for a 20 s run at 250 Hz. Posture by
+posture from Python (:func:`msarm.muscle.geometry.cable_kinematics` and
+:func:`~msarm.muscle.geometry.wrap_angles`) that costs about 90 us a posture on the development
+machine, mostly the interpreter around four MuJoCo calls and the numpy work on a few dozen
+path points. :func:`cable_kinematics_batch` runs the same MuJoCo functions (``mj_kinematics``,
+``mj_comPos``, ``mj_tendon``, called through their addresses, see :mod:`msarm.mujoco_c`) and
+the same arithmetic in one compiled loop over the postures. Where MuJoCo's library cannot be
+found it falls back to the Python functions; both give the same values (tested: lengths and
+Jacobians bit for bit, wrap angles to round-off).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from msarm.errors import InputError
+from msarm.mujoco_c import call_model_data, function_addresses
+from msarm.muscle.geometry import _PULLEY, cable_kinematics, wrap_angles
+
+__all__ = ["CableKinematics", "cable_kinematics_batch"]
+
+FloatArray = NDArray[np.float64]
+
+#: MuJoCo's position stage as far as the tendons need it, in its order.
+_FUNCTIONS = ("mj_kinematics", "mj_comPos", "mj_tendon")
+
+
+class CableKinematics:
+    """Cable kinematics of ``T`` postures.
+
+    Attributes:
+        lengths: Cable lengths l(q) [m], ``(T, m)``.
+        jacobian: Muscle Jacobians ``J_c = dl/dq`` [m/rad], ``(T, m, n)``.
+        wrap_angles: Wrap angles Theta(q) [rad], ``(T, m)`` (NaN when not asked for).
+    """
+
+    def __init__(self, lengths: FloatArray, jacobian: FloatArray, wrap: FloatArray) -> None:
+        self.lengths = lengths
+        self.jacobian = jacobian
+        self.wrap_angles = wrap
+
+
+def cable_kinematics_batch(
+    model, q: ArrayLike, with_wrap_angles: bool = True, compiled: bool = True
+) -> CableKinematics:
+    """Cable lengths, muscle Jacobians and wrap angles at every posture of ``q``.
+
+    Args:
+        model: The robot (:class:`msarm.model.RobotModel`); a work space of its own is used.
+        q: Joint coordinates [rad], ``(T, n)``.
+        with_wrap_angles: Also compute the wrap angles (NaN otherwise).
+        compiled: Run the compiled loop where MuJoCo's library is found (False: the Python
+            functions posture by posture, the reference).
+
+    Returns:
+        The kinematics of the ``T`` postures.
+
+    Raises:
+        InputError: ``q`` is not a finite ``(T, n)`` array.
+    """
+    q = np.asarray(q, dtype=float)
+    n = model.n_joints
+    if q.ndim != 2 or q.shape[1] != n:
+        raise InputError(f"q must have shape (T, {n}), got {q.shape}")
+    if not np.all(np.isfinite(q)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(q))[0])
+        raise InputError(f"q must be finite, got {q[bad]} at index {bad}")
+    m_model = model.mj_model
+    m_data = model.create_data().mj
+    T, m = len(q), m_model.ntendon
+    lengths = np.empty((T, m))
+    jacobian = np.zeros((T, m, m_model.nv))
+    wrap = np.full((T, m), np.nan)
+    addresses = function_addresses(*_FUNCTIONS) if compiled else None
+    if addresses is None:
+        for k in range(T):
+            lengths[k] = cable_kinematics(m_model, m_data, q[k], jacobian[k])
+            if with_wrap_angles:
+                wrap[k] = wrap_angles(m_model, m_data)
+        return CableKinematics(lengths, jacobian, wrap)
+    _kinematics_loop(
+        np.array(addresses, dtype=np.intp),
+        m_model._address,
+        m_data._address,
+        q,
+        m_data.qpos,
+        m_data.ten_length,
+        m_data.ten_J,
+        m_model.ten_J_rownnz,
+        m_model.ten_J_rowadr,
+        m_model.ten_J_colind,
+        m_data.wrap_xpos.reshape(-1, 3),
+        m_data.wrap_obj.reshape(-1),
+        m_data.ten_wrapadr,
+        m_data.ten_wrapnum,
+        with_wrap_angles,
+        lengths,
+        jacobian,
+        wrap,
+    )
+    return CableKinematics(lengths, jacobian, wrap)
+
+
+@numba.njit(cache=True)
+def _kinematics_loop(
+    functions,
+    model,
+    data,
+    q,
+    qpos,
+    ten_length,
+    ten_j,
+    rownnz,
+    rowadr,
+    colind,
+    wrap_xpos,
+    wrap_obj,
+    wrapadr,
+    wrapnum,
+    with_wrap,
+    lengths,
+    jacobian,
+    wrap,
+):  # pragma: no cover - compiled
+    """For each posture: set ``qpos``, run the three MuJoCo functions, read the tendons."""
+    for t in range(q.shape[0]):
+        for j in range(q.shape[1]):
+            qpos[j] = q[t, j]
+        for function in functions:
+            call_model_data(function, model, data)
+        for i in range(lengths.shape[1]):
+            lengths[t, i] = ten_length[i]
+            start = rowadr[i]
+            for p in range(rownnz[i]):
+                jacobian[t, i, colind[start + p]] = ten_j[start + p]
+        if with_wrap:
+            _wrap_angles(wrap_xpos, wrap_obj, wrapadr, wrapnum, wrap[t])
+
+
+@numba.njit(cache=True)
+def _wrap_angles(points, objects, wrapadr, wrapnum, out):  # pragma: no cover - compiled
+    """:func:`msarm.muscle.geometry.wrap_angles`, one cable at a time (same arithmetic)."""
+    for i in range(out.shape[0]):
+        first, count = wrapadr[i], wrapnum[i]
+        total = 0.0
+        for p in range(first + 1, first + count - 1):
+            if objects[p - 1] == _PULLEY or objects[p] == _PULLEY or objects[p + 1] == _PULLEY:
+                continue
+            ax = points[p, 0] - points[p - 1, 0]
+            ay = points[p, 1] - points[p - 1, 1]
+            az = points[p, 2] - points[p - 1, 2]
+            bx = points[p + 1, 0] - points[p, 0]
+            by = points[p + 1, 1] - points[p, 1]
+            bz = points[p + 1, 2] - points[p, 2]
+            norm_a = math.sqrt(ax * ax + ay * ay + az * az)
+            norm_b = math.sqrt(bx * bx + by * by + bz * bz)
+            if not (norm_a > 1e-12 and norm_b > 1e-12):
+                continue
+            cosine = (
+                (ax / norm_a) * (bx / norm_b)
+                + (ay / norm_a) * (by / norm_b)
+                + (az / norm_a) * (bz / norm_b)
+            )
+            total += math.acos(min(1.0, max(-1.0, cosine)))
+        out[i] = total
