@@ -170,3 +170,84 @@ def test_feature_spec_refuses_unknown_groups():
     with pytest.raises(ValueError, match="unknown feature groups"):
         FeatureSpec(groups=("q", "torque"))
     assert replace(FeatureSpec(), source="measured").source == "measured"
+
+
+def _log_with_commands(arm) -> tuple[RunLog, np.ndarray]:
+    log = hand_log(arm)
+    commands = np.array([np.full(9, 20.0), np.linspace(15.0, 40.0, 9), np.linspace(30.0, 5.0, 9)])
+    columns = dict(log.columns)
+    for i, name in enumerate(arm.cable_names):
+        columns[f"tension_cmd.{name}"] = commands[:, i]
+    metadata = replace(log.metadata, units={**log.metadata.units, "tension_cmd": "N"})
+    return RunLog(columns, metadata), commands
+
+
+def test_sheath_stiction_from_the_previous_commands_is_the_hand_computed_value(arm):
+    log, commands = _log_with_commands(arm)
+    spec = FeatureSpec(groups=("sheath_stiction",), stiction_mus=(0.05, 0.5))
+    extractor = FeatureExtractor(arm, spec)
+    assert extractor.size == 8
+    assert extractor.names[0] == "sheath_stiction[mu=0.05].shoulder_abduction"
+    x = extractor.from_log(log)
+    # tick 0: no command sent yet; tick 1: the element starts balanced at the command of tick 0
+    np.testing.assert_array_equal(x[0], 0.0)
+    np.testing.assert_allclose(x[1], 0.0, atol=1e-12)  # exp(log F) - F: round-off
+    # tick 2: the command of tick 1 moved within the band or beyond it, cable by cable
+    geometry = arm.geometry(log.matrix("q")[2])
+    for j, mu in enumerate((0.05, 0.5)):
+        band = mu * geometry.wrap_angles
+        kept = np.clip(commands[0], commands[1] * np.exp(-band), commands[1] * np.exp(band))
+        expected = geometry.jacobian.T @ (kept - commands[1])
+        np.testing.assert_allclose(x[2, 4 * j : 4 * j + 4], expected, rtol=1e-9, atol=1e-12)
+    # both cases are exercised: cables that slipped to the band's edge and cables that stuck
+    step = np.abs(np.log(commands[0] / commands[1]))
+    assert np.any(step > 0.05 * geometry.wrap_angles) and np.any(step < 0.05 * geometry.wrap_angles)
+    assert np.all(step < 0.5 * geometry.wrap_angles)  # mu = 0.5: every cable stuck
+
+
+def test_sheath_stiction_online_equals_offline_and_needs_the_commands(arm):
+    log, commands = _log_with_commands(arm)
+    spec = FeatureSpec(groups=(*FeatureSpec().groups, "sheath_stiction"))
+    extractor = FeatureExtractor(arm, spec)
+    offline = extractor.from_log(log)
+    extractor.reset()
+    for k in range(len(log)):
+        readings = SensorReadings(
+            t=float(log.t[k]),
+            q=log.matrix("q")[k],
+            motor_angle=log.matrix("motor_angle")[k],
+            motor_torque=np.zeros(9),
+            tension_motor=log.matrix("tension_motor")[k],
+        )
+        online = extractor(
+            readings, log.matrix("qdot_est")[k], log.matrix("q_ref")[k], log.matrix("qd_ref")[k]
+        )
+        extractor.observe_command(commands[k])
+        np.testing.assert_allclose(online, offline[k], rtol=1e-12, atol=1e-12)
+    with pytest.raises(InputError, match="tension_cmd"):
+        extractor.from_log(hand_log(arm))
+
+
+def test_the_controller_tells_a_feedforward_its_commands(arm):
+    from msarm.control import MuscleSpaceController
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.seen: list[np.ndarray] = []
+
+        def __call__(self, readings, qdot, q_ref, qd_ref):
+            return np.zeros(4)
+
+        def observe_command(self, tension_command):
+            self.seen.append(np.array(tension_command))
+
+    controller = MuscleSpaceController(arm)
+    controller.reset(HOME)
+    recorder = Recorder()
+    readings = SensorReadings(
+        t=0.0, q=HOME, motor_angle=np.zeros(9), motor_torque=np.zeros(9), tension_motor=np.ones(9)
+    )
+    outputs = [controller.update(readings, HOME, np.zeros(4), np.zeros(4), recorder) for _ in "ab"]
+    assert len(recorder.seen) == 2
+    for seen, out in zip(recorder.seen, outputs, strict=True):
+        np.testing.assert_array_equal(seen, out.tension_command)

@@ -20,6 +20,10 @@ group (paper 003 eq. 8)     value                                            siz
 ``cable_memory``            Dahl-type memory of each cable's last direction  m
 ``sign_error``              ``tanh((q_r - q) / eps_e)``: the smoothed sign   n
                             of each joint's tracking error (measured ``q``)
+``sheath_stiction``         ``J_c(q)^T (S_mu(F_cmd) - F_cmd)`` for each        n K
+                            ``mu`` of ``stiction_mus``: the torque a sheath
+                            with static friction ``mu`` would take from the
+                            commanded tensions (see below)
 ==========================  ===============================================  ==========
 
 The choice of inputs. All of paper 003's groups are available (43 inputs with 4 joints and
@@ -45,6 +49,20 @@ moved; they were the default before ``sign_error`` and are still available. The 
 functions are smoothed (``tanh``) so that the network's input is continuous. ``theta_0``,
 ``q_0`` and the memories start at the first sample of a run: :meth:`reset` starts a new run.
 
+``sheath_stiction`` carries the memory of a sheath that sticks. ``S_mu`` is a stick-slip
+element (a play operator in log tension, as the diagnosis's ``capstan_hysteresis`` term,
+:func:`msarm.diagnose.signals.stick_slip_tension`): it passes the commanded tension ``F`` on
+while the two ends of the cable differ by less than the capstan factor ``exp(mu Theta(q))``
+and keeps what the last slip left otherwise, so after a cable was pulled in it gives
+``F exp(-mu Theta)``, after it was paid out ``F exp(mu Theta)``, and at rest whatever the last
+motion left: which side of its friction band each cable rests on. It is built from the
+controller's own previous command (the command of tick ``k - 1`` at tick ``k``; zero at the
+first tick of a run, and the element starts balanced at the second) and the measured
+posture's wrap angles ``Theta(q)`` and Jacobian, so it needs no sensor the robot lacks; in a
+log it comes from the ``tension_cmd`` columns. It feeds back too (``dtau`` raises the
+commands), but only through the friction band: its size is ``F (exp(mu Theta) - 1)``, not
+``F``.
+
 The same code computes the features online (one tick, :meth:`FeatureExtractor.__call__`) and
 offline from a log (:meth:`FeatureExtractor.from_log`); a test keeps them equal.
 """
@@ -59,9 +77,10 @@ from numpy.typing import NDArray
 from msarm.errors import InputError
 from msarm.io.logs import RunLog
 from msarm.model import RobotModel
+from msarm.muscle.batch_kinematics import current_wrap_angles
 from msarm.muscle.geometry import cable_kinematics
 
-__all__ = ["DEFAULT_GROUPS", "FEATURE_GROUPS", "FeatureExtractor", "FeatureSpec"]
+__all__ = ["DEFAULT_GROUPS", "FEATURE_GROUPS", "STICTION_MUS", "FeatureExtractor", "FeatureSpec"]
 
 FloatArray = NDArray[np.float64]
 
@@ -77,7 +96,13 @@ FEATURE_GROUPS = {
     "joint_memory": "joint",
     "cable_memory": "cable",
     "sign_error": "joint",
+    "sheath_stiction": "joint",
 }
+#: Friction coefficients of the ``sheath_stiction`` elements (the diagnosis's, from
+#: :data:`msarm.diagnose.effects.CAPSTAN_STICTION_MUS`) [-].
+STICTION_MUS = (0.03, 0.06, 0.12, 0.24)
+#: Least tension taken for the logarithm of a stick-slip element [N].
+_STICTION_FLOOR = 1e-3
 #: The default inputs: the state of paper 003 eq. 8 without the two groups that the
 #: compensator's own output feeds back into (``cable_length_error`` and ``tension``, see the
 #: module docstring), plus the sign of the tracking error.
@@ -107,6 +132,8 @@ class FeatureSpec:
             the robot's response) or ``"measured"`` (encoders and the controller's velocity
             estimate: a learned feedback).
         sign_error_angle: ``eps_e`` of ``tanh((q_r - q) / eps_e)`` [rad] (``sign_error``).
+        stiction_mus: Friction coefficients of the ``sheath_stiction`` elements [-], one
+            group of ``n`` inputs each.
     """
 
     groups: tuple[str, ...] = DEFAULT_GROUPS
@@ -117,6 +144,7 @@ class FeatureSpec:
     memory_length: float = 0.001
     source: str = "reference"
     sign_error_angle: float = 0.005
+    stiction_mus: tuple[float, ...] = STICTION_MUS
 
     def __post_init__(self) -> None:
         unknown = [g for g in self.groups if g not in FEATURE_GROUPS]
@@ -138,11 +166,16 @@ class FeatureSpec:
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        mus = tuple(float(mu) for mu in self.stiction_mus)
+        if not mus or not all(np.isfinite(mu) and mu > 0 for mu in mus):
+            raise ValueError(f"stiction_mus must be finite numbers > 0, got {self.stiction_mus}")
+        object.__setattr__(self, "stiction_mus", mus)
 
     def as_dict(self) -> dict:
         """Plain-data form (lists, numbers) for checkpoints."""
         out = asdict(self)
         out["groups"] = list(self.groups)
+        out["stiction_mus"] = list(self.stiction_mus)
         return out
 
 
@@ -161,17 +194,50 @@ class FeatureExtractor:
         self._jacobian = np.zeros((model.n_cables, model.n_joints))
         self._origin: tuple[FloatArray, FloatArray] | None = None
         self._memory: tuple[float, FloatArray, FloatArray] | None = None
-        sizes = {"joint": model.n_joints, "cable": model.n_cables}
+        self._command: FloatArray | None = None
+        self._stiction: FloatArray | None = None
+        self._mus = np.asarray(self.spec.stiction_mus, dtype=float)[:, None]
         self.names: list[str] = []
         for group in self.spec.groups:
             names = model.joint_names if FEATURE_GROUPS[group] == "joint" else model.cable_names
-            self.names += [f"{group}.{name}" for name in names]
-        self.size = sum(sizes[FEATURE_GROUPS[g]] for g in self.spec.groups)
+            if group == "sheath_stiction":
+                self.names += [
+                    f"{group}[mu={mu:g}].{name}" for mu in self.spec.stiction_mus for name in names
+                ]
+            else:
+                self.names += [f"{group}.{name}" for name in names]
+        self.size = len(self.names)
 
     def reset(self) -> None:
         """Start a new run: the next sample fixes ``q_0`` and ``theta_0``, memories at 0."""
         self._origin = None
         self._memory = None
+        self._command = None
+        self._stiction = None
+
+    def observe_command(self, tension_command: FloatArray) -> None:
+        """Remember the tension command [N], ``(m,)``, sent this tick (``sheath_stiction``).
+
+        The controller calls it after each tick (through
+        :meth:`msarm.compensation.feedforward.LearnedFeedforward.observe_command`).
+        """
+        self._command = np.array(tension_command, dtype=float)
+
+    def _sheath_stiction(self, command: FloatArray | None, jacobian: FloatArray) -> FloatArray:
+        """``J_c^T (S_mu(F) - F)`` of each ``mu`` [N m], ``(K n,)``; advances the elements.
+
+        ``jacobian`` and the wrap angles are those of the measured posture (``mj_tendon`` ran
+        last on it).
+        """
+        if command is None:  # the first tick of a run: no command sent yet
+            return np.zeros(self._mus.shape[0] * jacobian.shape[1])
+        log_f = np.log(np.maximum(command, _STICTION_FLOOR))
+        band = self._mus * current_wrap_angles(self.model.mj_model, self._data.mj)
+        if self._stiction is None:
+            self._stiction = np.repeat(log_f[None, :], self._mus.shape[0], axis=0)
+        else:
+            self._stiction = np.minimum(np.maximum(self._stiction, log_f - band), log_f + band)
+        return ((np.exp(self._stiction) - command) @ jacobian).reshape(-1)
 
     def _geometry(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
         lengths = cable_kinematics(self.model.mj_model, self._data.mj, q, self._jacobian)
@@ -205,13 +271,18 @@ class FeatureExtractor:
         reference: tuple[FloatArray, FloatArray],
         motor_angle: FloatArray,
         tension: FloatArray,
+        command: FloatArray | None = None,
     ) -> FloatArray:
         spec = self.spec
         q_meas = measured[0]
         q, qdot = reference if spec.source == "reference" else measured
         measured_lengths = None
+        stiction = None
         if self._origin is None or "cable_length_error" in spec.groups:
             measured_lengths = self._geometry(q_meas)[0]  # before: the Jacobian buffer is shared
+        if "sheath_stiction" in spec.groups:
+            measured_lengths, measured_jacobian = self._geometry(q_meas)
+            stiction = self._sheath_stiction(command, measured_jacobian)
         _, jacobian = self._geometry(q)
         if self._origin is None:
             self._origin = (measured_lengths.copy(), motor_angle.copy())
@@ -234,6 +305,7 @@ class FeatureExtractor:
             "joint_memory": joint_memory,
             "cable_memory": cable_memory,
             "sign_error": np.tanh((reference[0] - q_meas) / spec.sign_error_angle),
+            "sheath_stiction": stiction,
         }
         return np.concatenate([values[group] for group in spec.groups])  # type: ignore[misc]
 
@@ -258,13 +330,15 @@ class FeatureExtractor:
             (np.asarray(q_ref, dtype=float), np.asarray(qd_ref, dtype=float)),
             np.asarray(readings.motor_angle, dtype=float),
             np.asarray(readings.tension_motor, dtype=float),
+            self._command,
         )
 
     def from_log(self, log: RunLog, source: str = "log") -> FloatArray:
         """Features of every sample of a log, shape ``(T, d)`` (a run from its start).
 
         Args:
-            log: A run's log with ``q``, ``qdot_est``, ``motor_angle`` and ``tension_motor``.
+            log: A run's log with ``q``, ``qdot_est``, ``motor_angle`` and ``tension_motor``
+                (and ``tension_cmd`` for ``sheath_stiction``).
             source: Name of the log (file) for error messages.
 
         Raises:
@@ -273,6 +347,8 @@ class FeatureExtractor:
         joints, cables = list(self.model.joint_names), list(self.model.cable_names)
         needed = [("q", joints), ("qdot_est", joints), ("motor_angle", cables)]
         needed += [("tension_motor", cables), ("q_ref", joints), ("qd_ref", joints)]
+        if "sheath_stiction" in self.spec.groups:
+            needed.append(("tension_cmd", cables))
         for quantity, names in needed:
             for name in names:
                 if f"{quantity}.{name}" not in log.columns:
@@ -287,12 +363,16 @@ class FeatureExtractor:
         qd_ref = log.matrix("qd_ref", joints)
         motor = log.matrix("motor_angle", cables)
         tension = log.matrix("tension_motor", cables)
+        commands = (
+            log.matrix("tension_cmd", cables) if "sheath_stiction" in self.spec.groups else None
+        )
         t = log.t
         self.reset()
         out = np.empty((len(q), self.size))
         for k in range(len(q)):
+            previous = None if commands is None or k == 0 else commands[k - 1]
             out[k] = self._features(
-                float(t[k]), (q[k], qdot[k]), (q_ref[k], qd_ref[k]), motor[k], tension[k]
+                float(t[k]), (q[k], qdot[k]), (q_ref[k], qd_ref[k]), motor[k], tension[k], previous
             )
         self.reset()
         return out

@@ -27,6 +27,8 @@ def feature_spec_of(compensator: Compensator) -> FeatureSpec:
     """The feature spec stored in a compensator's metadata."""
     raw = dict(compensator.metadata["feature_spec"])
     raw["groups"] = tuple(raw["groups"])
+    if "stiction_mus" in raw:
+        raw["stiction_mus"] = tuple(raw["stiction_mus"])
     return FeatureSpec(**raw)
 
 
@@ -64,6 +66,10 @@ class LearnedFeedforward:
     ) -> FloatArray:
         """``dtau`` [N m], shape ``(n,)``, for this tick."""
         return self.fast(self.extractor(readings, qdot_estimate, q_ref, qd_ref))
+
+    def observe_command(self, tension_command: FloatArray) -> None:
+        """The tension command [N], ``(m,)``, the controller sent this tick (features)."""
+        self.extractor.observe_command(tension_command)
 
 
 def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:

@@ -202,7 +202,8 @@ class MuscleSpaceController:
             qdd_ref: Reference joint accelerations [rad/s^2], shape ``(n,)``.
             feedforward: Joint-torque compensation ``dtau`` [N m], shape ``(n,)``; or a callable
                 ``(readings, qdot_estimate, q_ref, qd_ref) -> dtau`` called after this tick's
-                velocity estimate; or None.
+                velocity estimate (one with an ``observe_command(tension_command)`` method is
+                then told the tick's tension command [N], ``(m,)``); or None.
 
         Returns:
             The commands and what led to them.
@@ -228,6 +229,7 @@ class MuscleSpaceController:
             tau,
         )
         qdot = state.qdot
+        observe = getattr(feedforward, "observe_command", None)
         if callable(feedforward):
             feedforward = feedforward(readings, qdot, q_ref, qd_ref)
         if feedforward is not None:
@@ -250,6 +252,8 @@ class MuscleSpaceController:
         else:
             state.activation = activation
         force = state.activation * active + passive
+        if observe is not None:  # a feedforward with memory of the commands
+            observe(force)
         return ControlOutput(
             tension_command=force,
             joint_torque=tau,

@@ -24,7 +24,7 @@ from msarm.errors import InputError
 from msarm.mujoco_c import call_model_data, function_addresses
 from msarm.muscle.geometry import _PULLEY, cable_kinematics, wrap_angles
 
-__all__ = ["CableKinematics", "cable_kinematics_batch"]
+__all__ = ["CableKinematics", "cable_kinematics_batch", "current_wrap_angles"]
 
 FloatArray = NDArray[np.float64]
 
@@ -106,6 +106,23 @@ def cable_kinematics_batch(
         wrap,
     )
     return CableKinematics(lengths, jacobian, wrap)
+
+
+def current_wrap_angles(m_model, m_data) -> FloatArray:
+    """Wrap angles of the path ``mj_tendon`` last computed on ``m_data`` [rad], ``(m,)``.
+
+    The compiled form of :func:`msarm.muscle.geometry.wrap_angles` (the same values to
+    round-off), for a control loop that needs them every tick.
+    """
+    out = np.empty(m_model.ntendon)
+    _wrap_angles(
+        m_data.wrap_xpos.reshape(-1, 3),
+        m_data.wrap_obj.reshape(-1),
+        m_data.ten_wrapadr,
+        m_data.ten_wrapnum,
+        out,
+    )
+    return out
 
 
 @numba.njit(cache=True)

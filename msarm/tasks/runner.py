@@ -60,7 +60,10 @@ _WRAP_REFRESH_PERIODS = 10
 class Feedforward(Protocol):
     """A joint-torque feedforward compensation ``dtau`` (e.g. the learned compensator).
 
-    The controller calls it every tick after estimating the joint velocities.
+    The controller calls it every tick after estimating the joint velocities. One that also
+    has an ``observe_command(tension_command)`` method is told each tick's tension command
+    [N], ``(m,)``, once the controller has computed it (a feedforward with memory of the
+    commands, e.g. the ``sheath_stiction`` features).
     """
 
     def reset(self) -> None:
