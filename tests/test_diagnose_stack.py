@@ -97,3 +97,32 @@ def test_a_none_start_leaves_that_term_to_its_own_guess(arm):
     warm = fit_together([v_term, s_term], sampled, initial=[None, s_true])
     np.testing.assert_allclose(warm.parameters[0], v_true, rtol=1e-6)
     np.testing.assert_allclose(warm.parameters[1], s_true, rtol=1e-6)
+
+
+def test_a_fit_asked_again_is_not_solved_again(arm, monkeypatch):
+    import msarm.diagnose.fitting as fitting
+
+    stribeck = StribeckFriction()
+    s_true = np.tile([0.2, 0.35, 0.3], 4)
+    data, (s_term,) = _data(arm, [stribeck], [s_true])
+    sampled = Sampled(data, 20_000)
+    calls = []
+    solve = fitting._NonlinearProblem.solve
+
+    def counted(self, *args, **kwargs):
+        calls.append(1)
+        return solve(self, *args, **kwargs)
+
+    monkeypatch.setattr(fitting._NonlinearProblem, "solve", counted)
+    r = sampled.residual["train"]
+    first = sampled.fit_nonlinear(s_term, r)
+    again = sampled.fit_nonlinear(s_term, r.copy())
+    assert len(calls) == 1
+    np.testing.assert_array_equal(first[0], again[0])
+    again[0][0] = -1.0  # the answer handed out is a copy
+    np.testing.assert_array_equal(sampled.fit_nonlinear(s_term, r)[0], first[0])
+    # another residual, another start or other weights: solved
+    sampled.fit_nonlinear(s_term, 0.5 * r)
+    sampled.fit_nonlinear(s_term, r, initial=s_true)
+    sampled.fit_nonlinear(s_term, r, weights=np.full(r.shape[0], 2.0))
+    assert len(calls) == 4

@@ -11,6 +11,7 @@ the diagnosis's internals: their interface may change.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -245,6 +246,7 @@ class Sampled:
         }
         self._designs: dict[tuple[int, str], FloatArray] = {}
         self._problems: dict[int, _NonlinearProblem] = {}
+        self._solutions: dict[tuple[int, bytes], tuple[FloatArray, str]] = {}
         self._joint_design: tuple[tuple[int, ...], FloatArray] | None = None
 
     def fit_nonlinear(
@@ -256,7 +258,10 @@ class Sampled:
     ) -> tuple[FloatArray, str]:
         """Fit a nonlinear term to the training ``residual`` (stack columns) by IPOPT.
 
-        The problem (on the term's own columns) is built once per term and reused.
+        The problem (on the term's own columns) is built once per term and reused. A fit asked
+        again with the same residual on those columns, weights and start (the selection and
+        the bootstrap do, a fifth of the time) returns the answer of the first: the solver is
+        deterministic, so it is the same answer.
         """
         if id(term) not in self._problems:
             own = OwnColumns(term)
@@ -265,8 +270,16 @@ class Sampled:
             )
         problem = self._problems[id(term)]
         columns = problem.effect.columns
-        theta, _, message = problem.solve(initial, weights, residual[:, columns])
-        return theta, message
+        own_residual = np.ascontiguousarray(residual[:, columns], dtype=float)
+        digest = hashlib.blake2b(own_residual.tobytes(), digest_size=20)
+        for extra in (weights, initial):
+            digest.update(b"-" if extra is None else np.asarray(extra, dtype=float).tobytes())
+        key = (id(term), digest.digest())
+        if key not in self._solutions:
+            theta, _, message = problem.solve(initial, weights, own_residual)
+            self._solutions[key] = (theta, message)
+        theta, message = self._solutions[key]
+        return theta.copy(), message
 
     def design(self, term: CandidateEffect, split: str) -> FloatArray:
         """A linear term's design on the ``"train"`` or ``"hold"`` samples (computed once)."""
