@@ -34,7 +34,7 @@ test: install lint
 
 # Speed and accuracy benchmarks; the withheld-effect diagnosis benchmark simulates its 29
 # scenarios once (cached under runs/bench-diagnose) and takes about 7 minutes the first time
-# on the 2-core development machine (3.5 minutes to re-score cached logs).
+# on the 2-core development machine (3 minutes to re-score cached logs).
 bench: install
 	$(VENV)/bin/msarm bench allocation
 	$(VENV)/bin/msarm bench sim
