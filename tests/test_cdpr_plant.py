@@ -317,6 +317,11 @@ def test_a_nan_platform_speed_stops_the_run_though_mujoco_resets_its_state(cdpr)
     plant.step(5)
     end = plant.time + 5 * plant.mj_model.opt.timestep
     plant.mj_data.qvel[2] = np.nan
+    before = plant.mj_data.qpos.tolist()
     with pytest.raises(SimulationDivergedError, match="velocity at DOF 2") as caught:
         plant.step(5)
     assert caught.value.time == pytest.approx(end)
+    # the state named is the one the failed period started from, not MuJoCo's reset one
+    assert "at the start of that period" in str(caught.value)
+    np.testing.assert_array_equal(caught.value.state["qpos"], before)
+    assert np.isnan(caught.value.state["qvel"][2])

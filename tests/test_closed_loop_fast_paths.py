@@ -173,11 +173,17 @@ def test_both_step_loops_stop_on_divergence_with_time_and_state(arm, extra, pois
     plant.reset(POSTURE, tensions=np.full(arm.n_cables, 25.0))
     plant.step(4)
     poison(plant)
+    before = {"q": plant.mj_data.qpos.tolist(), "qdot": plant.mj_data.qvel.tolist()}
     with pytest.raises(SimulationDivergedError, match="diverged at t = 0.0080 s") as caught:
         plant.step(4)
     assert found in str(caught.value) and "reset its state" in str(caught.value)
     assert caught.value.time == pytest.approx(0.008)
     assert set(caught.value.state) == {"q", "qdot", "winch_angle"}
+    # the state named is the one the failed period started from, not MuJoCo's reset one
+    assert "at the start of that period" in str(caught.value)
+    np.testing.assert_array_equal(caught.value.state["q"], before["q"])
+    np.testing.assert_array_equal(caught.value.state["qdot"], before["qdot"])
+    assert not np.allclose(plant.mj_data.qpos, before["q"])  # MuJoCo did reset
 
 
 def test_controller_refuses_references_of_the_wrong_shape(arm):

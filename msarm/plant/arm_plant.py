@@ -136,6 +136,11 @@ class ArmPlant:
             drum_radius=winch.drum_radius,
         )
         self._rng = np.random.default_rng(seed)
+        self._period_start = {
+            "q": np.zeros(self.mj_model.nq),
+            "qdot": np.zeros(self.mj_model.nv),
+            "winch_angle": np.zeros(m),
+        }
         self._command = np.zeros(m)
         self._length_ref = np.zeros(m)
         self.tension_insertion = np.zeros(m)
@@ -306,8 +311,13 @@ class ArmPlant:
         Raises:
             SimulationDivergedError: NaN in the state or a MuJoCo instability warning.
         """
-        # MuJoCo resets its state (time included) when it finds a bad one: take the time first
+        # MuJoCo resets its state (time included) when it finds a bad one: take the time and
+        # the state first, to name them if the period fails
         end = float(self.mj_data.time) + n_steps * self.config.timestep
+        start = self._period_start
+        np.copyto(start["q"], self.mj_data.qpos)
+        np.copyto(start["qdot"], self.mj_data.qvel)
+        np.copyto(start["winch_angle"], self._state.winch_angle)
         if self._compiled_args is not None:
             if step_plant(n_steps, *self._compiled_args):
                 self._raise_diverged(end)
@@ -388,19 +398,27 @@ class ArmPlant:
     def _raise_diverged(self, end: float) -> None:
         """Raise :class:`SimulationDivergedError`: the period that ended at ``end`` [s], the state.
 
-        Where MuJoCo found a bad joint state it has reset its own (time included), so the time
-        named is the end of the period, and the message says what MuJoCo found.
+        Where MuJoCo found a bad joint state it has reset its own (time and state), so the time
+        named is the end of the period, the state is the one the period started from (the last
+        one MuJoCo accepted), and the message says what MuJoCo found. Otherwise (a NaN in the
+        winches) the state is the one the period ended in.
         """
         data = self.mj_data
-        state = {
-            "q": data.qpos.tolist(),
-            "qdot": data.qvel.tolist(),
-            "winch_angle": self._state.winch_angle.tolist(),
-        }
         found = instability_found(data)
+        if found:
+            start = self._period_start
+            state = {key: values.tolist() for key, values in start.items()}
+            where = "at the start of that period"
+        else:
+            state = {
+                "q": data.qpos.tolist(),
+                "qdot": data.qvel.tolist(),
+                "winch_angle": self._state.winch_angle.tolist(),
+            }
+            where = "at its end"
         raise SimulationDivergedError(
-            f"simulation diverged at t = {end:.4f} s: q = {state['q']}, "
-            f"qdot = {state['qdot']}" + "".join(f"; {text}" for text in found),
+            f"simulation diverged at t = {end:.4f} s ({where}: q = {state['q']}, "
+            f"qdot = {state['qdot']})" + "".join(f"; {text}" for text in found),
             end,
             state,
         )

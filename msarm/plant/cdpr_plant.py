@@ -643,11 +643,13 @@ class CdprPlant:
         """
         if not self._is_reset:
             raise InputError("call CdprPlant.reset(pose, tensions) before step()")
-        # MuJoCo resets its state (time included) when it finds a bad one: take the time first
+        # MuJoCo resets its state (time included) when it finds a bad one: take the time and
+        # the state first, to name them if the period fails
         end = self.time + int(n_steps) * self.mj_model.opt.timestep
+        start = self._state_now()
         for _ in range(int(n_steps)):
             self._step_once()
-        self._check_finite(end)
+        self._check_finite(end, start)
 
     # ------------------------------------------------------------------------- reading
     def sense(self) -> CdprSensorReadings:
@@ -826,21 +828,37 @@ class CdprPlant:
             data.qfrc_applied += self._qfrc_ext
         mujoco.mj_step2(model, data)
 
-    def _check_finite(self, end: float) -> None:
-        """Raise :class:`SimulationDivergedError` naming ``end`` [s] if the state went bad."""
+    def _state_now(self) -> dict[str, list[float]]:
+        """The platform's and the winches' state (for a divergence report)."""
+        data, st = self.mj_data, self._st
+        return {
+            "qpos": data.qpos.tolist(),
+            "qvel": data.qvel.tolist(),
+            "winch_angle": st[_S_THETA].tolist(),
+            "tension": st[_S_TENSION].tolist(),
+        }
+
+    def _check_finite(self, end: float, start: dict[str, list[float]]) -> None:
+        """Raise :class:`SimulationDivergedError` naming ``end`` [s] if the state went bad.
+
+        Where MuJoCo found a bad state it has reset its own, so the state named is ``start``,
+        the one the period started from; otherwise the one it ended in.
+        """
         data, st = self.mj_data, self._st
         total = float(data.qpos.sum() + data.qvel.sum() + st[_S_SPEED].sum())
         found = instability_found(data)
         if found or not math.isfinite(total):
-            state = {
-                "qpos": data.qpos.tolist(),
-                "qvel": data.qvel.tolist(),
-                "winch_angle": st[_S_THETA].tolist(),
-                "tension": st[_S_TENSION].tolist(),
-            }
+            state, where = (
+                (start, "at the start of that period")
+                if found
+                else (
+                    self._state_now(),
+                    "at its end",
+                )
+            )
             raise SimulationDivergedError(
-                f"CDPR simulation diverged at t = {end:.4f} s: qpos = {state['qpos']}, "
-                f"qvel = {state['qvel']}" + "".join(f"; {text}" for text in found),
+                f"CDPR simulation diverged at t = {end:.4f} s ({where}: qpos = {state['qpos']}, "
+                f"qvel = {state['qvel']})" + "".join(f"; {text}" for text in found),
                 end,
                 state,
             )
