@@ -180,10 +180,10 @@ def _wrap_angles(points, objects, wrapadr, wrapnum, out):  # pragma: no cover - 
             norm_b = math.sqrt(bx * bx + by * by + bz * bz)
             if not (norm_a > 1e-12 and norm_b > 1e-12):
                 continue
-            cosine = (
-                (ax / norm_a) * (bx / norm_b)
-                + (ay / norm_a) * (by / norm_b)
-                + (az / norm_a) * (bz / norm_b)
-            )
+            # summed as numpy's einsum sums three products on x86-64 (x and z first), so that
+            # the two forms agree bit for bit there (elsewhere to round-off)
+            cosine = ((ax / norm_a) * (bx / norm_b) + (az / norm_a) * (bz / norm_b)) + (
+                ay / norm_a
+            ) * (by / norm_b)
             total += math.acos(min(1.0, max(-1.0, cosine)))
         out[i] = total

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from msarm.errors import InputError, MsarmError
 from msarm.model import RobotModel
 from msarm.mujoco_c import step_functions
-from msarm.muscle.geometry import wrap_angles
+from msarm.muscle.batch_kinematics import current_wrap_angles
 from msarm.plant.cable_kernel import PARAMS, step_cables, step_plant
 from msarm.plant.config import PlantConfig
 from msarm.plant.effects import CableState, Effect, SensorReadings, build_effects
@@ -211,7 +211,7 @@ class ArmPlant:
             effect.reset(self._rng)
         mujoco.mj_forward(self.mj_model, self.mj_data)
         state = self._state
-        state.wrap_angles[:] = wrap_angles(self.mj_model, self.mj_data)
+        state.wrap_angles[:] = current_wrap_angles(self.mj_model, self.mj_data)
         # theta = 0 at the reset posture; each cable segment carries half the initial stretch.
         half = tensions / (2.0 * self._k) if self.elastic else np.zeros(m)
         self._length_ref[:] = self.mj_data.ten_length
@@ -339,7 +339,7 @@ class ArmPlant:
 
         The runner calls this every few control periods: they change slowly with posture.
         """
-        self._state.wrap_angles[:] = wrap_angles(self.mj_model, self.mj_data)
+        self._state.wrap_angles[:] = current_wrap_angles(self.mj_model, self.mj_data)
 
     def _user_hooks(self) -> None:
         state, m = self._state, self.n_cables
