@@ -116,6 +116,7 @@ def _cases(arm):
         (CableCapstanFriction(), np.array([0.12])),
         (CableCapstanFriction(per_cable=True), rng.uniform(0.05, 0.3, size=9)),
         (CableCapstanFriction(linearised=True), np.array([0.12])),
+        (CableCapstanFriction(fit_eps=True), np.array([0.12, 0.003])),
         (CableCapstanHysteresis(), np.array([0.1, 0.3, 0.4, 0.2])),
         (CableCapstanHysteresis(linearised=True), np.array([0.1, 0.3, 0.4, 0.2])),
         (MotorCogging(n_periods=6, drum_radius=DRUM), rng.normal(0, 0.02, size=18)),
@@ -139,6 +140,7 @@ def _case_ids():
         "capstan",
         "capstan_per_cable",
         "capstan_linearised",
+        "capstan_fitted_eps",
         "capstan_hysteresis",
         "capstan_hysteresis_linearised",
         "cogging",
@@ -169,11 +171,12 @@ def test_noise_free_recovery(arm, signals, case):
     [
         (CoulombFriction(), np.array([0.3, 0.5, 0.2, 0.4])),
         (CableCapstanFriction(), np.array([0.12])),
+        (CableCapstanFriction(fit_eps=True), np.array([0.12, 0.003])),
         (CableCapstanHysteresis(), np.array([0.1, 0.3, 0.4, 0.2])),
         (StribeckFriction(joints=[1]), np.array([0.3, 0.6, 0.15])),
         (SensorBiasScale(shared=True), np.array([0.8, 0.04])),
     ],
-    ids=["coulomb", "capstan", "capstan_hysteresis", "stribeck", "sensor_shared"],
+    ids=["coulomb", "capstan", "capstan_fitted_eps", "capstan_hysteresis", "stribeck", "sensor"],
 )
 def test_noisy_recovery_within_bootstrap_std(signals, effect, truth):
     clean = effect.torque(signals, truth)
@@ -457,3 +460,22 @@ def test_nonlinear_fit_reports_a_parameter_at_its_bound_on_the_bound(signals):
     opposite = -effect.torque(signals, np.array([0.1]))  # friction that would need mu < 0
     result = fit(effect, signals, opposite)
     assert result.parameters[0] == 0.0
+
+
+def test_capstan_smoothing_speed_is_fitted_within_its_bounds(signals):
+    effect = CableCapstanFriction(fit_eps=True, eps=0.002, eps_bounds=(5e-4, 0.01))
+    assert effect.parameter_names == ("mu", "eps")
+    np.testing.assert_array_equal(effect.initial_guess(signals), [0.05, 0.002])
+    lower, upper = effect.bounds()
+    np.testing.assert_array_equal(lower, [0.0, 5e-4])
+    np.testing.assert_array_equal(upper, [2.0, 0.01])
+    # the smoothing speed changes the prediction where cables reverse: it is identifiable
+    slow, fast = (effect.torque(signals, np.array([0.1, e])) for e in (6e-4, 0.008))
+    assert np.abs(slow - fast).max() > 0.01 * np.abs(slow).max()
+    # a sharper law than the bounds allow: the fit stops on the bound
+    sharp = CableCapstanFriction(eps=1e-4).torque(signals, np.array([0.1]))
+    assert fit(effect, signals, sharp).parameters[1] == 5e-4
+    with pytest.raises(InputError, match="linearised"):
+        CableCapstanFriction(fit_eps=True, linearised=True)
+    with pytest.raises(InputError, match="eps_bounds"):
+        CableCapstanFriction(fit_eps=True, eps=0.1, eps_bounds=(1e-4, 0.05))

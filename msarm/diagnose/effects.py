@@ -558,8 +558,11 @@ class CableCapstanFriction(CandidateEffect):
 
     (the brief's ``-J_c^T (F (exp(-mu Theta s) - 1))`` is the change of the *delivered* torque,
     ``-r``). Parameter: one friction coefficient ``mu`` [-] shared by all cables, or one per cable
-    (``per_cable``). With ``linearised`` the term is its first order in ``mu``,
-    ``r = mu * J_c^T (-F Theta s)``, and is fitted by least squares.
+    (``per_cable``); with ``fit_eps`` also the smoothing speed ``eps`` [m/s] of the sign, last
+    (how fast the friction turns over as a cable reverses: a property of the sheath, and of
+    how the cable speed is estimated, that a real robot does not tell). With ``linearised`` the
+    term is its first order in ``mu``, ``r = mu * J_c^T (-F Theta s)`` (``eps`` fixed), and is
+    fitted by least squares.
     """
 
     name = "capstan"
@@ -577,25 +580,40 @@ class CableCapstanFriction(CandidateEffect):
         per_cable: bool = False,
         linearised: bool = False,
         max_mu: float = 2.0,
+        fit_eps: bool = False,
+        eps_bounds: tuple[float, float] = (1e-4, 0.05),
     ) -> None:
         """Build the term.
 
         Args:
             n_cables: Number of cables ``m``.
             n_joints: Number of joints ``n``.
-            eps: Cable-velocity scale of the smoothed sign [m/s].
+            eps: Cable-velocity scale of the smoothed sign [m/s] (the start of its fit with
+                ``fit_eps``).
             per_cable: One ``mu`` per cable instead of one shared.
             linearised: Use the first-order (linear) term.
             max_mu: Upper bound of ``mu`` in the nonlinear fit.
+            fit_eps: Fit ``eps`` too (a last parameter; not with ``linearised``).
+            eps_bounds: Bounds of the fitted ``eps`` [m/s].
         """
         self.n_cables, self.n_joints = int(n_cables), int(n_joints)
         self.channels = tuple(range(self.n_joints))
         self.eps = _positive("eps", eps)
         self.per_cable = bool(per_cable)
         self.max_mu = _positive("max_mu", max_mu)
+        self.fit_eps = bool(fit_eps)
+        if self.fit_eps and linearised:
+            raise InputError("capstan: the linearised term keeps eps fixed (fit_eps=False)")
+        low, high = (float(v) for v in eps_bounds)
+        if not (0 < low <= self.eps <= high and np.isfinite(high)):
+            raise InputError(
+                f"capstan: eps_bounds must be 0 < low <= eps <= high [m/s], got {eps_bounds} "
+                f"with eps = {self.eps}"
+            )
+        self.eps_bounds = (low, high)
         self.parameter_names = (
             tuple(f"mu[{c}]" for c in range(self.n_cables)) if per_cable else ("mu",)
-        )
+        ) + (("eps",) if self.fit_eps else ())
         # Instance attribute shadows the class default: the linearised term is linear.
         self.linear = bool(linearised)  # type: ignore[misc]
 
@@ -624,17 +642,28 @@ class CableCapstanFriction(CandidateEffect):
             theta = self._check_theta(theta)
         T, m = signals.n_samples, signals.n_cables
         mu = ops.row(theta, 0, m, T) if self.per_cable else theta[0]
-        exponent = ops.const(-signals.wrap * self._direction(signals))
+        if self.fit_eps:
+            eps = theta[self.n_parameters - 1]
+            direction = ops.tanh(ops.const(-signals.cable_velocity) / eps)
+            exponent = ops.const(-signals.wrap) * direction
+        else:
+            exponent = ops.const(-signals.wrap * self._direction(signals))
         g = ops.const(signals.tension) * (ops.exp(mu * exponent) - 1.0)
         return ops.cable_to_joint(signals.jacobian, g)
 
     def initial_guess(  # noqa: D102
         self, signals: Signals, residual: FloatArray | None = None
     ) -> FloatArray:
-        return np.full(self.n_parameters, 0.05)
+        guess = np.full(self.n_parameters, 0.05)
+        if self.fit_eps:
+            guess[-1] = self.eps
+        return guess
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
-        return np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_mu)
+        lower, upper = np.zeros(self.n_parameters), np.full(self.n_parameters, self.max_mu)
+        if self.fit_eps:
+            lower[-1], upper[-1] = self.eps_bounds
+        return lower, upper
 
 
 #: Friction coefficients of the stick-slip elements of :class:`CableCapstanHysteresis` [-].

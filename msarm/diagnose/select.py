@@ -162,7 +162,7 @@ def available_candidates(
         ViscousFriction(n_joints=n),
         StribeckFriction(n_joints=n),
         DahlFriction(n_joints=n),
-        CableCapstanFriction(n_cables=m, n_joints=n),
+        CableCapstanFriction(n_cables=m, n_joints=n, fit_eps=True),
         CableCapstanHysteresis(n_cables=m, n_joints=n),
         SensorBiasScale(n_cables=m, n_joints=n, shared=True, drive=True),
         InertiaError(model, subset="mass"),
