@@ -117,6 +117,10 @@ def _cases(arm):
         (CableCapstanFriction(per_cable=True), rng.uniform(0.05, 0.3, size=9)),
         (CableCapstanFriction(linearised=True), np.array([0.12])),
         (CableCapstanFriction(fit_eps=True), np.array([0.12, 0.003])),
+        (
+            CableCapstanFriction(per_cable=True, fit_eps=True),
+            np.concatenate([rng.uniform(0.05, 0.3, size=9), [0.003]]),
+        ),
         (CableCapstanHysteresis(), np.array([0.1, 0.3, 0.4, 0.2])),
         (CableCapstanHysteresis(linearised=True), np.array([0.1, 0.3, 0.4, 0.2])),
         (MotorCogging(n_periods=6, drum_radius=DRUM), rng.normal(0, 0.02, size=18)),
@@ -141,6 +145,7 @@ def _case_ids():
         "capstan_per_cable",
         "capstan_linearised",
         "capstan_fitted_eps",
+        "capstan_per_cable_fitted_eps",
         "capstan_hysteresis",
         "capstan_hysteresis_linearised",
         "cogging",
