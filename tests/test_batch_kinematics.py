@@ -56,3 +56,16 @@ def test_bad_postures_are_refused(arm):
     q[2, 1] = np.nan
     with pytest.raises(InputError, match=r"finite.*\(2, 1\)"):
         cable_kinematics_batch(arm, q)
+
+
+def test_jacobian_at_one_posture_after_another(arm):
+    from msarm.muscle.batch_kinematics import JacobianAt
+
+    jacobian_at = JacobianAt(arm, arm.create_data())
+    for q in _postures(arm, 30, seed=9):
+        np.testing.assert_array_equal(jacobian_at(q), arm.geometry(q).jacobian)
+    # without MuJoCo's library the Python functions give the same
+    fallback = JacobianAt(arm, arm.create_data())
+    fallback._args = None
+    q = _postures(arm, 1, seed=2)[0]
+    np.testing.assert_array_equal(fallback(q), jacobian_at(q))

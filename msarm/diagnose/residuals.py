@@ -42,8 +42,7 @@ from msarm.compensation.target import TargetSpec, torque_error
 from msarm.errors import LogError
 from msarm.io.logs import TIME, RunLog, read_log
 from msarm.model import RobotModel
-from msarm.muscle.batch_kinematics import cable_kinematics_batch
-from msarm.muscle.geometry import cable_kinematics
+from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 
 __all__ = [
     "RESIDUAL_UNITS",
@@ -405,13 +404,11 @@ class _Work:
     def __init__(self, model: RobotModel) -> None:
         self.model = model
         self.data = model.create_data()
-        self.jacobian = np.zeros((model.n_cables, model.n_joints))
+        self.jacobian_at = JacobianAt(model, self.data)
+        self.jacobian = self.jacobian_at.jacobian
         self.index = np.asarray(model.pin_q_index)
         self.inverse = np.argsort(self.index)
-
-    def kinematics(self, q: FloatArray) -> FloatArray:
-        """Cable lengths at ``q`` [m], shape ``(m,)``; fills :attr:`jacobian`."""
-        return cable_kinematics(self.model.mj_model, self.data.mj, q, self.jacobian)
+        self.identity = bool(np.array_equal(self.index, np.arange(self.index.size)))
 
     def acceleration(
         self, q: FloatArray, qd: FloatArray, tension: FloatArray, lost: FloatArray | None = None
@@ -420,10 +417,12 @@ class _Work:
 
         ``lost`` [N m], ``(n,)``: torque lost on the way (a fitted residual), if any.
         """
-        self.kinematics(q)
-        tau = -self.jacobian.T @ tension
+        jacobian = self.jacobian_at(q)
+        tau = -jacobian.T @ tension
         if lost is not None:
             tau = tau - lost
+        if self.identity:  # the two engines order the joints alike: no permutation
+            return pinocchio.aba(self.model.pin_model, self.data.pin, q, qd, tau)
         i = self.index
         qdd = pinocchio.aba(self.model.pin_model, self.data.pin, q[i], qd[i], tau[i])
         return np.asarray(qdd)[self.inverse]

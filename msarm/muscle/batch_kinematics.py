@@ -24,7 +24,7 @@ from msarm.errors import InputError
 from msarm.mujoco_c import call_model_data, function_addresses
 from msarm.muscle.geometry import _PULLEY, cable_kinematics, wrap_angles
 
-__all__ = ["CableKinematics", "cable_kinematics_batch", "current_wrap_angles"]
+__all__ = ["CableKinematics", "JacobianAt", "cable_kinematics_batch", "current_wrap_angles"]
 
 FloatArray = NDArray[np.float64]
 
@@ -106,6 +106,68 @@ def cable_kinematics_batch(
         wrap,
     )
     return CableKinematics(lengths, jacobian, wrap)
+
+
+class JacobianAt:
+    """The muscle Jacobian at one posture after another, compiled (a replay's inner loop).
+
+    Args:
+        model: The robot (:class:`msarm.model.RobotModel`).
+        data: A work space of ``model`` (:meth:`~msarm.model.RobotModel.create_data`); its
+            MuJoCo data is overwritten at every call.
+    """
+
+    def __init__(self, model, data) -> None:
+        m_model, m_data = model.mj_model, data.mj
+        self.model = model
+        self._m_model, self._m_data = m_model, m_data
+        self.jacobian = np.zeros((m_model.ntendon, m_model.nv))
+        addresses = function_addresses(*_FUNCTIONS)
+        self._args = (
+            None
+            if addresses is None
+            else (
+                np.array(addresses, dtype=np.intp),
+                m_model._address,
+                m_data._address,
+            )
+        )
+        self._views = (
+            m_data.qpos,
+            m_data.ten_J,
+            m_model.ten_J_rownnz,
+            m_model.ten_J_rowadr,
+            m_model.ten_J_colind,
+            self.jacobian,
+        )
+
+    def __call__(self, q: FloatArray) -> FloatArray:
+        """``J_c(q)`` [m/rad], ``(m, n)``, of the posture ``q`` [rad], ``(n,)`` (a shared buffer).
+
+        The same bits as :func:`msarm.muscle.geometry.cable_kinematics`; ``q`` is not checked.
+        """
+        if self._args is None:
+            cable_kinematics(self._m_model, self._m_data, q, self.jacobian)
+        else:
+            _jacobian_at(*self._args, q, *self._views)
+        return self.jacobian
+
+
+@numba.njit(cache=True)
+def _jacobian_at(
+    functions, model, data, q, qpos, ten_j, rownnz, rowadr, colind, jacobian
+):  # pragma: no cover - compiled
+    """Set ``qpos``, run the three MuJoCo functions, densify the tendon Jacobian."""
+    for j in range(q.shape[0]):
+        qpos[j] = q[j]
+    for function in functions:
+        call_model_data(function, model, data)
+    for i in range(jacobian.shape[0]):
+        for j in range(jacobian.shape[1]):
+            jacobian[i, j] = 0.0
+        start = rowadr[i]
+        for p in range(rownnz[i]):
+            jacobian[i, colind[start + p]] = ten_j[start + p]
 
 
 def current_wrap_angles(m_model, m_data) -> FloatArray:
