@@ -9,12 +9,16 @@ path points. :func:`cable_kinematics_batch` runs the same MuJoCo functions (``mj
 ``mj_comPos``, ``mj_tendon``, called through their addresses, see :mod:`msarm.mujoco_c`) and
 the same arithmetic in one compiled loop over the postures. Where MuJoCo's library cannot be
 found it falls back to the Python functions; both give the same values (tested: lengths and
-Jacobians bit for bit, wrap angles to round-off).
+Jacobians bit for bit; wrap angles bit for bit on x86-64, where the compiled form sums each
+cosine in numpy's order, and to round-off elsewhere). The arm plant refreshes its wrap angles
+with :func:`current_wrap_angles`; the diagnosis's replay takes its Jacobians from
+:class:`JacobianAt`.
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -23,6 +27,11 @@ from numpy.typing import ArrayLike, NDArray
 from msarm.errors import InputError
 from msarm.mujoco_c import call_model_data, function_addresses
 from msarm.muscle.geometry import _PULLEY, cable_kinematics, wrap_angles
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from msarm.model import RobotData, RobotModel
 
 __all__ = ["CableKinematics", "JacobianAt", "cable_kinematics_batch", "current_wrap_angles"]
 
@@ -48,7 +57,7 @@ class CableKinematics:
 
 
 def cable_kinematics_batch(
-    model, q: ArrayLike, with_wrap_angles: bool = True, compiled: bool = True
+    model: RobotModel, q: ArrayLike, with_wrap_angles: bool = True, compiled: bool = True
 ) -> CableKinematics:
     """Cable lengths, muscle Jacobians and wrap angles at every posture of ``q``.
 
@@ -117,7 +126,7 @@ class JacobianAt:
             MuJoCo data is overwritten at every call.
     """
 
-    def __init__(self, model, data) -> None:
+    def __init__(self, model: RobotModel, data: RobotData) -> None:
         m_model, m_data = model.mj_model, data.mj
         self.model = model
         self._m_model, self._m_data = m_model, m_data
@@ -170,7 +179,7 @@ def _jacobian_at(
             jacobian[i, colind[start + p]] = ten_j[start + p]
 
 
-def current_wrap_angles(m_model, m_data) -> FloatArray:
+def current_wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> FloatArray:
     """Wrap angles of the path ``mj_tendon`` last computed on ``m_data`` [rad], ``(m,)``.
 
     The compiled form of :func:`msarm.muscle.geometry.wrap_angles` (the same values to
