@@ -484,3 +484,20 @@ def test_capstan_smoothing_speed_is_fitted_within_its_bounds(signals):
         CableCapstanFriction(fit_eps=True, linearised=True)
     with pytest.raises(InputError, match="eps_bounds"):
         CableCapstanFriction(fit_eps=True, eps=0.1, eps_bounds=(1e-4, 0.05))
+
+
+def test_capstan_hysteresis_columns_are_kept_per_signals(signals):
+    effect = CableCapstanHysteresis()
+    theta = np.array([0.1, 0.3, 0.4, 0.2])
+    first = effect.torque(signals, theta)
+    columns = effect._columns(signals)
+    assert effect._columns(signals) is columns  # not computed again
+    with pytest.raises(ValueError):
+        columns[0, 0, 0] = 1.0  # shared: read-only
+    other = signals.take(np.arange(50))
+    np.testing.assert_array_equal(effect.torque(other, theta), first[:50])
+    fresh = CableCapstanHysteresis()._compute_columns(signals)
+    np.testing.assert_array_equal(columns, fresh)
+    for k in range(10):  # a bounded cache
+        effect._columns(signals.take(np.arange(k + 1)))
+    assert len(effect._columns_of) <= 4

@@ -666,6 +666,9 @@ class CableCapstanFriction(CandidateEffect):
         return lower, upper
 
 
+#: How many ``Signals`` a :class:`CableCapstanHysteresis` keeps its columns for.
+_COLUMN_CACHE_SIZE = 4
+
 #: Friction coefficients of the stick-slip elements of :class:`CableCapstanHysteresis` [-].
 CAPSTAN_STICTION_MUS = (0.03, 0.06, 0.12, 0.24)
 
@@ -731,6 +734,8 @@ class CableCapstanHysteresis(CandidateEffect):
         self.parameter_names = tuple(f"a[mu={mu:g}]" for mu in self.mus)
         # Instance attribute shadows the class default: the linearised term is linear.
         self.linear = bool(linearised)  # type: ignore[misc]
+        # the elements' columns of the last few Signals (they do not depend on the weights)
+        self._columns_of: dict[int, tuple[Signals, FloatArray]] = {}
 
     def check(self, signals: Signals) -> None:  # noqa: D102
         self._check_joints(signals, self.n_joints)
@@ -738,7 +743,22 @@ class CableCapstanHysteresis(CandidateEffect):
         signals.require("tension_cmd", self.name)
 
     def _columns(self, signals: Signals) -> FloatArray:
-        """``J_c^T (S_mu_k(F) - F)`` of every element [N m], shape ``(T, n, K)``."""
+        """``J_c^T (S_mu_k(F) - F)`` of every element [N m], shape ``(T, n, K)``.
+
+        Kept for the last few ``Signals`` objects (a fit predicts on the same samples many
+        times); a ``Signals`` is not to be changed in place once used.
+        """
+        cached = self._columns_of.get(id(signals))
+        if cached is not None and cached[0] is signals:
+            return cached[1]
+        columns = self._compute_columns(signals)
+        columns.setflags(write=False)  # shared between calls
+        if len(self._columns_of) >= _COLUMN_CACHE_SIZE:
+            self._columns_of.pop(next(iter(self._columns_of)))
+        self._columns_of[id(signals)] = (signals, columns)
+        return columns
+
+    def _compute_columns(self, signals: Signals) -> FloatArray:
         self.check(signals)
         command = signals.tension_cmd
         return np.stack(
