@@ -15,6 +15,7 @@ from msarm.compensation.target import TargetSpec, torque_error
 from msarm.control import ArmControllerConfig
 from msarm.errors import InputError, LogError
 from msarm.io.logs import LogMetadata, RunLog, read_log, write_log
+from msarm.muscle.batch_kinematics import cable_kinematics_batch
 from msarm.plant import DEFAULT_PLANT, IDEAL_PLANT
 from msarm.plant.effects import SensorReadings
 from msarm.tasks.track import TrackSettings, track
@@ -137,10 +138,16 @@ def test_target_is_zero_on_the_ideal_plant_and_not_on_the_default_plant(arm, tmp
             tmp_path / plant.name,
             plots_too=False,
         )
-        tf = torque_error(arm, read_log(result.files["log"]), TargetSpec())
+        log = read_log(result.files["log"])
+        tf = torque_error(arm, log, TargetSpec())
         values[plant.name] = np.sqrt(np.mean(tf[15:-15] ** 2, axis=0))  # filter edges left out
     assert values["ideal"].max() < 0.02  # N m: filtering error only
     assert values["default"].min() > 0.2
+    # the caller's Jacobians of the logged postures give the same target; wrong ones: refused
+    jacobians = cable_kinematics_batch(arm, log.matrix("q")).jacobian
+    np.testing.assert_array_equal(torque_error(arm, log, TargetSpec(), jacobians=jacobians), tf)
+    with pytest.raises(InputError, match="jacobians must have shape"):
+        torque_error(arm, log, TargetSpec(), jacobians=jacobians[1:])
 
 
 def test_nan_in_training_data_names_the_file_and_column(arm, tmp_path):

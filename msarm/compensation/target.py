@@ -53,7 +53,11 @@ class TargetSpec:
 
 
 def torque_error(
-    model: RobotModel, log: RunLog, spec: TargetSpec | None = None, source: str = "log"
+    model: RobotModel,
+    log: RunLog,
+    spec: TargetSpec | None = None,
+    source: str = "log",
+    jacobians: FloatArray | None = None,
 ) -> FloatArray:
     """``T_f`` of every sample of a log [N m], shape ``(T, n)``.
 
@@ -62,6 +66,9 @@ def torque_error(
         log: A run's log (``q`` and ``tension_motor`` channels, uniform sampling).
         spec: Filter settings.
         source: Name of the log for error messages.
+        jacobians: The muscle Jacobians at the logged postures, ``(T, m, n)``, if the caller
+            has them already (:func:`msarm.muscle.batch_kinematics.cable_kinematics_batch`);
+            computed here otherwise.
 
     Raises:
         InputError: Too few samples for the filter, or a needed channel is missing.
@@ -84,7 +91,13 @@ def torque_error(
     out = np.empty_like(q)
     index = model.pin_q_index
     inverse = np.argsort(index)
-    jacobians = cable_kinematics_batch(model, q_raw, with_wrap_angles=False).jacobian
+    if jacobians is None:
+        jacobians = cable_kinematics_batch(model, q_raw, with_wrap_angles=False).jacobian
+    elif jacobians.shape != (len(q_raw), model.n_cables, model.n_joints):
+        raise InputError(
+            f"{source}: jacobians must have shape {(len(q_raw), model.n_cables, model.n_joints)}"
+            f", got {jacobians.shape}"
+        )
     for k in range(len(q)):
         delivered = -jacobians[k].T @ tension[k]
         needed = pinocchio.rnea(

@@ -297,14 +297,16 @@ def residuals_from_log(
     for start, stop in segments:
         part = slice(start, stop)
         sub = RunLog({k: v[part] for k, v in log.columns.items()}, log.metadata)
-        out["joint_torque"][part] = torque_error(model, sub, spec.target, source)
         q = q_all[part]
+        kinematics = cable_kinematics_batch(model, q, with_wrap_angles=with_geometry)
+        out["joint_torque"][part] = torque_error(
+            model, sub, spec.target, source, kinematics.jacobian
+        )
         window, order = spec.target.window, spec.target.polyorder
         q_f = savgol_filter(q, window, order, axis=0)
         qd = savgol_filter(q, window, order, deriv=1, delta=dt, axis=0)
         out["qd"][part] = qd
         out["qdd"][part] = savgol_filter(q, window, order, deriv=2, delta=dt, axis=0)
-        kinematics = cable_kinematics_batch(model, q, with_wrap_angles=with_geometry)
         lengths = kinematics.lengths
         out["cable_velocity"][part] = np.matmul(kinematics.jacobian, qd[:, :, None])[:, :, 0]
         if with_geometry:

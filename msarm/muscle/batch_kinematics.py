@@ -171,6 +171,12 @@ def _jacobian_at(
         qpos[j] = q[j]
     for function in functions:
         call_model_data(function, model, data)
+    _dense_jacobian(ten_j, rownnz, rowadr, colind, jacobian)
+
+
+@numba.njit(cache=True)
+def _dense_jacobian(ten_j, rownnz, rowadr, colind, jacobian):  # pragma: no cover - compiled
+    """MuJoCo's sparse tendon Jacobian into ``jacobian`` ``(m, n)`` (``mju_sparse2dense``)."""
     for i in range(jacobian.shape[0]):
         for j in range(jacobian.shape[1]):
             jacobian[i, j] = 0.0
@@ -225,9 +231,7 @@ def _kinematics_loop(
             call_model_data(function, model, data)
         for i in range(lengths.shape[1]):
             lengths[t, i] = ten_length[i]
-            start = rowadr[i]
-            for p in range(rownnz[i]):
-                jacobian[t, i, colind[start + p]] = ten_j[start + p]
+        _dense_jacobian(ten_j, rownnz, rowadr, colind, jacobian[t])
         if with_wrap:
             _wrap_angles(wrap_xpos, wrap_obj, wrapadr, wrapnum, wrap[t])
 

@@ -477,6 +477,13 @@ class CdprPlant:
         par[_P_EXTRAP] = 1.0 if cfg.friction.beyond_v_high == "extrapolate" else 0.0
         self._par = par
         self._st = np.zeros((_N_STATE, m))
+        # the state each step() starts from, named if MuJoCo resets its own during it
+        self._period_start = {
+            "qpos": np.zeros(self.mj_model.nq),
+            "qvel": np.zeros(nv),
+            "winch_angle": np.zeros(m),
+            "tension": np.zeros(m),
+        }
         self._mass = np.zeros((nv, nv))
         self._qfrc_smooth = np.zeros(nv)
         self._qfrc_ext = np.zeros(nv)
@@ -646,10 +653,12 @@ class CdprPlant:
         # MuJoCo resets its state (time included) when it finds a bad one: take the time and
         # the state first, to name them if the period fails
         end = self.time + int(n_steps) * self.mj_model.opt.timestep
-        start = self._state_now()
+        start = self._period_start
+        for key, value in self._state_views().items():
+            np.copyto(start[key], value)
         for _ in range(int(n_steps)):
             self._step_once()
-        self._check_finite(end, start)
+        self._check_finite(end)
 
     # ------------------------------------------------------------------------- reading
     def sense(self) -> CdprSensorReadings:
@@ -828,34 +837,29 @@ class CdprPlant:
             data.qfrc_applied += self._qfrc_ext
         mujoco.mj_step2(model, data)
 
-    def _state_now(self) -> dict[str, list[float]]:
-        """The platform's and the winches' state (for a divergence report)."""
+    def _state_views(self) -> dict[str, FloatArray]:
+        """Live views of the platform's and the winches' state (for a divergence report)."""
         data, st = self.mj_data, self._st
         return {
-            "qpos": data.qpos.tolist(),
-            "qvel": data.qvel.tolist(),
-            "winch_angle": st[_S_THETA].tolist(),
-            "tension": st[_S_TENSION].tolist(),
+            "qpos": data.qpos,
+            "qvel": data.qvel,
+            "winch_angle": st[_S_THETA],
+            "tension": st[_S_TENSION],
         }
 
-    def _check_finite(self, end: float, start: dict[str, list[float]]) -> None:
+    def _check_finite(self, end: float) -> None:
         """Raise :class:`SimulationDivergedError` naming ``end`` [s] if the state went bad.
 
-        Where MuJoCo found a bad state it has reset its own, so the state named is ``start``,
-        the one the period started from; otherwise the one it ended in.
+        Where MuJoCo found a bad state it has reset its own, so the state named is the one
+        the period started from; otherwise the one it ended in.
         """
         data, st = self.mj_data, self._st
         total = float(data.qpos.sum() + data.qvel.sum() + st[_S_SPEED].sum())
         found = instability_found(data)
         if found or not math.isfinite(total):
-            state, where = (
-                (start, "at the start of that period")
-                if found
-                else (
-                    self._state_now(),
-                    "at its end",
-                )
-            )
+            arrays = self._period_start if found else self._state_views()
+            state = {key: value.tolist() for key, value in arrays.items()}
+            where = "at the start of that period" if found else "at its end"
             raise SimulationDivergedError(
                 f"CDPR simulation diverged at t = {end:.4f} s ({where}: qpos = {state['qpos']}, "
                 f"qvel = {state['qvel']})" + "".join(f"; {text}" for text in found),
