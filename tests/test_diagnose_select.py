@@ -82,9 +82,22 @@ def test_joint_friction_is_found_and_the_gap_shrinks(arm, friction_logs):
     assert "| joint | shoulder_abduction |" in result.to_markdown()
 
 
-def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs):
+def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs, monkeypatch):
+    import msarm.diagnose.select as select
+
+    replays = []
+    replay_runs = select.replay_runs
+
+    def counted(*args, **kwargs):
+        replays.append(1)
+        return replay_runs(*args, **kwargs)
+
+    monkeypatch.setattr(select, "replay_runs", counted)
     result = diagnose(arm, noise_logs[:-1], noise_logs[-1:], candidates=CANDIDATES, n_boot=0)
     assert result.names == ()
+    # nothing to add to the nominal model: its replay is the replay "with the effects"
+    assert len(replays) == 1
+    assert result.replay["joint_rmse_after"] == result.replay["joint_rmse_before"] > 0
     assert result.explained_variance == (0.0,)
     assert max(result.step_scores[0].values()) < DEFAULT_THRESHOLD
     for group in result.groups:
@@ -164,3 +177,73 @@ def test_cli_takes_the_nominal_model(arm, noise_logs, capsys):
     cable_robot = ARM_MODEL_PATH.parent / "ipanema_mini.xml"
     with pytest.raises(ModelError, match="ipanema_mini.xml"):
         diagnose_command(noise_logs[:2], noise_logs[2:3], True, None, model_path=cable_robot)
+
+
+def _synthetic_data(arm):
+    """Diagnosis data whose joint residual is Coulomb + viscous friction + noise."""
+    from test_diagnose_effects import _make_signals
+
+    from msarm.diagnose.effects import (
+        CableCapstanFriction,
+        CoulombFriction,
+        DahlFriction,
+        InertiaError,
+        ViscousFriction,
+    )
+    from msarm.diagnose.stack import DiagnosisData, Embedded, Layout
+
+    signals = _make_signals(arm, seed=5)
+    coulomb, viscous = CoulombFriction(), ViscousFriction()
+    rng = np.random.default_rng(5)
+    torque = (
+        np.asarray(coulomb.torque(signals, np.array([0.3, 0.2, 0.25, 0.15])))
+        + np.asarray(viscous.torque(signals, np.array([0.4, 0.5, 0.3, 0.35])))
+        + rng.normal(0.0, 0.02, size=(signals.n_samples, arm.n_joints))
+    )
+    layout = Layout({"joint": torque})
+    stacked = layout.stack({"joint": torque})
+    train, hold = signals.run < 2, signals.run >= 2
+    pool = [coulomb, viscous, DahlFriction(), InertiaError(arm), CableCapstanFriction()]
+    return DiagnosisData(
+        model=arm,
+        train=signals.take(train),
+        hold=signals.take(hold),
+        layout=layout,
+        r_train=stacked[train],
+        r_hold=stacked[hold],
+        candidates=tuple(Embedded(t, layout) for t in pool),
+        skipped={},
+        train_runs=("a", "b"),
+        holdout_runs=("c",),
+        channel_names={"joint": tuple(arm.joint_names)},
+    )
+
+
+def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
+    """Screening, then a joint fit of the shortlist: the same effects as fitting every one."""
+    import msarm.diagnose.select as select
+
+    data = _synthetic_data(arm)
+    joint_fits = []
+    fit_together = select.fit_together
+
+    def counted(terms, *args, **kwargs):
+        joint_fits.append(len(terms))
+        return fit_together(terms, *args, **kwargs)
+
+    monkeypatch.setattr(select, "fit_together", counted)
+    full = select.select_effects(data, n_boot=0, replay=False, shortlist=None)
+    n_full = len(joint_fits)
+    joint_fits.clear()
+    short = select.select_effects(data, n_boot=0, replay=False, shortlist=1)
+    assert len(full.names) >= 2 and short.names == full.names
+    # the first step fits each candidate alone either way: the same scores, bit for bit
+    assert short.step_scores[0] == full.step_scores[0]
+    # later steps fit one candidate jointly with the chosen terms, not every one
+    assert len(joint_fits) == len(short.step_scores) - 1 < n_full
+    for k, name in enumerate(short.names[1:], start=1):  # a step that added a term
+        assert name == max(full.step_scores[k], key=lambda c: full.step_scores[k][c])
+        assert short.step_scores[k][name] == pytest.approx(full.step_scores[k][name], abs=1e-6)
+    for bad in (0, -1, 1.5):
+        with pytest.raises(InputError, match="shortlist: expected None or an integer >= 1"):
+            select.select_effects(data, shortlist=bad)

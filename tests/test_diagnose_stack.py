@@ -126,3 +126,40 @@ def test_a_fit_asked_again_is_not_solved_again(arm, monkeypatch):
     sampled.fit_nonlinear(s_term, r, initial=s_true)
     sampled.fit_nonlinear(s_term, r, weights=np.full(r.shape[0], 2.0))
     assert len(calls) == 4
+
+
+def test_the_factored_solver_is_least_squares():
+    """LinearSolver: numpy's lstsq to round-off, min-norm on a rank-deficient design."""
+    import pytest
+
+    from msarm.diagnose.fitting import LinearSolver, _solve_linear
+    from msarm.errors import InputError
+
+    rng = np.random.default_rng(3)
+    design = rng.normal(size=(400, 3, 5)) * np.array([1e-3, 1.0, 50.0, 2.0, 0.1])
+    solver = LinearSolver(design)
+    for _ in range(3):  # one factoring, many residuals
+        r = rng.normal(size=(400, 3))
+        np.testing.assert_allclose(solver.solve(r), _solve_linear(design, r), rtol=1e-10)
+    # a repeated column and a zero column: lstsq's minimum-norm answer
+    deficient = np.concatenate([design, design[:, :, :1], np.zeros((400, 3, 1))], axis=2)
+    r = rng.normal(size=(400, 3))
+    theta = LinearSolver(deficient).solve(r)
+    np.testing.assert_allclose(theta, _solve_linear(deficient, r), rtol=1e-8, atol=1e-12)
+    assert theta[-1] == 0.0 and np.isclose(theta[0], theta[5])
+    with pytest.raises(InputError, match=r"residual: expected shape \(400, 3\)"):
+        solver.solve(r[:10])
+
+
+def test_the_solvers_are_kept_for_single_terms_and_the_last_set(arm):
+    viscous, stribeck = ViscousFriction(), StribeckFriction()
+    data, (v_term, s_term) = _data(
+        arm, [viscous, stribeck], [np.full(4, 0.05), np.tile([0.2, 0.35, 0.3], 4)]
+    )
+    sampled = Sampled(data, 20_000)
+    single = sampled.solver([v_term])
+    assert sampled.solver([v_term]) is single
+    pair = sampled.solver([v_term, v_term])
+    assert sampled.solver([v_term, v_term]) is pair
+    r = sampled.residual["train"]
+    np.testing.assert_allclose(pair.solve(r)[:4] + pair.solve(r)[4:], single.solve(r), rtol=1e-9)

@@ -111,6 +111,9 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
+#: Candidates of each selection step (after the first) fitted jointly with the terms already
+#: selected: those with the largest screening gains (see :func:`select_effects`).
+DEFAULT_SHORTLIST = 3
 #: Rounds of the joint fit by blocks in each bootstrap draw (it starts from the full fit).
 BOOTSTRAP_ROUNDS = 2
 #: Cogging periods per motor revolution of the default cogging candidates (motor datasheet).
@@ -191,6 +194,52 @@ def default_candidates(
     return {name: every[name] for name in DEFAULT_CANDIDATES}
 
 
+class _Base:
+    """The terms selected so far, fixed, and their predictions: the screening fits' base."""
+
+    def __init__(self, fitted: FittedModel | None, sampled: Sampled) -> None:
+        self.fitted, self.sampled = fitted, sampled
+        left = sampled.residual["train"]
+        self.hold = np.zeros_like(sampled.residual["hold"])
+        if fitted is not None:
+            left = left - fitted.predict(sampled, "train")
+            self.hold = fitted.predict(sampled, "hold")
+        self.left = left
+
+    def add(self, candidate: CandidateEffect) -> tuple[FittedModel, FloatArray]:
+        """The candidate fitted alone to what the base leaves, and the held-out prediction.
+
+        Returns:
+            The base's terms (their parameters unchanged) and the candidate, and the summed
+            held-out prediction ``(T_hold, W)``.
+        """
+        if candidate.linear:
+            theta = self.sampled.solver([candidate]).solve(self.left)
+            message = "least squares"
+        else:
+            theta, message = self.sampled.fit_nonlinear(candidate, self.left)
+        prediction = self.hold + self.sampled.predict(candidate, theta, "hold")
+        terms, parameters, messages = (), (), ()
+        if self.fitted is not None:
+            terms, parameters = self.fitted.terms, self.fitted.parameters
+            messages = self.fitted.messages
+        model = FittedModel(
+            terms=(*terms, candidate),
+            parameters=(*parameters, theta),
+            messages=(*messages, message),
+        )
+        return model, prediction
+
+
+def _shortlist(
+    remaining: Sequence[CandidateEffect], gain_of: dict[str, float], size: int | None
+) -> list[CandidateEffect]:
+    """The candidates with a finite gain, the ``size`` largest (all when ``None``)."""
+    finite = [c for c in remaining if np.isfinite(gain_of[c.name])]
+    ranked = sorted(finite, key=lambda c: -gain_of[c.name])
+    return ranked if size is None else ranked[:size]
+
+
 def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[str, Any]:
     """Replay the held-out runs' commands with the nominal model, without and with the effects.
 
@@ -227,8 +276,11 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
         drive + cumulative["drive"] if "drive" in cumulative and source == "command" else drive
     )
     out: dict[str, Any] = {"source": source, "window_s": spec.replay_window}
+    nothing = not any(np.any(v) for v in cumulative.values())  # the same replay twice
+    error = None
     for key, tension, extra in (("before", drive, None), ("after", delivered, lost)):
-        error = replay_runs(model, hold.q, hold.qd, tension, hold.run, hold.dt, extra, spec)
+        if error is None or not nothing:
+            error = replay_runs(model, hold.q, hold.qd, tension, hold.run, hold.dt, extra, spec)
         p_replay = hand_position(model, hold.q[ends] + error[ends])
         out[f"joint_rmse_{key}"] = pooled_rmse(error)
         out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))
@@ -483,6 +535,7 @@ def select_effects(
     seed: int = 0,
     replay: bool = True,
     max_samples: int = MAX_FIT_SAMPLES,
+    shortlist: int | None = DEFAULT_SHORTLIST,
 ) -> Diagnosis:
     """Forward selection, final fit, bootstrap and gaps on prepared data (see :func:`diagnose`).
 
@@ -494,12 +547,17 @@ def select_effects(
         replay: Also replay the held-out runs without and with the effects (the gap as motion).
         max_samples: The fits and scores use at most this many training and as many held-out
             samples, evenly thinned (the gaps reported use every held-out sample).
+        shortlist: From the second step on, how many candidates (those with the largest
+            screening gains) are fitted jointly with the terms already selected; only they
+            may be added. ``None``: all of them (slower, the same choice in the benchmark).
 
     Raises:
-        InputError: A bad threshold or ``max_samples``.
+        InputError: A bad threshold, ``max_samples`` or ``shortlist``.
     """
     if int(max_samples) < 100:
         raise InputError(f"max_samples: expected an integer >= 100, got {max_samples}")
+    if shortlist is not None and (int(shortlist) != shortlist or shortlist < 1):
+        raise InputError(f"shortlist: expected None or an integer >= 1, got {shortlist}")
     threshold = float(threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
@@ -521,25 +579,40 @@ def select_effects(
         gain_of: dict[str, float] = {}
         after: dict[str, dict[str, float]] = {}
         fits: dict[str, FittedModel] = {}
-        # the terms chosen so far start where their last fit ended; the candidate from its guess
-        start = None if chosen_fit is None else [*chosen_fit.parameters, None]
+        # screening: each candidate alone on what the chosen terms leave (they stay fixed)
+        base = _Base(chosen_fit, sampled)
         for candidate in remaining:
             clash = bases.confounder(candidate, chosen)
             if clash is not None:
                 confounded[candidate.name] = clash
                 gain_of[candidate.name] = float("nan")
                 continue
-            fitted = fits[candidate.name] = fit_together(
-                [*chosen, candidate], sampled, initial=start
-            )
-            after[candidate.name] = group_scores(
-                layout, sampled.residual["hold"], fitted.predict(sampled, "hold")
-            )
+            fits[candidate.name], hold_prediction = base.add(candidate)
+            after[candidate.name] = group_scores(layout, sampled.residual["hold"], hold_prediction)
             gain_of[candidate.name] = own_gain(
                 candidate.term.groups, current, after[candidate.name]
             )
+        # the shortlist is fitted jointly with the chosen terms: these start where their last
+        # fit ended, the candidate where its screening fit ended (alone, the screening fit is
+        # the joint fit)
+        finalists = _shortlist(remaining, gain_of, shortlist)
+        if chosen_fit is not None:
+            for candidate in finalists:
+                fitted = fits[candidate.name] = fit_together(
+                    [*chosen, candidate],
+                    sampled,
+                    initial=[*chosen_fit.parameters, fits[candidate.name].parameters[-1]],
+                )
+                after[candidate.name] = group_scores(
+                    layout, sampled.residual["hold"], fitted.predict(sampled, "hold")
+                )
+                gain_of[candidate.name] = own_gain(
+                    candidate.term.groups, current, after[candidate.name]
+                )
         scores_per_step.append(gain_of)
         open_ = [c for c in remaining if np.isfinite(gain_of[c.name])]
+        if chosen_fit is not None:
+            open_ = finalists  # a candidate's screening gain only puts it on the shortlist
         if not open_:
             break
         best = max(open_, key=lambda c: gain_of[c.name])

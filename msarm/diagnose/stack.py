@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from msarm.diagnose.builder import GROUPS
 from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect, NumpyOps, Ops
-from msarm.diagnose.fitting import _NonlinearProblem, _solve_linear
+from msarm.diagnose.fitting import LinearSolver, _NonlinearProblem
 from msarm.diagnose.signals import Signals
 from msarm.model import RobotModel
 
@@ -248,6 +248,7 @@ class Sampled:
         self._problems: dict[int, _NonlinearProblem] = {}
         self._solutions: dict[tuple[int, bytes], tuple[FloatArray, str]] = {}
         self._joint_design: tuple[tuple[int, ...], FloatArray] | None = None
+        self._solvers: dict[tuple[int, ...], LinearSolver] = {}
 
     def fit_nonlinear(
         self,
@@ -298,6 +299,20 @@ class Sampled:
             design = np.concatenate([self.design(t, "train") for t in terms], axis=2)
             self._joint_design = (key, design)
         return self._joint_design[1]
+
+    def solver(self, terms: Sequence[CandidateEffect]) -> LinearSolver:
+        """The least-squares solver of linear terms' joint training design (factored once).
+
+        Kept for each single term (the screening refits each candidate at every step) and for
+        the last set of several terms (a joint fit refits the set at every round).
+        """
+        key = tuple(map(id, terms))
+        if key not in self._solvers:
+            if len(key) > 1:
+                for old in [k for k in self._solvers if len(k) > 1]:
+                    del self._solvers[old]
+            self._solvers[key] = LinearSolver(self.joint_design(terms))
+        return self._solvers[key]
 
     def predict(self, term: CandidateEffect, theta: FloatArray, split: str) -> FloatArray:
         """A term's prediction on the ``"train"`` or ``"hold"`` samples, ``(T, W)``."""
@@ -371,9 +386,12 @@ def fit_together(
             if not term.linear:
                 prediction[id(term)] = sampled.predict(term, parameters[id(term)], "train")
     design = sampled.joint_design(linear) if linear else None
-    if design is not None and weights is not None:
-        root = np.sqrt(w)[:, None]
-        weighted = design * root[:, :, None]  # the weighted least squares' design, once
+    if design is not None:
+        if weights is None:
+            solver = sampled.solver(linear)
+        else:
+            root = np.sqrt(w)[:, None]
+            solver = LinearSolver(design * root[:, :, None])  # the weighted design, once
 
     def left_by(block: int | None) -> FloatArray:
         """The residual less every block's prediction but ``block``'s (all when None)."""
@@ -383,10 +401,7 @@ def fit_together(
     for _ in range(rounds if _coupled(linear, nonlinear) else 1):
         if design is not None:
             left = left_by(_LINEAR_BLOCK)
-            if weights is None:
-                theta = _solve_linear(design, left)
-            else:
-                theta = _solve_linear(weighted, left * root)
+            theta = solver.solve(left if weights is None else left * root)
             for term, part in zip(linear, Stacked(linear).split(theta), strict=True):
                 parameters[id(term)] = part
             prediction[_LINEAR_BLOCK] = np.einsum("tnp,p->tn", design, theta)
