@@ -69,3 +69,10 @@ def test_jacobian_at_one_posture_after_another(arm):
     fallback._args = None
     q = _postures(arm, 1, seed=2)[0]
     np.testing.assert_array_equal(fallback(q), jacobian_at(q))
+    # several postures at once: the same bits, compiled or not
+    many = _postures(arm, 7, seed=5)
+    expected = np.stack([arm.geometry(p).jacobian for p in many])
+    np.testing.assert_array_equal(jacobian_at.many(many), expected)
+    np.testing.assert_array_equal(fallback.many(many), expected)
+    out = np.empty_like(expected)
+    assert jacobian_at.many(many, out) is out

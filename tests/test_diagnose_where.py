@@ -278,3 +278,51 @@ def test_markdown_and_heat_map(arm, residuals, tmp_path):
     assert breakdown.posture_edges[0][0] == arm.joint_lower[j]
     for kind in ("cable_length", "replay"):
         assert break_down(residuals["joint_friction"], kind=kind).unit in ("m", "rad")
+
+
+def _replay_one_window_at_a_time(work, q_log, q_start, qd_start, tension, dt, spec, lost):
+    """The reference: each window integrated alone, sample by sample."""
+    from msarm.diagnose.residuals import _REPLAY_LIMIT
+
+    per_window = max(1, round(spec.replay_window / dt))
+    h = dt / spec.replay_substeps
+    out = np.empty_like(q_log)
+    for start in range(0, len(q_log), per_window):
+        stop = min(start + per_window, len(q_log))
+        q, v = q_start[start].copy(), qd_start[start].copy()
+        for k in range(start, stop):
+            error = q - q_log[k]
+            diverged = not np.all(np.abs(error) < _REPLAY_LIMIT)
+            if diverged:
+                error = np.clip(np.nan_to_num(error, nan=np.pi), -_REPLAY_LIMIT, _REPLAY_LIMIT)
+            out[k] = error
+            if diverged:  # start again from the logged state of the next sample
+                if k + 1 < stop:
+                    q, v = q_start[k + 1].copy(), qd_start[k + 1].copy()
+                continue
+            for _ in range(spec.replay_substeps):
+                with np.errstate(over="ignore", invalid="ignore"):
+                    v = v + h * work.acceleration(q, v, tension[k], lost[k])
+                    q = q + h * v
+    return out
+
+
+def test_the_windows_replayed_side_by_side_are_each_replayed_alone(arm, logs):
+    """The replay integrates its windows together: the bits of one window at a time."""
+    from msarm.diagnose.residuals import ResidualSpec, _replay, _Work
+
+    log = read_log(logs["joint_friction"])
+    q = log.matrix("q", arm.joint_names)[:230]  # 4 windows of 50 samples and a short one
+    tension = log.matrix("tension_motor", arm.cable_names)[: len(q)]
+    qd = np.gradient(q, axis=0) * 250.0
+    spec = ResidualSpec()
+    rng = np.random.default_rng(1)
+    lost = rng.normal(0.0, 0.2, size=q.shape)
+    lost[60:64] = 1e5  # the second window diverges at its 12th sample and starts again
+    work = _Work(arm)
+    got = _replay(work, q, q, qd, tension, 1 / 250, spec, lost)
+    expected = _replay_one_window_at_a_time(work, q, q, qd, tension, 1 / 250, spec, lost)
+    np.testing.assert_array_equal(got, expected)
+    clipped = np.flatnonzero(np.any(np.abs(got) >= np.pi, axis=1))
+    assert clipped.size and clipped.min() > 60 and clipped.max() < 100
+    assert np.all(np.abs(got[100:]) < np.pi)  # the windows after it are not touched

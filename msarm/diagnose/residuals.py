@@ -19,7 +19,8 @@ Three residuals say, sample by sample, how far the logged robot is from the nomi
   load-cell tensions) through ideal cables (``tau = -J_c(q)^T F``, tension
   held between samples), integrated (semi-implicit Euler) over short windows that restart from
   the logged (filtered) state, minus the logged ``q``. It shows the gap as motion, the way a
-  simulator would miss it. A replay that drifts beyond pi rad is clipped there and restarted.
+  simulator would miss it. A replay that drifts beyond pi rad is clipped there and starts
+  again from the next sample's logged state (the other windows are not touched).
 
 Only the log is read -- never its ground-truth sidecar. A log whose ``model_sha256`` is not
 the nominal model's is refused. Time gaps (a step longer than 1.5 sample periods) split the
@@ -62,7 +63,8 @@ RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "drive": "N", "rep
 _GAP_FACTOR = 1.5
 #: The median step of ``t`` may differ from the nominal period by this fraction at most.
 _RATE_TOLERANCE = 0.05
-#: A replay error beyond this [rad] counts as diverged: it is clipped and the window restarts.
+#: A replay error beyond this [rad] counts as diverged: it is clipped and the window starts
+#: again from the next sample's logged state.
 _REPLAY_LIMIT = np.pi
 
 
@@ -419,7 +421,28 @@ class _Work:
 
         ``lost`` [N m], ``(n,)``: torque lost on the way (a fitted residual), if any.
         """
-        jacobian = self.jacobian_at(q)
+        return self._aba(q, qd, self.jacobian_at(q), tension, lost)
+
+    def accelerations(
+        self, q: FloatArray, qd: FloatArray, tension: FloatArray, lost: FloatArray | None = None
+    ) -> FloatArray:
+        """:meth:`acceleration` of ``W`` states at once (the same bits), ``(W, n)``.
+
+        Args:
+            q: Joint angles [rad], ``(W, n)``.
+            qd: Joint velocities [rad/s], ``(W, n)``.
+            tension: Cable tensions [N], ``(W, m)``.
+            lost: Torque lost [N m], ``(W, n)``, or None.
+        """
+        jacobians = self.jacobian_at.many(q)
+        out = np.empty_like(q)
+        for w in range(len(q)):
+            out[w] = self._aba(
+                q[w], qd[w], jacobians[w], tension[w], None if lost is None else lost[w]
+            )
+        return out
+
+    def _aba(self, q, qd, jacobian, tension, lost):
         tau = -jacobian.T @ tension
         if lost is not None:
             tau = tau - lost
@@ -442,36 +465,45 @@ def _replay(
 ) -> FloatArray:
     """Replay residual of one segment [rad], shape ``(T, n)``.
 
-    Each window starts at the filtered state ``(q_start, qd_start)`` of its first sample and
-    runs the nominal dynamics under the logged tensions (held over each sample period), less
-    the torque ``lost`` [N m], ``(T, n)``, when given (the nominal model with fitted effects).
-    An error beyond pi rad (a diverging replay) is clipped to +-pi and the window restarts.
+    The segment is cut into windows of ``spec.replay_window``; each starts at the filtered
+    state ``(q_start, qd_start)`` of its first sample and runs the nominal dynamics under the
+    logged tensions (held over each sample period), less the torque ``lost`` [N m], ``(T, n)``,
+    when given (the nominal model with fitted effects). The windows are independent, so they
+    are integrated side by side, sample by sample (each window's numbers are those of
+    integrating it alone). An error beyond pi rad (a diverging replay) is clipped to +-pi and
+    the window starts again from the logged state of the next sample.
     """
     n_samples = len(q_log)
     per_window = max(1, round(spec.replay_window / dt))
     h = dt / spec.replay_substeps
     out = np.empty_like(q_log)
-    first = 0
-    q = v = q_start[0]
+    starts = np.arange(0, n_samples, per_window)
+    q = q_start[starts].copy()
+    v = qd_start[starts].copy()
     with np.errstate(over="ignore", invalid="ignore"):
-        for k in range(n_samples):
-            if k == first:
-                q = q_start[k].copy()
-                v = qd_start[k].copy()
-            error = q - q_log[k]
-            if not np.all(np.abs(error) < _REPLAY_LIMIT):  # diverged (or NaN): clip, restart
-                error = np.clip(
-                    np.nan_to_num(error, nan=_REPLAY_LIMIT), -_REPLAY_LIMIT, _REPLAY_LIMIT
-                )
-                first = k + 1
-            elif k + 1 - first >= per_window:
-                first = k + 1
-            out[k] = error
-            if first != k + 1:
+        for j in range(per_window):
+            live = starts + j < n_samples  # the last window may be shorter
+            rows = starts[live] + j
+            error = q[live] - q_log[rows]
+            bad = ~np.all(np.abs(error) < _REPLAY_LIMIT, axis=1)  # diverged (or NaN)
+            error[bad] = np.clip(
+                np.nan_to_num(error[bad], nan=_REPLAY_LIMIT), -_REPLAY_LIMIT, _REPLAY_LIMIT
+            )
+            out[rows] = error
+            if j + 1 == per_window:
+                break
+            go = np.flatnonzero(live)[~bad & (rows + 1 < n_samples)]
+            restart = np.flatnonzero(live)[bad & (rows + 1 < n_samples)]
+            q[restart] = q_start[starts[restart] + j + 1]
+            v[restart] = qd_start[starts[restart] + j + 1]
+            if go.size:
+                k = starts[go] + j
+                qs, vs = q[go], v[go]
                 extra = None if lost is None else lost[k]
                 for _ in range(spec.replay_substeps):
-                    v = v + h * work.acceleration(q, v, tension[k], extra)
-                    q = q + h * v
+                    vs = vs + h * work.accelerations(qs, vs, tension[k], extra)
+                    qs = qs + h * vs
+                q[go], v[go] = qs, vs
     return out
 
 

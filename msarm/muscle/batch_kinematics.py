@@ -161,6 +161,25 @@ class JacobianAt:
             _jacobian_at(*self._args, q, *self._views)
         return self.jacobian
 
+    def many(self, q: FloatArray, out: FloatArray | None = None) -> FloatArray:
+        """``J_c`` of several postures, the same bits as calling this object on each.
+
+        Args:
+            q: Postures [rad], ``(W, n)`` (not checked).
+            out: Where to write, ``(W, m, n)``; a new array when None.
+
+        Returns:
+            The Jacobians [m/rad], ``(W, m, n)``.
+        """
+        if out is None:
+            out = np.empty((len(q), *self.jacobian.shape))
+        if self._args is None:
+            for w in range(len(q)):
+                out[w] = self(q[w])
+        else:
+            _jacobians_at(*self._args, q, *self._views, out)
+        return out
+
 
 @numba.njit(cache=True)
 def _jacobian_at(
@@ -172,6 +191,18 @@ def _jacobian_at(
     for function in functions:
         call_model_data(function, model, data)
     _dense_jacobian(ten_j, rownnz, rowadr, colind, jacobian)
+
+
+@numba.njit(cache=True)
+def _jacobians_at(
+    functions, model, data, q, qpos, ten_j, rownnz, rowadr, colind, jacobian, out
+):  # pragma: no cover - compiled
+    """:func:`_jacobian_at` posture after posture, each Jacobian copied into ``out[w]``."""
+    for w in range(q.shape[0]):
+        _jacobian_at(functions, model, data, q[w], qpos, ten_j, rownnz, rowadr, colind, jacobian)
+        for i in range(jacobian.shape[0]):
+            for j in range(jacobian.shape[1]):
+                out[w, i, j] = jacobian[i, j]
 
 
 @numba.njit(cache=True)
