@@ -247,3 +247,47 @@ def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
     for bad in (0, -1, 1.5):
         with pytest.raises(InputError, match="shortlist: expected None or an integer >= 1"):
             select.select_effects(data, shortlist=bad)
+
+
+def test_several_values_after_one_multi_value_option():
+    """`--holdout H1 H2` holds out both logs (click alone would train on H2)."""
+    from msarm.cli import spread_multi_value_options as spread
+
+    assert spread(["diagnose", "t1", "t2", "--holdout", "h1", "h2", "--out", "d", "--json"]) == [
+        "diagnose", "t1", "t2", "--holdout", "h1", "--holdout", "h2", "--out", "d", "--json"
+    ]  # fmt: skip
+    assert spread(["diagnose", "t", "--holdout=h1", "h2", "--candidates", "a", "b"]) == [
+        "diagnose", "t", "--holdout=h1", "--holdout", "h2", "--candidates", "a", "--candidates", "b"
+    ]  # fmt: skip
+    # repeated flags, other sub-commands, and values after "--" are left alone
+    same = ["diagnose", "t", "--holdout", "h1", "--holdout", "h2"]
+    assert spread(same) == same
+    assert spread(["bench", "diagnose", "--holdout", "2"]) == [
+        "bench",
+        "diagnose",
+        "--holdout",
+        "2",
+    ]
+    assert spread(["diagnose", "--holdout", "h", "--", "x"]) == [
+        "diagnose",
+        "--holdout",
+        "h",
+        "--",
+        "x",
+    ]
+
+
+def test_the_console_script_holds_out_every_log_after_holdout(noise_logs, monkeypatch, capsys):
+    import sys
+
+    from msarm.cli import main
+
+    train, held = [str(p) for p in noise_logs[:2]], [str(p) for p in noise_logs[2:]]
+    argv = ["msarm", "diagnose", *train, "--holdout", *held, "--candidates", "coulomb", "viscous"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--boot", "0", "--json"])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code in (0, None)
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["train_runs"] == train and payload["holdout_runs"] == held
+    assert set(payload["step_scores"][0]) == {"coulomb", "viscous"}

@@ -31,16 +31,58 @@ app.add_typer(bench_app, name="bench")
 app.add_typer(cdpr_app, name="cdpr")
 
 
+#: Options of a sub-command that take several values after one flag (``--holdout A B C``),
+#: as well as repeated (``--holdout A --holdout B``).
+MULTI_VALUE_OPTIONS = {"diagnose": ("--holdout", "--candidates")}
+
+
+def spread_multi_value_options(args: list[str]) -> list[str]:
+    """Rewrite ``--opt A B C`` as ``--opt A --opt B --opt C`` for :data:`MULTI_VALUE_OPTIONS`.
+
+    Click gives a repeatable option one value per flag, so that ``msarm diagnose T1 T2
+    --holdout H1 H2`` would hold out only ``H1`` and train on ``H2``: a silent mistake. Here
+    every value after such an option up to the next option (a token starting with ``-``) or
+    ``--`` belongs to it.
+
+    Args:
+        args: The command line without the program name.
+
+    Returns:
+        The rewritten command line.
+    """
+    command = next((a for a in args if not a.startswith("-")), None)
+    options = MULTI_VALUE_OPTIONS.get(command or "", ())
+    out: list[str] = []
+    current: str | None = None
+    for k, arg in enumerate(args):
+        if arg == "--":
+            out.extend(args[k:])
+            return out
+        if arg.startswith("-"):
+            name = arg.split("=", 1)[0]
+            current = name if name in options and "=" not in arg else None
+            out.append(arg)
+            if name in options and "=" in arg:
+                current = name  # --holdout=A B: B belongs to it too
+            continue
+        if current is not None and out and out[-1] != current:
+            out.append(current)
+        out.append(arg)
+    return out
+
+
 def main() -> None:
     """Entry point of the ``msarm`` console script.
 
     msarm's own errors (bad input, a bad model or log file, ...) are printed as one line
     naming the problem, with exit code 2; anything else keeps its traceback (a bug).
     """
+    import sys
+
     from msarm.errors import MsarmError
 
     try:
-        app()
+        app(args=spread_multi_value_options(sys.argv[1:]))
     except MsarmError as exc:
         import sys
 

@@ -166,7 +166,11 @@ def diagnose_command(
     logs: Annotated[list[Path], typer.Argument(help="Log files (Parquet) of the robot.")],
     holdout: Annotated[
         list[Path] | None,
-        typer.Option(help="Held-out log (repeatable); default: the last quarter of LOGS."),
+        typer.Option(
+            metavar="LOG",
+            help="Held-out logs: every path after --holdout up to the next option (or repeat "
+            "the option); default: the last quarter of LOGS.",
+        ),
     ] = None,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the diagnosis as JSON.")
@@ -183,7 +187,8 @@ def diagnose_command(
         typer.Option(
             "--candidates",
             metavar="NAME",
-            help="Candidate effect to try, by name (repeatable); default: the default set "
+            help="Candidate effects to try, by name: every name after --candidates up to "
+            "the next option (or repeat the option); default: the default set "
             "(DEFAULT_CANDIDATES of msarm.diagnose.select). An unknown name lists the known "
             "ones.",
         ),

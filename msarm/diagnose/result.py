@@ -84,7 +84,9 @@ class Diagnosis:
         explained_variance: Held-out score after each step [-], starting with the nominal
             model's 0.0; length ``len(selected) + 1``.
         step_scores: Per step, the gain (on its own groups) of every candidate tried with the
-            terms selected before, by name.
+            terms selected before, by name: from the joint fit for the shortlisted
+            candidates (every candidate at the first step), from the screening fit for the
+            others.
         groups: The channel groups diagnosed, in stack order.
         channel_names: Channel names of each group (joints or cables).
         gap_before: Held-out RMSE per channel of each group, nominal model, in the group's

@@ -9,11 +9,15 @@ weigh alike whatever their units, each group is divided by its training residual
 :func:`diagnose` starts from the nominal model (no term: every residual is unexplained) and,
 step by step, tries each remaining candidate together with the terms already selected:
 
-- **Joint fit.** All linear terms (the selected ones and the candidate, if linear) are fitted
-  together by one least-squares problem on their stacked, group-normalised design matrices.
-  Nonlinear terms are then fitted one after another (in the order they were selected, the
-  candidate last) by IPOPT, each on the residual left by the linear block and the nonlinear
-  terms before it (one pass). Fits use the training runs only.
+- **Screening fit.** Each candidate is fitted alone (least squares, or IPOPT for a nonlinear
+  one) to what the selected terms, held fixed, leave of the training residual.
+- **Joint fit** of the shortlist: the candidates with the largest screening gains
+  (:data:`DEFAULT_SHORTLIST`) are refitted with the selected terms by
+  :func:`~msarm.diagnose.stack.fit_together`: all linear terms in one least-squares problem
+  on their stacked, group-normalised designs, each nonlinear term by IPOPT, the blocks
+  refitted in turn to what the others leave until the fit settles. Only the shortlist may be
+  added. At the first step the screening fit is the joint fit. Fits use the training runs
+  only.
 - **Score.** The held-out explained share of the residual: per group, ``1 - sum (r -
   pred)^2 / sum r^2`` over the held-out samples and the group's columns (energy about zero,
   so that a constant offset such as a load-cell bias counts as gap), then the mean over the
