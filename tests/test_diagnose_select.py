@@ -262,19 +262,15 @@ def test_several_values_after_one_multi_value_option():
     # repeated flags, other sub-commands, and values after "--" are left alone
     same = ["diagnose", "t", "--holdout", "h1", "--holdout", "h2"]
     assert spread(same) == same
-    assert spread(["bench", "diagnose", "--holdout", "2"]) == [
-        "bench",
-        "diagnose",
-        "--holdout",
-        "2",
-    ]
-    assert spread(["diagnose", "--holdout", "h", "--", "x"]) == [
-        "diagnose",
-        "--holdout",
-        "h",
-        "--",
-        "x",
-    ]
+    for same in (
+        ["bench", "diagnose", "--holdout", "2"],
+        ["diagnose", "--holdout", "h", "--", "x"],
+        ["track", "--holdout", "a", "b"],
+    ):
+        assert spread(same) == same
+    assert spread(["bench", "diagnose", "--effect", "a", "b"]) == [
+        "bench", "diagnose", "--effect", "a", "--effect", "b"
+    ]  # fmt: skip
 
 
 def test_the_console_script_holds_out_every_log_after_holdout(noise_logs, monkeypatch, capsys):

@@ -33,7 +33,10 @@ app.add_typer(cdpr_app, name="cdpr")
 
 #: Options of a sub-command that take several values after one flag (``--holdout A B C``),
 #: as well as repeated (``--holdout A --holdout B``).
-MULTI_VALUE_OPTIONS = {"diagnose": ("--holdout", "--candidates")}
+MULTI_VALUE_OPTIONS = {
+    ("diagnose",): ("--holdout", "--candidates"),
+    ("bench", "diagnose"): ("--effect",),
+}
 
 
 def spread_multi_value_options(args: list[str]) -> list[str]:
@@ -50,8 +53,10 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
     Returns:
         The rewritten command line.
     """
-    command = next((a for a in args if not a.startswith("-")), None)
-    options = MULTI_VALUE_OPTIONS.get(command or "", ())
+    options: tuple[str, ...] = ()
+    for command, names in MULTI_VALUE_OPTIONS.items():
+        if tuple(args[: len(command)]) == command:
+            options = names
     out: list[str] = []
     current: str | None = None
     for k, arg in enumerate(args):

@@ -126,7 +126,11 @@ def diagnose_bench(
     duration: float = typer.Option(10.0, "--duration", min=2.0, help="Task length [s]."),
     n_boot: int = typer.Option(10, "--boot", min=0, help="Bootstrap draws of the diagnosis."),
     effects: list[str] = typer.Option(  # noqa: B008
-        [], "--effect", help="Effect class to cover (repeatable; default all)."
+        [],
+        "--effect",
+        metavar="NAME",
+        help="Effect classes to cover: every name after --effect up to the next option (or "
+        "repeat the option); default all.",
     ),
     pairs: bool = typer.Option(True, "--pairs/--no-pairs", help="Two-effect scenarios."),
     rescore: bool = typer.Option(
