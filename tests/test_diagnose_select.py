@@ -247,6 +247,16 @@ def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
     for bad in (0, -1, 1.5):
         with pytest.raises(InputError, match="shortlist: expected None or an integer >= 1"):
             select.select_effects(data, shortlist=bad)
+    # screening on thinned samples: the shortlist, refitted on all of them, makes the choice
+    joint_fits.clear()
+    thinned = select.select_effects(data, n_boot=0, replay=False, screen_samples=100)
+    assert thinned.names == full.names
+    assert len(joint_fits) == 3 * len(thinned.step_scores)  # the first step's shortlist too
+    for k, name in enumerate(thinned.names):
+        assert thinned.step_scores[k][name] == pytest.approx(full.step_scores[k][name], abs=1e-6)
+    for bad in (99, 150.5):
+        with pytest.raises(InputError, match="screen_samples: expected an integer >= 100"):
+            select.select_effects(data, screen_samples=bad)
 
 
 def test_several_values_after_one_multi_value_option():

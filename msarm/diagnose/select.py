@@ -10,14 +10,15 @@ weigh alike whatever their units, each group is divided by its training residual
 step by step, tries each remaining candidate together with the terms already selected:
 
 - **Screening fit.** Each candidate is fitted alone (least squares, or IPOPT for a nonlinear
-  one) to what the selected terms, held fixed, leave of the training residual.
+  one) to what the selected terms, held fixed, leave of the training residual, on at most
+  :data:`SCREEN_SAMPLES` evenly thinned samples.
 - **Joint fit** of the shortlist: the candidates with the largest screening gains
   (:data:`DEFAULT_SHORTLIST`) are refitted with the selected terms by
   :func:`~msarm.diagnose.stack.fit_together`: all linear terms in one least-squares problem
   on their stacked, group-normalised designs, each nonlinear term by IPOPT, the blocks
-  refitted in turn to what the others leave until the fit settles. Only the shortlist may be
-  added. At the first step the screening fit is the joint fit. Fits use the training runs
-  only.
+  refitted in turn to what the others leave until the fit settles, on all the fitting
+  samples. Only the shortlist may be added. At the first step, unless the screening thinned
+  the samples, the screening fit is the joint fit. Fits use the training runs only.
 - **Score.** The held-out explained share of the residual: per group, ``1 - sum (r -
   pred)^2 / sum r^2`` over the held-out samples and the group's columns (energy about zero,
   so that a constant offset such as a load-cell bias counts as gap), then the mean over the
@@ -118,6 +119,9 @@ DEFAULT_THRESHOLD = 0.02
 #: Candidates of each selection step (after the first) fitted jointly with the terms already
 #: selected: those with the largest screening gains (see :func:`select_effects`).
 DEFAULT_SHORTLIST = 3
+#: The screening fits use at most this many training (and held-out) samples, evenly thinned
+#: (see :func:`select_effects`).
+SCREEN_SAMPLES = 2500
 #: Rounds of the joint fit by blocks in each bootstrap draw (it starts from the full fit).
 BOOTSTRAP_ROUNDS = 2
 #: Cogging periods per motor revolution of the default cogging candidates (motor datasheet).
@@ -540,6 +544,7 @@ def select_effects(
     replay: bool = True,
     max_samples: int = MAX_FIT_SAMPLES,
     shortlist: int | None = DEFAULT_SHORTLIST,
+    screen_samples: int = SCREEN_SAMPLES,
 ) -> Diagnosis:
     """Forward selection, final fit, bootstrap and gaps on prepared data (see :func:`diagnose`).
 
@@ -554,6 +559,9 @@ def select_effects(
         shortlist: From the second step on, how many candidates (those with the largest
             screening gains) are fitted jointly with the terms already selected; only they
             may be added. ``None``: all of them (slower, the same choice in the benchmark).
+        screen_samples: The screening fits and scores use at most this many training (and
+            held-out) samples, evenly thinned; when that thins the data, every shortlisted
+            candidate (at the first step too) is refitted on the ``max_samples`` ones.
 
     Raises:
         InputError: A bad threshold, ``max_samples`` or ``shortlist``.
@@ -562,12 +570,17 @@ def select_effects(
         raise InputError(f"max_samples: expected an integer >= 100, got {max_samples}")
     if shortlist is not None and (int(shortlist) != shortlist or shortlist < 1):
         raise InputError(f"shortlist: expected None or an integer >= 1, got {shortlist}")
+    if int(screen_samples) != screen_samples or screen_samples < 100:
+        raise InputError(f"screen_samples: expected an integer >= 100, got {screen_samples}")
     threshold = float(threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
     hold, layout = data.hold, data.layout
     r_hold = data.r_hold
     sampled = Sampled(data, int(max_samples))
+    thin = min(int(screen_samples), int(max_samples))
+    thinned = thin < max(sampled.residual["train"].shape[0], sampled.residual["hold"].shape[0])
+    screen = Sampled(data, thin) if thinned else sampled
     embedded = list(data.candidates)
 
     chosen: list[CandidateEffect] = []
@@ -584,7 +597,8 @@ def select_effects(
         after: dict[str, dict[str, float]] = {}
         fits: dict[str, FittedModel] = {}
         # screening: each candidate alone on what the chosen terms leave (they stay fixed)
-        base = _Base(chosen_fit, sampled)
+        base = _Base(chosen_fit, screen)
+        before = group_scores(layout, screen.residual["hold"], base.hold)
         for candidate in remaining:
             clash = bases.confounder(candidate, chosen)
             if clash is not None:
@@ -592,20 +606,20 @@ def select_effects(
                 gain_of[candidate.name] = float("nan")
                 continue
             fits[candidate.name], hold_prediction = base.add(candidate)
-            after[candidate.name] = group_scores(layout, sampled.residual["hold"], hold_prediction)
+            after[candidate.name] = group_scores(layout, screen.residual["hold"], hold_prediction)
             gain_of[candidate.name] = own_gain(
-                candidate.term.groups, current, after[candidate.name]
+                candidate.term.groups, before, after[candidate.name]
             )
         # the shortlist is fitted jointly with the chosen terms: these start where their last
         # fit ended, the candidate where its screening fit ended (alone, the screening fit is
         # the joint fit)
         finalists = _shortlist(remaining, gain_of, shortlist)
-        if chosen_fit is not None:
+        if chosen_fit is not None or thinned:
             for candidate in finalists:
                 fitted = fits[candidate.name] = fit_together(
                     [*chosen, candidate],
                     sampled,
-                    initial=[*chosen_fit.parameters, fits[candidate.name].parameters[-1]],
+                    initial=[*fits[candidate.name].parameters],
                 )
                 after[candidate.name] = group_scores(
                     layout, sampled.residual["hold"], fitted.predict(sampled, "hold")
@@ -615,7 +629,7 @@ def select_effects(
                 )
         scores_per_step.append(gain_of)
         open_ = [c for c in remaining if np.isfinite(gain_of[c.name])]
-        if chosen_fit is not None:
+        if chosen_fit is not None or thinned:
             open_ = finalists  # a candidate's screening gain only puts it on the shortlist
         if not open_:
             break
