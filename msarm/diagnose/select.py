@@ -607,9 +607,7 @@ def select_effects(
                 continue
             fits[candidate.name], hold_prediction = base.add(candidate)
             after[candidate.name] = group_scores(layout, screen.residual["hold"], hold_prediction)
-            gain_of[candidate.name] = own_gain(
-                candidate.term.groups, before, after[candidate.name]
-            )
+            gain_of[candidate.name] = own_gain(candidate.term.groups, before, after[candidate.name])
         # the shortlist is fitted jointly with the chosen terms: these start where their last
         # fit ended, the candidate where its screening fit ended (alone, the screening fit is
         # the joint fit)
