@@ -501,3 +501,27 @@ def test_capstan_hysteresis_columns_are_kept_per_signals(signals):
     for k in range(10):  # a bounded cache
         effect._columns(signals.take(np.arange(k + 1)))
     assert len(effect._columns_of) <= 4
+
+
+def test_the_compiled_direction_memory_is_the_implicit_euler_loop():
+    """direction_memory (compiled) against the loop it replaces, bit for bit."""
+    from msarm.diagnose.signals import direction_memory
+
+    rng = np.random.default_rng(11)
+    speed = rng.normal(0.0, 0.5, size=(700, 3))
+    speed[100:140] = 0.0  # at rest the memory holds
+    run = np.repeat([0, 1, 2], [300, 250, 150])
+    t = np.concatenate([np.arange(300) * 0.004, 5 + np.arange(250) * 0.004, np.arange(150) * 0.01])
+    expected = np.zeros_like(speed)
+    for label in np.unique(run):
+        index = np.flatnonzero(run == label)
+        current = np.zeros(3)
+        for k, i in enumerate(index):
+            if k:
+                h = 40.0 * (t[index[k]] - t[index[k - 1]])
+                current = (current + h * speed[i]) / (1.0 + h * np.abs(speed[i]))
+            expected[i] = current
+    got = direction_memory(speed, t, run, 40.0)
+    np.testing.assert_array_equal(got, expected)
+    assert np.all(got[300] == 0.0) and np.all(np.abs(got) < 1.0)
+    np.testing.assert_array_equal(got[101:140], np.repeat(got[100:101], 39, axis=0))

@@ -163,3 +163,18 @@ def test_the_solvers_are_kept_for_single_terms_and_the_last_set(arm):
     assert sampled.solver([v_term, v_term]) is pair
     r = sampled.residual["train"]
     np.testing.assert_allclose(pair.solve(r)[:4] + pair.solve(r)[4:], single.solve(r), rtol=1e-9)
+
+
+def test_a_thinned_child_takes_its_parents_samples_and_designs(arm):
+    viscous = ViscousFriction()
+    data, (v_term,) = _data(arm, [viscous], [np.full(4, 0.05)])
+    parent = Sampled(data, 500)
+    child = Sampled(data, 120, parent=parent)
+    for split in ("train", "hold"):
+        assert set(child.rows[split]) <= set(parent.rows[split])
+        assert len(child.rows[split]) <= 120
+        np.testing.assert_array_equal(
+            child.design(v_term, split),
+            v_term.design(data.train if split == "train" else data.hold)[child.rows[split]],
+        )
+    np.testing.assert_array_equal(child.residual["train"], data.r_train[child.rows["train"]])

@@ -435,11 +435,21 @@ class _Work:
             lost: Torque lost [N m], ``(W, n)``, or None.
         """
         jacobians = self.jacobian_at.many(q)
+        # one batched product: the bits of -J^T F row by row (the same summation)
+        tau = np.matmul(-jacobians.transpose(0, 2, 1), tension[:, :, None])[:, :, 0]
+        if lost is not None:
+            tau = tau - lost
         out = np.empty_like(q)
+        aba, pin_model, pin_data = pinocchio.aba, self.model.pin_model, self.data.pin
+        if self.identity:
+            for w in range(len(q)):
+                out[w] = aba(pin_model, pin_data, q[w], qd[w], tau[w])
+            return out
+        i = self.index
         for w in range(len(q)):
-            out[w] = self._aba(
-                q[w], qd[w], jacobians[w], tension[w], None if lost is None else lost[w]
-            )
+            out[w] = np.asarray(aba(pin_model, pin_data, q[w, i], qd[w, i], tau[w, i]))[
+                self.inverse
+            ]
         return out
 
     def _aba(self, q, qd, jacobian, tension, lost):

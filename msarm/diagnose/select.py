@@ -580,7 +580,7 @@ def select_effects(
     sampled = Sampled(data, int(max_samples))
     thin = min(int(screen_samples), int(max_samples))
     thinned = thin < max(sampled.residual["train"].shape[0], sampled.residual["hold"].shape[0])
-    screen = Sampled(data, thin) if thinned else sampled
+    screen = Sampled(data, thin, parent=sampled) if thinned else sampled
     embedded = list(data.candidates)
 
     chosen: list[CandidateEffect] = []

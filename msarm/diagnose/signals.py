@@ -231,17 +231,26 @@ def direction_memory(
     Returns:
         ``z`` [-], shape ``(T, k)``.
     """
+    speed = np.ascontiguousarray(speed, dtype=float)
     z = np.zeros_like(speed)
     for label in np.unique(run):
         index = np.flatnonzero(run == label)
-        times = t[index]
-        current = np.zeros(speed.shape[1])
-        for k, i in enumerate(index):
-            if k:
-                h = rate * (times[k] - times[k - 1])
-                current = (current + h * speed[i]) / (1.0 + h * np.abs(speed[i]))
-            z[i] = current
+        _direction_memory_run(speed, np.asarray(t, dtype=float), index, float(rate), z)
     return z
+
+
+@numba.njit(cache=True)
+def _direction_memory_run(speed, t, index, rate, z):  # pragma: no cover - compiled
+    """:func:`direction_memory` of one run (rows ``index``), into ``z``; numpy's arithmetic."""
+    current = np.zeros(speed.shape[1])
+    for k in range(index.shape[0]):
+        i = index[k]
+        if k:
+            h = rate * (t[i] - t[index[k - 1]])
+            for c in range(speed.shape[1]):
+                current[c] = (current[c] + h * speed[i, c]) / (1.0 + h * abs(speed[i, c]))
+        for c in range(speed.shape[1]):
+            z[i, c] = current[c]
 
 
 def stick_slip_tension(

@@ -234,11 +234,25 @@ class Sampled:
     samples and must be per-sample).
     """
 
-    def __init__(self, data: DiagnosisData, max_samples: int) -> None:
+    def __init__(
+        self, data: DiagnosisData, max_samples: int, parent: Sampled | None = None
+    ) -> None:
+        """Thin the data to ``max_samples``; with a ``parent``, pick among its samples.
+
+        A child's samples are evenly thinned from its parent's, and its linear designs are
+        the parent's rows (computed once, by the parent).
+        """
         self.full = {"train": data.train, "hold": data.hold}
-        self.rows = {
-            split: _even_rows(sig.n_samples, max_samples) for split, sig in self.full.items()
-        }
+        self.parent = parent
+        if parent is None:
+            self.rows = {
+                split: _even_rows(sig.n_samples, max_samples) for split, sig in self.full.items()
+            }
+        else:
+            self.within = {
+                split: _even_rows(len(rows), max_samples) for split, rows in parent.rows.items()
+            }
+            self.rows = {split: parent.rows[split][self.within[split]] for split in parent.rows}
         self.signals = {split: sig.take(self.rows[split]) for split, sig in self.full.items()}
         self.residual = {
             "train": data.r_train[self.rows["train"]],
@@ -286,7 +300,10 @@ class Sampled:
         """A linear term's design on the ``"train"`` or ``"hold"`` samples (computed once)."""
         key = (id(term), split)
         if key not in self._designs:
-            self._designs[key] = term.design(self.full[split])[self.rows[split]]
+            if self.parent is not None:
+                self._designs[key] = self.parent.design(term, split)[self.within[split]]
+            else:
+                self._designs[key] = term.design(self.full[split])[self.rows[split]]
         return self._designs[key]
 
     def joint_design(self, terms: Sequence[CandidateEffect]) -> FloatArray:
