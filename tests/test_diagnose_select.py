@@ -235,7 +235,10 @@ def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
     full = select.select_effects(data, n_boot=0, replay=False, shortlist=None)
     n_full = len(joint_fits)
     joint_fits.clear()
-    short = select.select_effects(data, n_boot=0, replay=False, shortlist=1)
+    said = []
+    short = select.select_effects(data, n_boot=0, replay=False, shortlist=1, progress=said.append)
+    assert said[0] == "step 1: screening 5 candidate(s)"
+    assert f"step 2: fitting {short.names[1]} with the 1 effect(s) chosen" in said
     assert len(full.names) >= 2 and short.names == full.names
     # the first step fits each candidate alone either way: the same scores, bit for bit
     assert short.step_scores[0] == full.step_scores[0]

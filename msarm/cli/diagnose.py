@@ -242,7 +242,7 @@ def diagnose_command(
                 spinner.update(text)
 
         model = load_arm(model_path)
-        say(f"fitting the candidates: {len(train)} training, {len(held)} held-out log(s)")
+        options["progress"] = say
         with warnings.catch_warnings():
             # the candidates skipped are listed in a table below
             warnings.filterwarnings(

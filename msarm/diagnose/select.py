@@ -46,7 +46,7 @@ waterfall of :mod:`msarm.diagnose.report`).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -423,6 +423,7 @@ def diagnose(
     seed: int = 0,
     groups: Sequence[str] | None = None,
     extra_candidates: Sequence[CandidateEffect] = (),
+    progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     """Find which candidate effects explain the gap, by forward selection on held-out runs.
 
@@ -443,6 +444,8 @@ def diagnose(
         groups: Channel groups to diagnose (default all the logs have).
         extra_candidates: Your own candidates, tried besides ``candidates`` (each must be
             usable on the logs).
+        progress: Called with a line saying what the diagnosis is doing (for a status
+            display), or None.
 
     Returns:
         The :class:`Diagnosis`.
@@ -453,8 +456,10 @@ def diagnose(
             variance on both training and held-out runs.
         LogError: A log that cannot be diagnosed (file named).
     """
+    if progress is not None:
+        progress(f"reading {len(train_paths) + len(holdout_paths)} log(s)")
     data = load_data(model, train_paths, holdout_paths, candidates, spec, groups, extra_candidates)
-    return select_effects(data, threshold, n_boot, seed)
+    return select_effects(data, threshold, n_boot, seed, progress=progress)
 
 
 def load_data(
@@ -545,6 +550,7 @@ def select_effects(
     max_samples: int = MAX_FIT_SAMPLES,
     shortlist: int | None = DEFAULT_SHORTLIST,
     screen_samples: int = SCREEN_SAMPLES,
+    progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     """Forward selection, final fit, bootstrap and gaps on prepared data (see :func:`diagnose`).
 
@@ -562,6 +568,7 @@ def select_effects(
         screen_samples: The screening fits and scores use at most this many training (and
             held-out) samples, evenly thinned; when that thins the data, every shortlisted
             candidate (at the first step too) is refitted on the ``max_samples`` ones.
+        progress: Called with a line saying what the selection is doing, or None.
 
     Raises:
         InputError: A bad threshold, ``max_samples`` or ``shortlist``.
@@ -592,7 +599,10 @@ def select_effects(
     bases = Confounding(sampled)
     confounded: dict[str, str] = {}
     chosen_fit: FittedModel | None = None
+    say = progress if progress is not None else (lambda text: None)
     while remaining:
+        step = len(chosen) + 1
+        say(f"step {step}: screening {len(remaining)} candidate(s)")
         gain_of: dict[str, float] = {}
         after: dict[str, dict[str, float]] = {}
         fits: dict[str, FittedModel] = {}
@@ -613,6 +623,8 @@ def select_effects(
         # the joint fit)
         finalists = _shortlist(remaining, gain_of, shortlist)
         if chosen_fit is not None or thinned:
+            names = ", ".join(c.name for c in finalists)
+            say(f"step {step}: fitting {names} with the {len(chosen)} effect(s) chosen")
             for candidate in finalists:
                 fitted = fits[candidate.name] = fit_together(
                     [*chosen, candidate],
@@ -643,6 +655,8 @@ def select_effects(
 
     # the chosen terms' fit is the one their last step made
     final = chosen_fit if chosen_fit is not None else fit_together(chosen, sampled)
+    if chosen and int(n_boot) >= 2:
+        say(f"bootstrap: {int(n_boot)} refits of {', '.join(t.name for t in chosen)}")
     stds, confidence = _bootstrap(final, sampled, layout, int(n_boot), threshold, seed)
     cumulative = np.zeros_like(r_hold)
     waterfall = [{g: pooled_rmse(v) for g, v in layout.unstack(r_hold).items()}]
@@ -652,6 +666,8 @@ def select_effects(
             {g: pooled_rmse(v) for g, v in layout.unstack(r_hold - cumulative).items()}
         )
     before, after = layout.unstack(r_hold), layout.unstack(r_hold - cumulative)
+    if replay:
+        say("replaying the held-out runs with the nominal model, without and with the effects")
     motion = _replay_gap(data, layout.unstack(cumulative)) if replay else None
     selected = tuple(
         SelectedEffect(
