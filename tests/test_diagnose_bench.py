@@ -46,6 +46,11 @@ def test_tiny_benchmark_names_the_withheld_effects(report):
     assert ours["mean_excess_shrink"] > ours["mean_shrink"]
     assert set(ours["shrink_by_effect"]) == {"winch_friction", "sensor_bias"}
     assert set(summary["noise_floor"]) >= {"joint", "drive"}
+    # the selection's share of the time: read at the bootstrap's start, before the end
+    for row in result["scenarios"]:
+        assert row["load_seconds"] < row["msarm"]["selection_seconds"] < row["msarm"]["seconds"]
+    assert 0 < ours["selection_seconds_per_scenario"] < ours["seconds_per_scenario"]
+    assert summary["sindy"]["selection_seconds_per_scenario"] is None
     assert (out / "confusion.png").read_bytes().startswith(b"\x89PNG")
     saved = json.loads((out / "results.json").read_text())
     assert saved["summary"] == json.loads(json.dumps(summary))

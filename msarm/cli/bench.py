@@ -245,6 +245,12 @@ def diagnose_bench(
         fmt(ours["seconds_per_scenario"], "{:.1f} s"),
         fmt(theirs["seconds_per_scenario"], "{:.1f} s"),
     )
+    table.add_row(
+        "  up to the end of the selection (no bootstrap, no replay)",
+        "",
+        fmt(ours.get("selection_seconds_per_scenario"), "{:.1f} s"),
+        "",
+    )
     console.print(table)
     by_effect = ", ".join(
         f"{e} {ours['top1_by_effect'][e]:.0%}/{theirs['top1_by_effect'].get(e, 0):.0%}"
