@@ -116,8 +116,8 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
-#: Candidates of each selection step (after the first) fitted jointly with the terms already
-#: selected: those with the largest screening gains (see :func:`select_effects`).
+#: Candidates of each selection step fitted jointly with the terms already selected, on all
+#: the fitting samples: those with the largest screening gains (see :func:`select_effects`).
 DEFAULT_SHORTLIST = 3
 #: The screening fits use at most this many training (and held-out) samples, evenly thinned
 #: (see :func:`select_effects`).
@@ -562,9 +562,10 @@ def select_effects(
         replay: Also replay the held-out runs without and with the effects (the gap as motion).
         max_samples: The fits and scores use at most this many training and as many held-out
             samples, evenly thinned (the gaps reported use every held-out sample).
-        shortlist: From the second step on, how many candidates (those with the largest
-            screening gains) are fitted jointly with the terms already selected; only they
-            may be added. ``None``: all of them (slower, the same choice in the benchmark).
+        shortlist: How many candidates of a step (those with the largest screening gains)
+            are fitted jointly with the terms already selected; only they may be added (at
+            the first step on unthinned samples the screening fit is that joint fit).
+            ``None``: all of them (slower; on the benchmark the same choices).
         screen_samples: The screening fits and scores use at most this many training (and
             held-out) samples, evenly thinned; when that thins the data, every shortlisted
             candidate (at the first step too) is refitted on the ``max_samples`` ones.
