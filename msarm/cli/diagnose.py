@@ -163,7 +163,9 @@ def _print_diagnosis(
 
 
 def diagnose_command(
-    logs: Annotated[list[Path], typer.Argument(help="Log files (Parquet) of the robot.")],
+    logs: Annotated[
+        list[Path], typer.Argument(metavar="LOG", help="Log files (Parquet) of the robot.")
+    ],
     holdout: Annotated[
         list[Path] | None,
         typer.Option(
