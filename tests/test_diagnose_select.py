@@ -182,6 +182,7 @@ def test_cli_takes_the_nominal_model(arm, noise_logs, capsys):
 def _synthetic_data(arm):
     """Diagnosis data whose joint residual is Coulomb + viscous friction + noise."""
     from test_diagnose_effects import _make_signals
+    from test_diagnose_stack import diagnosis_data
 
     from msarm.diagnose.effects import (
         CableCapstanFriction,
@@ -190,7 +191,6 @@ def _synthetic_data(arm):
         InertiaError,
         ViscousFriction,
     )
-    from msarm.diagnose.stack import DiagnosisData, Embedded, Layout
 
     signals = _make_signals(arm, seed=5)
     coulomb, viscous = CoulombFriction(), ViscousFriction()
@@ -200,23 +200,8 @@ def _synthetic_data(arm):
         + np.asarray(viscous.torque(signals, np.array([0.4, 0.5, 0.3, 0.35])))
         + rng.normal(0.0, 0.02, size=(signals.n_samples, arm.n_joints))
     )
-    layout = Layout({"joint": torque})
-    stacked = layout.stack({"joint": torque})
-    train, hold = signals.run < 2, signals.run >= 2
     pool = [coulomb, viscous, DahlFriction(), InertiaError(arm), CableCapstanFriction()]
-    return DiagnosisData(
-        model=arm,
-        train=signals.take(train),
-        hold=signals.take(hold),
-        layout=layout,
-        r_train=stacked[train],
-        r_hold=stacked[hold],
-        candidates=tuple(Embedded(t, layout) for t in pool),
-        skipped={},
-        train_runs=("a", "b"),
-        holdout_runs=("c",),
-        channel_names={"joint": tuple(arm.joint_names)},
-    )
+    return diagnosis_data(arm, signals, torque, pool)
 
 
 def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):

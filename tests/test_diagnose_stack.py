@@ -16,28 +16,32 @@ from msarm.diagnose.stack import (
 )
 
 
-def _data(arm, truth_terms, thetas):
-    """Diagnosis data whose joint residual is exactly the given terms' sum (half held out)."""
-    signals = _make_signals(arm, seed=4)
-    torque = sum(np.asarray(t.torque(signals, p)) for t, p in zip(truth_terms, thetas, strict=True))
+def diagnosis_data(arm, signals, torque, pool):
+    """Diagnosis data of a joint residual ``torque`` (runs 0-1 trained on, the rest held out)."""
     layout = Layout({"joint": torque})
     stacked = layout.stack({"joint": torque})
     train, hold = signals.run < 2, signals.run >= 2
-    candidates = tuple(Embedded(t, layout) for t in truth_terms)
-    data = DiagnosisData(
+    return DiagnosisData(
         model=arm,
         train=signals.take(train),
         hold=signals.take(hold),
         layout=layout,
         r_train=stacked[train],
         r_hold=stacked[hold],
-        candidates=candidates,
+        candidates=tuple(Embedded(t, layout) for t in pool),
         skipped={},
         train_runs=("a", "b"),
         holdout_runs=("c",),
         channel_names={"joint": tuple(arm.joint_names)},
     )
-    return data, candidates
+
+
+def _data(arm, truth_terms, thetas):
+    """Diagnosis data whose joint residual is exactly the given terms' sum (half held out)."""
+    signals = _make_signals(arm, seed=4)
+    torque = sum(np.asarray(t.torque(signals, p)) for t, p in zip(truth_terms, thetas, strict=True))
+    data = diagnosis_data(arm, signals, torque, truth_terms)
+    return data, data.candidates
 
 
 def _train_error(sampled, model):
