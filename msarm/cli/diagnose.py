@@ -211,6 +211,14 @@ def diagnose_command(
         ),
     ] = 20,
     seed: Annotated[int, typer.Option(help="Seed of the bootstrap draws.")] = 0,
+    shortlist: Annotated[
+        int,
+        typer.Option(
+            metavar="N",
+            help="Candidates of each step, best by their screening fit, fitted jointly with "
+            "the effects already named; 0: every candidate (slower).",
+        ),
+    ] = 3,
     model_path: Annotated[
         Path | None,
         typer.Option(
@@ -228,7 +236,9 @@ def diagnose_command(
     train, held = split_runs(list(logs), holdout)
     if boot < 0:
         raise InputError(f"--boot: expected a number of draws >= 0, got {boot}")
-    options: dict = {"n_boot": int(boot), "seed": int(seed)}
+    if shortlist < 0:
+        raise InputError(f"--shortlist: expected a number of candidates >= 0, got {shortlist}")
+    options: dict = {"n_boot": int(boot), "seed": int(seed), "shortlist": shortlist or None}
     if candidates:
         options["candidates"] = list(candidates)
     if threshold is not None:

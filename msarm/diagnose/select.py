@@ -424,6 +424,7 @@ def diagnose(
     groups: Sequence[str] | None = None,
     extra_candidates: Sequence[CandidateEffect] = (),
     progress: Callable[[str], None] | None = None,
+    shortlist: int | None = DEFAULT_SHORTLIST,
 ) -> Diagnosis:
     """Find which candidate effects explain the gap, by forward selection on held-out runs.
 
@@ -446,6 +447,8 @@ def diagnose(
             usable on the logs).
         progress: Called with a line saying what the diagnosis is doing (for a status
             display), or None.
+        shortlist: Candidates of a step fitted jointly with the terms chosen (see
+            :func:`select_effects`); ``None``: every candidate.
 
     Returns:
         The :class:`Diagnosis`.
@@ -459,7 +462,7 @@ def diagnose(
     if progress is not None:
         progress(f"reading {len(train_paths) + len(holdout_paths)} log(s)")
     data = load_data(model, train_paths, holdout_paths, candidates, spec, groups, extra_candidates)
-    return select_effects(data, threshold, n_boot, seed, progress=progress)
+    return select_effects(data, threshold, n_boot, seed, shortlist=shortlist, progress=progress)
 
 
 def load_data(
