@@ -266,6 +266,10 @@ def test_several_values_after_one_multi_value_option():
         ["track", "--holdout", "a", "b"],
     ):
         assert spread(same) == same
+    # names end where a path starts: the logs after --candidates stay logs
+    assert spread(["diagnose", "--candidates", "capstan", "dahl", "a/t1.parquet", "t2"]) == [
+        "diagnose", "--candidates", "capstan", "--candidates", "dahl", "a/t1.parquet", "t2"
+    ]  # fmt: skip
     assert spread(["bench", "diagnose", "--effect", "a", "b"]) == [
         "bench", "diagnose", "--effect", "a", "--effect", "b"
     ]  # fmt: skip

@@ -37,6 +37,9 @@ MULTI_VALUE_OPTIONS = {
     ("diagnose",): ("--holdout", "--candidates"),
     ("bench", "diagnose"): ("--effect",),
 }
+#: Of those, the options whose values are names (letters, digits, ``_``): a value that is not
+#: one (a log path) ends the list, so that ``--candidates capstan LOG1 LOG2`` keeps its logs.
+NAME_OPTIONS = ("--candidates", "--effect")
 
 
 def spread_multi_value_options(args: list[str]) -> list[str]:
@@ -45,7 +48,7 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
     Click gives a repeatable option one value per flag, so that ``msarm diagnose T1 T2
     --holdout H1 H2`` would hold out only ``H1`` and train on ``H2``: a silent mistake. Here
     every value after such an option up to the next option (a token starting with ``-``) or
-    ``--`` belongs to it.
+    ``--`` belongs to it; for :data:`NAME_OPTIONS`, up to the first value that is not a name.
 
     Args:
         args: The command line without the program name.
@@ -70,6 +73,8 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
             if name in options and "=" in arg:
                 current = name  # --holdout=A B: B belongs to it too
             continue
+        if current in NAME_OPTIONS and out[-1] != current and not arg.isidentifier():
+            current = None  # a path after the names: a positional argument
         if current is not None and out and out[-1] != current:
             out.append(current)
         out.append(arg)
