@@ -67,11 +67,9 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
             out.extend(args[k:])
             return out
         if arg.startswith("-"):
-            name = arg.split("=", 1)[0]
-            current = name if name in options and "=" not in arg else None
+            name = arg.split("=", 1)[0]  # --holdout=A B: B belongs to it too
+            current = name if name in options else None
             out.append(arg)
-            if name in options and "=" in arg:
-                current = name  # --holdout=A B: B belongs to it too
             continue
         if current in NAME_OPTIONS and out[-1] != current and not arg.isidentifier():
             current = None  # a path after the names: a positional argument

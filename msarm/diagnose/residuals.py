@@ -409,7 +409,6 @@ class _Work:
         self.model = model
         self.data = model.create_data()
         self.jacobian_at = JacobianAt(model, self.data)
-        self.jacobian = self.jacobian_at.jacobian
         self.index = np.asarray(model.pin_q_index)
         self.inverse = np.argsort(self.index)
         self.identity = bool(np.array_equal(self.index, np.arange(self.index.size)))
@@ -421,7 +420,8 @@ class _Work:
 
         ``lost`` [N m], ``(n,)``: torque lost on the way (a fitted residual), if any.
         """
-        return self._aba(q, qd, self.jacobian_at(q), tension, lost)
+        tau = -self.jacobian_at(q).T @ tension
+        return self._forward(q, qd, tau if lost is None else tau - lost)
 
     def accelerations(
         self, q: FloatArray, qd: FloatArray, tension: FloatArray, lost: FloatArray | None = None
@@ -440,22 +440,12 @@ class _Work:
         if lost is not None:
             tau = tau - lost
         out = np.empty_like(q)
-        aba, pin_model, pin_data = pinocchio.aba, self.model.pin_model, self.data.pin
-        if self.identity:
-            for w in range(len(q)):
-                out[w] = aba(pin_model, pin_data, q[w], qd[w], tau[w])
-            return out
-        i = self.index
         for w in range(len(q)):
-            out[w] = np.asarray(aba(pin_model, pin_data, q[w, i], qd[w, i], tau[w, i]))[
-                self.inverse
-            ]
+            out[w] = self._forward(q[w], qd[w], tau[w])
         return out
 
-    def _aba(self, q, qd, jacobian, tension, lost):
-        tau = -jacobian.T @ tension
-        if lost is not None:
-            tau = tau - lost
+    def _forward(self, q: FloatArray, qd: FloatArray, tau: FloatArray) -> FloatArray:
+        """Pinocchio's ``aba`` in msarm's joint order [rad/s^2], ``(n,)``."""
         if self.identity:  # the two engines order the joints alike: no permutation
             return pinocchio.aba(self.model.pin_model, self.data.pin, q, qd, tau)
         i = self.index
