@@ -10,6 +10,7 @@ from msarm.tasks.metrics import (
     cable_length_error,
     final_position_error,
     joint_rmse,
+    settle_sample,
     slack_events,
     time_outside_bounds,
 )
@@ -96,3 +97,21 @@ def test_time_outside_bounds_seconds_per_cable():
         time_outside_bounds(tension, 1.0, 10.0, -1.0)
     with pytest.raises(InputError, match="tension has NaN"):
         time_outside_bounds(np.full((2, 2), np.nan), 1.0, 10.0, 0.1)
+
+
+def test_settle_sample_is_the_delay_after_the_reference_rests():
+    t = np.arange(10) * 0.25  # 0, 0.25, ..., 2.25 s
+    ref = np.zeros((10, 2))
+    ref[1:4, 0] = [0.1, 0.2, 0.3]  # moving until sample 3, at rest from there (0.75 s)
+    ref[4:, 0] = 0.3
+    assert settle_sample(t, ref, 0.5) == 5  # 1.25 s
+    assert settle_sample(t, ref, 0.0) == 3
+    assert settle_sample(t, ref, 1.5) == 9  # 2.25 s, the last sample
+    assert settle_sample(t, ref, 1.6) is None  # the run ends sooner
+    assert settle_sample(t, np.zeros((10, 2)), 0.5) == 2  # never moves: from the start
+    still_moving = np.outer(np.arange(10), [1.0, 0.0])
+    assert settle_sample(t, still_moving, 0.0) is None
+    with pytest.raises(InputError, match="q_ref has 9 samples but t has 10"):
+        settle_sample(t, ref[:9], 0.5)
+    with pytest.raises(InputError, match="delay must be >= 0"):
+        settle_sample(t, ref, -0.1)

@@ -39,6 +39,9 @@ def test_default_plant_shows_a_gap_to_the_ideal_plant(arm):
     ideal = track(arm, task, settings(IDEAL_PLANT)).metrics
     default = track(arm, task, settings(DEFAULT_PLANT)).metrics
     assert default.final_error_mm > 5 * max(ideal.final_error_mm, 0.05)
+    # half a second after the move the default plant is further off than at the end
+    assert default.settle_error_mm > default.final_error_mm > 0
+    assert default.settle_error_mm > 5 * ideal.settle_error_mm
     assert min(default.joint_rmse) > 10 * max(ideal.joint_rmse)
     assert max(default.cable_length_error_percent) > 10 * max(ideal.cable_length_error_percent)
 

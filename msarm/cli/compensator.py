@@ -144,6 +144,7 @@ def compare_command(
     from msarm.compensation.compare import WITH, WITHOUT, compare_feedforward
     from msarm.compensation.feedforward import load_feedforward, trained_controller
     from msarm.model import load_arm
+    from msarm.tasks.evaluate import SETTLE_DELAY
 
     if not ff.is_file():
         raise typer.BadParameter(f"no checkpoint at {ff}: run `msarm train` first, or give --ff")
@@ -185,10 +186,13 @@ def compare_command(
         with_ff = np.mean([result.metrics[t][WITH].final_error_mm for t in tasks])
         rmse_without = np.mean([np.mean(result.metrics[t][WITHOUT].joint_rmse) for t in tasks])
         rmse_with = np.mean([np.mean(result.metrics[t][WITH].joint_rmse) for t in tasks])
+        settle_without = np.mean([result.metrics[t][WITHOUT].settle_error_mm for t in tasks])
+        settle_with = np.mean([result.metrics[t][WITH].settle_error_mm for t in tasks])
         out_console.print(
             f"{label}: mean final error {without:.2f} mm without, {with_ff:.2f} mm with "
             f"feedforward (ratio {without / with_ff:.2f}); mean joint RMSE "
-            f"{1000 * rmse_without:.1f} -> {1000 * rmse_with:.1f} mrad"
+            f"{1000 * rmse_without:.1f} -> {1000 * rmse_with:.1f} mrad; mean error "
+            f"{SETTLE_DELAY:g} s after the move {settle_without:.2f} -> {settle_with:.2f} mm"
         )
     for kind, path in result.files.items():
         out_console.print(f"{kind}: {path}")
@@ -197,12 +201,14 @@ def compare_command(
 def comparison_table(result, joint_names) -> Table:
     """The table of paper 003 section 3: each task without and with feedforward."""
     from msarm.compensation.compare import WITH, WITHOUT
+    from msarm.tasks.evaluate import SETTLE_DELAY
 
     table = Table(title="tracking without / with feedforward (same controller, same plant)")
     for column in (
         "task",
         "final error [mm]",
         "final error [%]",
+        f"error {SETTLE_DELAY:g} s after the move [mm]",
         "joint RMSE [mrad] (mean)",
         "cable length error [% travel]",
         "slack events",
@@ -215,6 +221,7 @@ def comparison_table(result, joint_names) -> Table:
             label,
             f"{a.final_error_mm:.2f} / {b.final_error_mm:.2f}",
             f"{a.final_error_percent:.2f} / {b.final_error_percent:.2f}",
+            f"{a.settle_error_mm:.2f} / {b.settle_error_mm:.2f}",
             f"{1000 * np.mean(a.joint_rmse):.1f} / {1000 * np.mean(b.joint_rmse):.1f}",
             f"{min(a.cable_length_error_percent):.2f}-{max(a.cable_length_error_percent):.2f} / "
             f"{min(b.cable_length_error_percent):.2f}-{max(b.cable_length_error_percent):.2f}",

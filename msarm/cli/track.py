@@ -47,6 +47,8 @@ def list_choices() -> None:
 
 def metrics_table(title: str, rows: dict[str, object], joint_names, cable_names) -> Table:
     """A table of one or more runs' metrics side by side (``rows``: label -> metrics)."""
+    from msarm.tasks.evaluate import SETTLE_DELAY
+
     table = Table(title=title)
     table.add_column("metric")
     for label in rows:
@@ -58,6 +60,10 @@ def metrics_table(title: str, rows: dict[str, object], joint_names, cable_names)
     metrics = list(rows.values())
     add("final error [mm]", [f"{m.final_error_mm:.2f}" for m in metrics])
     add("final error [% displacement]", [f"{m.final_error_percent:.2f}" for m in metrics])
+    add(
+        f"error {SETTLE_DELAY:g} s after the move [mm]",
+        [f"{m.settle_error_mm:.2f}" for m in metrics],
+    )
     for k, joint in enumerate(joint_names):
         add(f"RMSE {joint} [mrad]", [f"{1000 * m.joint_rmse[k]:.1f}" for m in metrics])
     add(

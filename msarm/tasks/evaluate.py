@@ -6,6 +6,7 @@ the nominal model, never the plant's ground truth:
 - final end-effector position error ``|p - p_d|`` in mm and in % of the displacement
   ``|p_d - p_0|`` (eq. 10-11), with ``p`` the ``hand_center`` site of the nominal model at the
   last logged encoder reading and ``p_0``, ``p_d`` at the task's home and target postures;
+  the same error :data:`SETTLE_DELAY` after the reference comes to rest (the settle error);
 - joint RMSE against the reference [rad];
 - cable length error (eq. 12-13): the RMSE between the cable length the motor encoders say
   was reeled (``l(q_0) - r (theta - theta_0)``) and the theoretical length ``l(q)`` from the
@@ -37,6 +38,8 @@ SLACK_THRESHOLD = 1.0
 BOUND_TOLERANCE = 1.0
 #: End-effector site of the arm.
 HAND_SITE = "hand_center"
+#: Time after the reference comes to rest at which the settle error is taken [s].
+SETTLE_DELAY = 0.5
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,9 @@ class TrackingMetrics:
     Attributes:
         final_error_mm: Final end-effector position error [mm].
         final_error_percent: The same in % of the displacement [%].
+        settle_error_mm: End-effector error [mm] :data:`SETTLE_DELAY` after the reference
+            comes to rest (how close the move itself lands, before the integral action has
+            time to help); NaN when the run ends sooner.
         joint_rmse: Joint RMSE against the reference [rad], one per joint.
         cable_length_error_percent: Cable length RMSE in % of the cable's travel, one per
             cable.
@@ -56,6 +62,7 @@ class TrackingMetrics:
 
     final_error_mm: float
     final_error_percent: float
+    settle_error_mm: float
     joint_rmse: tuple[float, ...]
     cable_length_error_percent: tuple[float, ...]
     slack_events: tuple[int, ...]
@@ -128,6 +135,12 @@ def evaluate_run(
     q_ref = _matrix(columns, "q_ref", joints)
     p_final, p_target, p_start = hand_position(model, np.stack([q[-1], target, home]))
     error_m, percent = metrics.final_position_error(p_final, p_target, p_start)
+    settle = metrics.settle_sample(columns["t"], q_ref, SETTLE_DELAY)
+    settle_mm = (
+        float("nan")
+        if settle is None
+        else 1000.0 * float(np.linalg.norm(hand_position(model, q[settle])[0] - p_target))
+    )
     theory = np.array([model.geometry(posture, with_wrap_angles=False).lengths for posture in q])
     motor = _matrix(columns, "motor_angle", cables)
     valid = theory[0] - drum_radius * (motor - motor[0])
@@ -138,6 +151,7 @@ def evaluate_run(
     return TrackingMetrics(
         final_error_mm=1000.0 * float(error_m),
         final_error_percent=float(percent),
+        settle_error_mm=settle_mm,
         joint_rmse=tuple(float(v) for v in metrics.joint_rmse(q, q_ref)),
         cable_length_error_percent=tuple(float(v) for v in length_percent),
         slack_events=tuple(int(v) for v in metrics.slack_events(tension, SLACK_THRESHOLD)),

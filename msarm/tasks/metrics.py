@@ -19,6 +19,7 @@ from msarm.errors import InputError
 __all__ = [
     "cable_length_error",
     "final_position_error",
+    "settle_sample",
     "joint_rmse",
     "slack_events",
     "time_outside_bounds",
@@ -56,6 +57,35 @@ def _per_cable(value: ArrayLike, name: str, m: int) -> FloatArray:
     if np.isnan(arr).any():
         raise InputError(f"{name} has NaN")
     return arr
+
+
+def settle_sample(t: ArrayLike, q_ref: ArrayLike, delay: float) -> int | None:
+    """The sample ``delay`` seconds after the reference last changes (its move has ended).
+
+    Args:
+        t: Sample times [s], shape ``(T,)``, increasing.
+        q_ref: Reference joint angles [rad], shape ``(T, n)``.
+        delay: Time after the reference comes to rest [s], >= 0.
+
+    Returns:
+        The first sample at or after that time, or None when the run ends sooner or the
+        reference never comes to rest (it changes between its last two samples).
+
+    Raises:
+        InputError: Shapes differ, NaN, or a negative delay.
+    """
+    times = _array(t, "t", 1)
+    ref = _array(q_ref, "q_ref", 2)
+    if ref.shape[0] != times.shape[0]:
+        raise InputError(f"q_ref has {ref.shape[0]} samples but t has {times.shape[0]}")
+    if not delay >= 0.0:
+        raise InputError(f"delay must be >= 0 [s], got {delay}")
+    moving = np.flatnonzero(np.any(np.diff(ref, axis=0) != 0.0, axis=1))
+    rest = 0 if moving.size == 0 else int(moving[-1]) + 1
+    if rest >= times.shape[0] - 1 and moving.size:
+        return None
+    k = int(np.searchsorted(times, times[rest] + delay - 1e-9))
+    return k if k < times.shape[0] else None
 
 
 def final_position_error(
