@@ -225,6 +225,11 @@ def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
     assert said[0] == "step 1: screening 5 candidate(s)"
     assert f"step 2: fitting {short.names[1]} with the 1 effect(s) chosen" in said
     assert len(full.names) >= 2 and short.names == full.names
+    # the settings are recorded with the answer
+    assert full.search["shortlist"] is None and short.search["shortlist"] == 1
+    assert "fits every one jointly" in full.to_markdown()
+    assert "fits the best 1 jointly" in short.to_markdown()
+    assert json.loads(json.dumps(short.as_dict()))["search"]["screen_samples"] == 2500
     # the first step fits each candidate alone either way: the same scores, bit for bit
     assert short.step_scores[0] == full.step_scores[0]
     # later steps fit one candidate jointly with the chosen terms, not every one

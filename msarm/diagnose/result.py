@@ -106,6 +106,9 @@ class Diagnosis:
         replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
             dynamics driven by the logged commands over 0.2 s windows, without and with the
             selected drive and joint terms; None when not computed.
+        search: The selection's settings besides the threshold: ``shortlist`` (None: every
+            candidate fitted jointly), ``screen_samples``, ``max_samples``, ``n_boot`` and
+            ``seed`` (empty when not recorded).
     """
 
     selected: tuple[SelectedEffect, ...]
@@ -124,6 +127,7 @@ class Diagnosis:
     skipped: dict[str, str]
     replay: dict[str, Any] | None = None
     confounded: dict[str, str] = field(default_factory=dict)
+    search: dict[str, Any] = field(default_factory=dict)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -204,6 +208,7 @@ class Diagnosis:
             "skipped": dict(self.skipped),
             "replay": self.replay,
             "confounded": dict(self.confounded),
+            "search": dict(self.search),
         }
 
     def to_markdown(self) -> str:
@@ -215,6 +220,15 @@ class Diagnosis:
             f"{', '.join(self.groups)}. A term is added when it raises the held-out score "
             f"(explained variance, mean over groups) by more than {self.threshold:.3g}."
         )
+        if self.search:
+            short = self.search.get("shortlist")
+            lines[-1] += (
+                " Each step screens every candidate on at most "
+                f"{self.search.get('screen_samples')} samples and fits "
+                + ("every one" if short is None else f"the best {short}")
+                + " jointly with the effects already named; "
+                f"{self.search.get('n_boot')} bootstrap draws (seed {self.search.get('seed')})."
+            )
         lines += ["", "## Which: the selected effects", ""]
         if not self.selected:
             lines.append(

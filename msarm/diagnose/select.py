@@ -707,4 +707,11 @@ def select_effects(
         skipped=dict(data.skipped),
         replay=motion,
         confounded={k: v for k, v in confounded.items() if k not in {c.name for c in chosen}},
+        search={
+            "shortlist": shortlist,
+            "screen_samples": int(screen_samples),
+            "max_samples": int(max_samples),
+            "n_boot": int(n_boot),
+            "seed": int(seed),
+        },
     )
