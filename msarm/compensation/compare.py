@@ -30,7 +30,7 @@ from msarm.control import ArmControllerConfig  # noqa: E402
 from msarm.io.atomic import write_json_atomic  # noqa: E402
 from msarm.model import RobotModel  # noqa: E402
 from msarm.plant import PlantConfig  # noqa: E402
-from msarm.tasks.evaluate import TrackingMetrics  # noqa: E402
+from msarm.tasks.evaluate import SETTLE_DELAY, TrackingMetrics  # noqa: E402
 from msarm.tasks.registry import get_task  # noqa: E402
 from msarm.tasks.runner import Feedforward  # noqa: E402
 from msarm.tasks.track import TrackSettings, track  # noqa: E402
@@ -145,15 +145,24 @@ def _plot_error_statistics(
     cable_names: Sequence[str],
     path: Path,
 ) -> Path:
-    fig, (ax_final, ax_cable) = plt.subplots(1, 2, figsize=(13, 4.5), layout="constrained")
+    fig, (ax_settle, ax_final, ax_cable) = plt.subplots(
+        1, 3, figsize=(18, 4.5), layout="constrained"
+    )
     x = np.arange(len(tasks))
-    for offset, label in ((-0.2, WITHOUT), (0.2, WITH)):
-        ax_final.bar(
-            x + offset, [metrics[t][label].final_error_mm for t in tasks], 0.4, label=label
-        )
-    ax_final.set_xticks(x, tasks, rotation=30, ha="right")
-    ax_final.set_ylabel("final end-effector error [mm]")
-    ax_final.legend()
+    for ax, key, ylabel in (
+        (
+            ax_settle,
+            "settle_error_mm",
+            f"end-effector error {SETTLE_DELAY:g} s after the move [mm]",
+        ),
+        (ax_final, "final_error_mm", "final end-effector error [mm]"),
+    ):
+        for offset, label in ((-0.2, WITHOUT), (0.2, WITH)):
+            values = [getattr(metrics[t][label], key) for t in tasks]
+            ax.bar(x + offset, values, 0.4, label=label)
+        ax.set_xticks(x, tasks, rotation=30, ha="right")
+        ax.set_ylabel(ylabel)
+        ax.legend()
     c = np.arange(len(cable_names))
     for offset, label in ((-0.2, WITHOUT), (0.2, WITH)):
         values = np.array([metrics[t][label].cable_length_error_percent for t in tasks])
