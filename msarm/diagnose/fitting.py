@@ -165,10 +165,8 @@ class LinearSolver:
 
     def __init__(self, design: FloatArray) -> None:
         self.shape = design.shape
-        p = design.shape[2]
-        A = design.reshape(-1, p)
-        scale = np.sqrt(np.einsum("ij,ij->j", A, A))
-        self.scale = np.where(scale > 0, scale, 1.0)
+        A = design.reshape(-1, design.shape[2])
+        self.scale = _column_scale(A)
         u, singular, vt = np.linalg.svd(A / self.scale, full_matrices=False)
         cut = np.finfo(float).eps * max(A.shape) * float(singular.max(initial=0.0))
         keep = singular > cut
@@ -187,12 +185,16 @@ def _solve_linear(design: FloatArray, residual: FloatArray) -> FloatArray:
 
     One solve: ``numpy.linalg.lstsq`` (cheaper than factoring for :class:`LinearSolver`).
     """
-    p = design.shape[2]
-    A = design.reshape(-1, p)
-    scale = np.linalg.norm(A, axis=0)
-    scale = np.where(scale > 0, scale, 1.0)
+    A = design.reshape(-1, design.shape[2])
+    scale = _column_scale(A)
     solution, *_ = np.linalg.lstsq(A / scale, residual.reshape(-1), rcond=None)
     return solution / scale
+
+
+def _column_scale(A: FloatArray) -> FloatArray:
+    """Each column's norm (1 for a zero column): the least squares' normalisation, ``(p,)``."""
+    scale = np.linalg.norm(A, axis=0)
+    return np.where(scale > 0, scale, 1.0)
 
 
 class _NonlinearProblem:

@@ -239,6 +239,18 @@ class _Base:
         return model, prediction
 
 
+def _held_out_gain(
+    layout: Layout,
+    candidate: CandidateEffect,
+    residual: FloatArray,
+    prediction: FloatArray,
+    before: dict[str, float],
+) -> tuple[dict[str, float], float]:
+    """Held-out scores by group with a candidate's prediction, and its gain on its groups."""
+    after = group_scores(layout, residual, prediction)
+    return after, own_gain(candidate.term.groups, before, after)
+
+
 def _shortlist(
     remaining: Sequence[CandidateEffect], gain_of: dict[str, float], size: int | None
 ) -> list[CandidateEffect]:
@@ -620,31 +632,31 @@ def select_effects(
                 gain_of[candidate.name] = float("nan")
                 continue
             fits[candidate.name], hold_prediction = base.add(candidate)
-            after[candidate.name] = group_scores(layout, screen.residual["hold"], hold_prediction)
-            gain_of[candidate.name] = own_gain(candidate.term.groups, before, after[candidate.name])
+            after[candidate.name], gain_of[candidate.name] = _held_out_gain(
+                layout, candidate, screen.residual["hold"], hold_prediction, before
+            )
         # the shortlist is fitted jointly with the chosen terms: these start where their last
-        # fit ended, the candidate where its screening fit ended (alone, the screening fit is
-        # the joint fit)
+        # fit ended, the candidate where its screening fit ended; alone on unthinned samples
+        # (the first step), the screening fit is the joint fit
         finalists = _shortlist(remaining, gain_of, shortlist)
-        if chosen_fit is not None or thinned:
+        refit = chosen_fit is not None or thinned
+        if refit:
             names = ", ".join(c.name for c in finalists)
             say(f"step {step}: fitting {names} with the {len(chosen)} effect(s) chosen")
             for candidate in finalists:
                 fitted = fits[candidate.name] = fit_together(
-                    [*chosen, candidate],
-                    sampled,
-                    initial=[*fits[candidate.name].parameters],
+                    [*chosen, candidate], sampled, initial=list(fits[candidate.name].parameters)
                 )
-                after[candidate.name] = group_scores(
-                    layout, sampled.residual["hold"], fitted.predict(sampled, "hold")
-                )
-                gain_of[candidate.name] = own_gain(
-                    candidate.term.groups, current, after[candidate.name]
+                after[candidate.name], gain_of[candidate.name] = _held_out_gain(
+                    layout,
+                    candidate,
+                    sampled.residual["hold"],
+                    fitted.predict(sampled, "hold"),
+                    current,
                 )
         scores_per_step.append(gain_of)
-        open_ = [c for c in remaining if np.isfinite(gain_of[c.name])]
-        if chosen_fit is not None or thinned:
-            open_ = finalists  # a candidate's screening gain only puts it on the shortlist
+        # a candidate's screening gain only puts it on the shortlist
+        open_ = finalists if refit else [c for c in remaining if np.isfinite(gain_of[c.name])]
         if not open_:
             break
         best = max(open_, key=lambda c: gain_of[c.name])

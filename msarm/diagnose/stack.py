@@ -325,10 +325,12 @@ class Sampled:
         """
         key = tuple(map(id, terms))
         if key not in self._solvers:
-            if len(key) > 1:
+            if len(key) == 1:  # its own design: no copy, the joint set's cache kept
+                self._solvers[key] = LinearSolver(self.design(terms[0], "train"))
+            else:
                 for old in [k for k in self._solvers if len(k) > 1]:
                     del self._solvers[old]
-            self._solvers[key] = LinearSolver(self.joint_design(terms))
+                self._solvers[key] = LinearSolver(self.joint_design(terms))
         return self._solvers[key]
 
     def predict(self, term: CandidateEffect, theta: FloatArray, split: str) -> FloatArray:
