@@ -19,6 +19,7 @@ def test_bench_sim_reports_json():
         "bare_mujoco_s",
         "plant_only_s",
         "closed_loop_s",
+        "closed_loop_python_s",
         "controller_tick_us",
         "closed_loop_real_time_factor",
         "closed_loop_ratio_to_bare_mujoco",
@@ -26,3 +27,4 @@ def test_bench_sim_reports_json():
     ):
         assert key in report
     assert report["closed_loop_s"] > 0 and report["simulated_s"] == 20.0
+    assert report["closed_loop_path"] == "compiled"  # the ideal plant qualifies

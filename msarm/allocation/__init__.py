@@ -14,7 +14,8 @@ Build an allocator once per robot and call ``solve`` every tick::
     alloc = make_allocator(n_actuators=8, n_dof=6, solver="fast", f_ref="midpoint")
     result = alloc.solve(At, -w, f_min, f_max)   # result.f, .feasible, .status, .residual
 
-Solvers (``SOLVERS``): ``"fast"`` (DAQP, exact, about 15 us a tick), ``"batched"`` (exact,
+Solvers (``SOLVERS``): ``"fast"`` (DAQP, exact, about 15 us a tick), ``"newton"`` (exact, a
+compiled dual Newton method that a compiled control loop calls directly), ``"batched"`` (exact,
 N problems at once with ``solve_batch``, over 100,000 a second), ``"cvxpy"`` (the exact
 reference, about 1 ms), ``"closed_form"`` and ``"improved_closed_form"`` (Pott's, not the QP
 optimum when a bound is active). The exact ones give one answer. An infeasible problem never
@@ -45,6 +46,7 @@ from msarm.allocation.solvers import (
     DaqpAllocator,
     ImprovedClosedFormAllocator,
 )
+from msarm.allocation.solvers.newton import NewtonAllocator
 from msarm.allocation.workspace import (
     WorkspaceGrid,
     is_wrench_feasible,
@@ -70,6 +72,7 @@ __all__ = [
     "CvxpyAllocator",
     "DaqpAllocator",
     "ImprovedClosedFormAllocator",
+    "NewtonAllocator",
     "SolverName",
     "WorkspaceGrid",
     "is_wrench_feasible",
@@ -78,10 +81,11 @@ __all__ = [
     "wrench_feasible_poses",
 ]
 
-SolverName = Literal["fast", "batched", "cvxpy", "closed_form", "improved_closed_form"]
+SolverName = Literal["fast", "newton", "batched", "cvxpy", "closed_form", "improved_closed_form"]
 
 _CLASSES: dict[str, type[Allocator]] = {
     "fast": DaqpAllocator,
+    "newton": NewtonAllocator,
     "batched": BatchedAllocator,
     "cvxpy": CvxpyAllocator,
     "closed_form": ClosedFormAllocator,
@@ -91,7 +95,7 @@ _ALIASES = {"daqp": "fast"}
 
 SOLVERS: tuple[str, ...] = tuple(_CLASSES)
 """Names accepted by ``make_allocator``."""
-EXACT_SOLVERS: tuple[str, ...] = ("fast", "batched", "cvxpy")
+EXACT_SOLVERS: tuple[str, ...] = ("fast", "newton", "batched", "cvxpy")
 """Solvers that return the QP optimum (one answer whichever is used)."""
 
 

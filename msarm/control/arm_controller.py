@@ -29,7 +29,12 @@ import pinocchio
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.allocation import make_allocator
-from msarm.control.kernels import activation_and_reach, filter_and_pid, force_bounds
+from msarm.control.kernels import (
+    activation_and_reach,
+    filter_and_pid,
+    force_bounds,
+    muscle_speed,
+)
 from msarm.errors import InputError
 from msarm.model import RobotModel
 from msarm.muscle.activation import step_activation
@@ -67,7 +72,10 @@ class ArmControllerConfig:
         min_tension: Lowest cable force the allocation may ask for [N] (keeps cables taut).
         velocity_cutoff_hz: Cut-off of the low-pass on the encoder velocity estimate [Hz].
         activation_dynamics: Filter activations by the first-order activation dynamics.
-        solver: Allocation solver name (see ``msarm.allocation.SOLVERS``).
+        solver: Allocation solver name (see ``msarm.allocation.SOLVERS``). The default,
+            ``"newton"``, is the exact solver that the compiled closed loop
+            (:mod:`msarm.tasks.compiled_loop`) calls without the interpreter; with another one
+            every run takes the Python loop.
     """
 
     rate_hz: float = 250.0
@@ -78,7 +86,7 @@ class ArmControllerConfig:
     min_tension: float = 5.0
     velocity_cutoff_hz: float = 30.0
     activation_dynamics: bool = False
-    solver: str = "fast"
+    solver: str = "newton"
 
 
 @dataclass(frozen=True)
@@ -173,6 +181,24 @@ class MuscleSpaceController:
             model.pin_model, self._data.pin, q_ref[order], qd_ref[order], qdd_ref[order]
         )[self._from_pinocchio]
 
+    def reference_torques(
+        self, q_ref: FloatArray, qd_ref: FloatArray, qdd_ref: FloatArray
+    ) -> FloatArray:
+        """Inverse-dynamics torques of a whole reference [N m], ``(T, n)``.
+
+        Row ``k`` is the torque :meth:`update` starts from at the reference's sample ``k``
+        (the same call, so the same bits): the compiled loop takes them from here.
+
+        Args:
+            q_ref: Reference joint angles [rad], ``(T, n)``.
+            qd_ref: Reference joint velocities [rad/s], ``(T, n)``.
+            qdd_ref: Reference joint accelerations [rad/s^2], ``(T, n)``.
+        """
+        out = np.empty(np.shape(q_ref))
+        for k in range(out.shape[0]):
+            out[k] = self._inverse_dynamics(q_ref[k], qd_ref[k], qdd_ref[k])
+        return out
+
     @property
     def qdot_estimate(self) -> FloatArray:
         """The current joint velocity estimate [rad/s], shape ``(n,)``."""
@@ -239,9 +265,10 @@ class MuscleSpaceController:
             tau = tau + dtau
 
         lengths, jacobian = self._cable_geometry(q)
-        speed = np.maximum(jacobian @ qdot, -self._max_shortening)
+        m = lengths.shape[0]
+        speed = np.empty(m)
+        muscle_speed(jacobian, qdot, self._max_shortening, speed)
         active, passive = self._hill.parts(lengths, speed)
-        m = active.shape[0]
         f_min, f_max = np.empty(m), np.empty(m)
         force_bounds(active, passive, cfg.min_tension, f_min, f_max)
         result = self._allocator.solve(-jacobian.T, tau, f_min, f_max)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numba
 
-__all__ = ["activation_and_reach", "filter_and_pid", "force_bounds"]
+__all__ = ["activation_and_reach", "filter_and_pid", "force_bounds", "muscle_speed"]
 
 
 @numba.njit(cache=True)
@@ -89,3 +89,23 @@ def activation_and_reach(force, active, passive, activation, reachable):
         reachable[i] = (force[i] >= passive[i] - 1e-9) and (
             force[i] <= passive[i] + active[i] + 1e-9
         )
+
+
+@numba.njit(cache=True, error_model="numpy")
+def muscle_speed(jacobian, qdot, max_shortening, speed):
+    """MTU speeds ``max(J_c qdot, -max_shortening)`` [m/s], shape ``(m,)``, written.
+
+    Each row's product is summed joint after joint (the compiled loop and the controller's
+    Python path share this kernel, so the two agree to the bit).
+
+    Args:
+        jacobian: Muscle Jacobian ``J_c`` [m/rad], ``(m, n)``.
+        qdot: Joint velocity estimate [rad/s], ``(n,)``.
+        max_shortening: Highest shortening speed the Hill model is evaluated at [m/s], ``(m,)``.
+        speed: Output [m/s], ``(m,)``.
+    """
+    for i in range(jacobian.shape[0]):
+        total = 0.0
+        for j in range(jacobian.shape[1]):
+            total += jacobian[i, j] * qdot[j]
+        speed[i] = _maximum(total, -max_shortening[i])

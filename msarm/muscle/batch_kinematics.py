@@ -33,12 +33,23 @@ if TYPE_CHECKING:
 
     from msarm.model import RobotData, RobotModel
 
-__all__ = ["CableKinematics", "JacobianAt", "cable_kinematics_batch", "current_wrap_angles"]
+__all__ = [
+    "KINEMATICS_FUNCTIONS",
+    "CableKinematics",
+    "JacobianAt",
+    "cable_kinematics_batch",
+    "current_wrap_angles",
+    "jacobian_at",
+    "wrap_angles_into",
+]
 
 FloatArray = NDArray[np.float64]
 
 #: MuJoCo's position stage as far as the tendons need it, in its order.
 _FUNCTIONS = ("mj_kinematics", "mj_comPos", "mj_tendon")
+KINEMATICS_FUNCTIONS = _FUNCTIONS
+"""The MuJoCo functions :data:`jacobian_at` calls, by name (their addresses are its first
+argument, from :func:`msarm.mujoco_c.function_addresses`)."""
 
 
 class CableKinematics:
@@ -293,3 +304,13 @@ def _wrap_angles(points, objects, wrapadr, wrapnum, out):  # pragma: no cover - 
             ) * (by / norm_b)
             total += math.acos(min(1.0, max(-1.0, cosine)))
         out[i] = total
+
+
+jacobian_at = _jacobian_at
+"""Compiled: ``jacobian_at(functions, model, data, q, qpos, ten_J, rownnz, rowadr, colind,
+jacobian)`` sets ``qpos = q``, runs :data:`KINEMATICS_FUNCTIONS` and densifies ``J_c`` into
+``jacobian`` (the cable lengths are then in MuJoCo's ``ten_length``), for compiled callers."""
+
+wrap_angles_into = _wrap_angles
+"""Compiled: ``wrap_angles_into(wrap_xpos (k, 3), wrap_obj, ten_wrapadr, ten_wrapnum, out)``
+writes the wrap angles of :func:`current_wrap_angles` into ``out``, for compiled callers."""

@@ -35,7 +35,7 @@ from msarm.muscle.curves import (
 )
 from msarm.muscle.hill import HillMuscles
 
-__all__ = ["FastHill"]
+__all__ = ["FastHill", "hill_parts"]
 
 FloatArray = NDArray[np.float64]
 
@@ -82,6 +82,14 @@ def _hill_parts(
     return -1
 
 
+hill_parts = _hill_parts
+"""The compiled kernel of :meth:`FastHill.parts`, for compiled callers (numba).
+
+``hill_parts(lengths, velocities, *FastHill.parameters, active, passive)`` writes the parts and
+returns the first muscle whose MTU length is not longer than its tendon slack length, or -1.
+"""
+
+
 class FastHill:
     """Compiled active/passive force parts of a set of Hill muscles (see module docstring).
 
@@ -112,6 +120,23 @@ class FastHill:
         self.passive = np.zeros(len(muscles))
 
     @property
+    def parameters(self) -> tuple[FloatArray, ...]:
+        """The muscle arrays of the compiled kernel, in its order (for compiled callers).
+
+        ``(f_max, l_opt, l_slack, thickness, v_max, coefficients, curve)``: what
+        :meth:`parts` passes to the kernel between the MTU speeds and the outputs.
+        """
+        return (
+            self._f_max,
+            self._l_opt,
+            self._l_slack,
+            self._thickness,
+            self._v_max,
+            self._coefficients,
+            self._curve,
+        )
+
+    @property
     def max_shortening_speed(self) -> FloatArray:
         """MTU shortening speed at which the fibre reaches ``v_max`` at optimal length [m/s]."""
         return self._v_max * self._l_opt / np.cos(self.muscles.pennation_at_optimal)
@@ -124,19 +149,7 @@ class FastHill:
         Raises:
             InputError: An MTU length is not longer than its tendon slack length.
         """
-        bad = _hill_parts(
-            mtu_length,
-            mtu_velocity,
-            self._f_max,
-            self._l_opt,
-            self._l_slack,
-            self._thickness,
-            self._v_max,
-            self._coefficients,
-            self._curve,
-            self.active,
-            self.passive,
-        )
+        bad = _hill_parts(mtu_length, mtu_velocity, *self.parameters, self.active, self.passive)
         if bad >= 0:
             raise InputError(
                 f"mtu_length[{bad}] (muscle {self.muscles.names[bad]!r}) = {mtu_length[bad]!r} m "

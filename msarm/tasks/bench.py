@@ -4,9 +4,14 @@ Measures, on one core and in one process:
 
 - bare MuJoCo: ``mj_step`` of the arm model for the task's duration at the plant's time step
   (the reference);
-- the plant alone: the arm plant (winches, cables, effects) stepping with a constant command;
-- the controller alone: one control tick (µs);
-- the closed loop: a whole task, plant and controller at their rates, logging included.
+- the plant alone: the arm plant (winches, cables, effects) stepping with a constant command,
+  the whole duration in one call;
+- the controller alone: one control tick called from Python (µs);
+- the closed loop: a whole task, plant and controller at their rates, logging included, as
+  ``run_tracking`` runs it (the compiled loop of :mod:`msarm.tasks.compiled_loop` where the
+  run qualifies);
+- the closed loop with Python ticks: the same task through the Python loop (the path of runs
+  with a feedforward, user effects or a delay), for comparison.
 
 Each is the best of ``repeats`` runs. The real-time factor is simulated time over wall time;
 the ratio says how many times slower than bare MuJoCo stepping each one is.
@@ -23,6 +28,7 @@ import numpy as np
 from msarm.control import MuscleSpaceController
 from msarm.model import RobotModel
 from msarm.plant import ArmPlant, PlantConfig
+from msarm.tasks.compiled_loop import compiled_loop_supported
 from msarm.tasks.registry import get_task
 from msarm.tasks.runner import run_tracking
 
@@ -43,6 +49,8 @@ class SimBenchmark:
     plant_only_s: float
     controller_tick_us: float
     closed_loop_s: float
+    closed_loop_python_s: float
+    closed_loop_path: str
 
     @property
     def closed_loop_real_time_factor(self) -> float:
@@ -56,7 +64,11 @@ class SimBenchmark:
             for name, wall in [
                 ("bare MuJoCo mj_step", self.bare_mujoco_s),
                 ("plant alone (winches, cables, effects)", self.plant_only_s),
-                ("closed loop (plant + controller + log)", self.closed_loop_s),
+                (
+                    f"closed loop (plant + controller + log), {self.closed_loop_path} ticks",
+                    self.closed_loop_s,
+                ),
+                ("closed loop, Python ticks", self.closed_loop_python_s),
             ]
         ]
 
@@ -102,8 +114,7 @@ def run_sim_benchmark(
 
     def plant_only() -> None:
         plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))
-        for _ in range(steps // 4):
-            plant.step(4)
+        plant.step(steps)
 
     plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))
     readings = plant.sense()
@@ -115,6 +126,7 @@ def run_sim_benchmark(
         for _ in range(ticks):
             controller.update(readings, readings.q, zeros, zeros)
 
+    supported = compiled_loop_supported(plant, controller, None)
     return SimBenchmark(
         task=task.name,
         plant=plant_config.name,
@@ -123,4 +135,8 @@ def run_sim_benchmark(
         plant_only_s=_best(repeats, plant_only),
         controller_tick_us=_best(repeats, controller_only) / ticks * 1e6,
         closed_loop_s=_best(repeats, lambda: run_tracking(plant, controller, task)),
+        closed_loop_python_s=_best(
+            repeats, lambda: run_tracking(plant, controller, task, compiled=False)
+        ),
+        closed_loop_path="compiled" if supported else "Python",
     )

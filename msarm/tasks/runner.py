@@ -24,6 +24,7 @@ from msarm.errors import InputError
 from msarm.io.logs import columns_from_quantities
 from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.effects import SensorReadings
+from msarm.tasks.compiled_loop import compiled_loop_supported, run_compiled
 
 __all__ = ["LOG_UNITS", "TRUTH_UNITS", "Feedforward", "TrackingRun", "run_tracking"]
 
@@ -125,6 +126,7 @@ def run_tracking(
     task: _Reference,
     feedforward: Feedforward | None = None,
     progress: Callable[[float], None] | None = None,
+    compiled: bool | None = None,
 ) -> TrackingRun:
     """Run ``task`` on ``plant`` with ``controller`` (and ``feedforward``) from the task's home.
 
@@ -137,12 +139,16 @@ def run_tracking(
         task: The task: ``name``, ``duration`` [s], ``home`` (n,), ``reference(t)``.
         feedforward: Optional joint-torque compensation, called every control period.
         progress: Optional callback with the fraction done, called about 50 times.
+        compiled: Run the ticks in the compiled loop of :mod:`msarm.tasks.compiled_loop`
+            (the same bits as the Python loop, several times faster); None (the default) takes
+            it wherever the run qualifies (see ``compiled_loop_supported``), False never.
 
     Returns:
         The run, with ``error`` set if the simulation diverged (the log then ends there).
 
     Raises:
-        InputError: The control period is not a whole number of plant steps.
+        InputError: The control period is not a whole number of plant steps, or ``compiled``
+            is True for a run the compiled loop cannot do.
     """
     model = plant.model
     period = controller.period
@@ -151,6 +157,13 @@ def run_tracking(
         raise InputError(
             f"the control period {period} s is not a whole number of plant steps of "
             f"{plant.config.timestep} s"
+        )
+    supported = compiled_loop_supported(plant, controller, feedforward)
+    if compiled and not supported:
+        raise InputError(
+            "this run cannot take the compiled loop (it needs no feedforward, a plant with a "
+            "compiled step and only the built-in sensor noise, and the controller with the "
+            "'newton' solver and no activation dynamics): pass compiled=None or False"
         )
     n_ticks = int(round(task.duration / period))
     home = np.asarray(task.home, dtype=float)
@@ -194,25 +207,15 @@ def run_tracking(
             ("wrap_angle", m),
         ]
     }
-    error = None
-    done = n_ticks
-    report_every = max(1, n_ticks // 50)
-    for k in range(n_ticks):
-        readings = plant.sense()
-        q_ref, qd_ref, qdd_ref = q_ref_all[k], qd_ref_all[k], qdd_ref_all[k]
-        out: ControlOutput = controller.update(readings, q_ref, qd_ref, qdd_ref, feedforward)
-        plant.command(out.tension_command)
-        _record(log, k, readings, out, q_ref, qd_ref)
-        _record_truth(truth, k, plant)
-        try:
-            plant.step(substeps)
-        except SimulationDivergedError as exc:
-            error, done = exc, k + 1
-            break
-        if k % _WRAP_REFRESH_PERIODS == 0:
-            plant.update_wrap_angles()
-        if progress is not None and k % report_every == 0:
-            progress(k / n_ticks)
+    references = (q_ref_all, qd_ref_all, qdd_ref_all)
+    if supported and compiled is not False:
+        error, done = run_compiled(
+            plant, controller, references, log, truth, substeps, _WRAP_REFRESH_PERIODS, progress
+        )
+    else:
+        error, done = _python_loop(
+            plant, controller, references, feedforward, log, truth, substeps, progress
+        )
     if progress is not None:
         progress(1.0)
 
@@ -237,6 +240,38 @@ def run_tracking(
         control_rate_hz=1.0 / period,
         error=error,
     )
+
+
+def _python_loop(
+    plant: ArmPlant,
+    controller: MuscleSpaceController,
+    references: tuple[FloatArray, FloatArray, FloatArray],
+    feedforward: Feedforward | None,
+    log: dict[str, FloatArray],
+    truth: dict[str, FloatArray],
+    substeps: int,
+    progress: Callable[[float], None] | None,
+) -> tuple[SimulationDivergedError | None, int]:
+    """The ticks of :func:`run_tracking` in Python: ``(divergence or None, ticks logged)``."""
+    q_ref_all, qd_ref_all, qdd_ref_all = references
+    n_ticks = q_ref_all.shape[0]
+    report_every = max(1, n_ticks // 50)
+    for k in range(n_ticks):
+        readings = plant.sense()
+        q_ref, qd_ref, qdd_ref = q_ref_all[k], qd_ref_all[k], qdd_ref_all[k]
+        out: ControlOutput = controller.update(readings, q_ref, qd_ref, qdd_ref, feedforward)
+        plant.command(out.tension_command)
+        _record(log, k, readings, out, q_ref, qd_ref)
+        _record_truth(truth, k, plant)
+        try:
+            plant.step(substeps)
+        except SimulationDivergedError as exc:
+            return exc, k + 1
+        if k % _WRAP_REFRESH_PERIODS == 0:
+            plant.update_wrap_angles()
+        if progress is not None and k % report_every == 0:
+            progress(k / n_ticks)
+    return None, n_ticks
 
 
 def _record(
