@@ -10,7 +10,8 @@ import pytest
 from msarm.control import ArmControllerConfig, MuscleSpaceController
 from msarm.errors import InputError
 from msarm.plant import DEFAULT_PLANT, IDEAL_PLANT, ArmPlant
-from msarm.plant.config import CoggingConfig, DelayConfig
+from msarm.plant.config import CoggingConfig, DelayConfig, SensorNoiseConfig
+from msarm.plant.effects import SensorNoise
 from msarm.tasks.compiled_loop import compiled_loop_supported
 from msarm.tasks.runner import run_tracking
 from msarm.tasks.trajectories import hold_then_move
@@ -132,6 +133,12 @@ def test_runs_the_compiled_loop_cannot_do_take_the_python_one(arm):
         DEFAULT_PLANT, effects=replace(DEFAULT_PLANT.effects, delay=DelayConfig(enabled=True))
     )
     assert not compiled_loop_supported(ArmPlant(arm, delayed, seed=0), controller, None)
+
+    class LouderNoise(SensorNoise):  # a user's sensor effect runs in Python
+        pass
+
+    louder = ArmPlant(arm, DEFAULT_PLANT, seed=0, extra_effects=[LouderNoise(SensorNoiseConfig())])
+    assert louder.compiled and not compiled_loop_supported(louder, controller, None)
     with pytest.raises(InputError, match="cannot take the compiled loop"):
         run_tracking(plant, fast, SHORT, compiled=True)
     # and without asking, such a run simply takes the Python loop

@@ -70,7 +70,8 @@ def compiled_loop_supported(
     return (
         feedforward is None
         and plant.compiled
-        and all(isinstance(effect, SensorNoise) for effect in plant._sensors)
+        and all(type(effect) is SensorNoise for effect in plant._sensors)
+        and len(plant._sensors) <= 1
         and not plant._actuators
         and type(controller) is MuscleSpaceController
         and controller.config.solver == "newton"
