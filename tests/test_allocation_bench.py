@@ -16,11 +16,12 @@ def test_report_structure():
         assert set(entry["methods"]) == {
             "cvxpy",
             "fast",
+            "newton",
             "closed_form",
             "improved_closed_form",
             "batched",
         }
-        for name in ("fast", "batched"):
+        for name in ("fast", "newton", "batched"):
             row = entry["methods"][name]
             assert row["feasibility_agrees_with_cvxpy"]
             assert row["max_rel_objective_diff_vs_cvxpy"] < 1e-6
