@@ -86,6 +86,7 @@ from msarm.errors import InputError
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, DRIVE_MODES, CdprPlantConfig
 from msarm.plant.instability import instability_found
+from msarm.small_linalg import cholesky_solve
 
 __all__ = ["CdprPlant", "CdprSensorReadings", "SimulationDivergedError"]
 
@@ -145,34 +146,6 @@ def _friction_eval(fric, row, f, v, v_low):  # pragma: no cover - compiled
     value = v * (b1 + v * (b2 + v * (b3 + v * b4)))
     slope = b1 + v * (2.0 * b2 + v * (3.0 * b3 + v * 4.0 * b4))
     return value, slope
-
-
-@numba.njit(cache=True)
-def _cholesky_solve(a, b):  # pragma: no cover - compiled
-    """Solve ``a x = b`` for a small SPD ``a`` (overwritten by its Cholesky factor)."""
-    n = b.shape[0]
-    for j in range(n):
-        s = a[j, j]
-        for k in range(j):
-            s -= a[j, k] * a[j, k]
-        a[j, j] = math.sqrt(s)
-        for i in range(j + 1, n):
-            s = a[i, j]
-            for k in range(j):
-                s -= a[i, k] * a[j, k]
-            a[i, j] = s / a[j, j]
-    x = b.copy()
-    for i in range(n):
-        s = x[i]
-        for k in range(i):
-            s -= a[i, k] * x[k]
-        x[i] = s / a[i, i]
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, n):
-            s -= a[k, i] * x[k]
-        x[i] = s / a[i, i]
-    return x
 
 
 @numba.njit(cache=True)
@@ -305,7 +278,8 @@ def _step_kernel(
                 b[j] += cb * jac[i, j]
                 for c in range(nv):
                     a[j, c] += w * jac[i, j] * jac[i, c]
-        vnew = _cholesky_solve(a, b)
+        vnew = np.empty(nv)
+        cholesky_solve(a, b, vnew)
         changed = False
         for i in range(m):
             acc = 0.0

@@ -37,6 +37,7 @@ import numpy as np
 from msarm.allocation.batched import CONV_TOL, MAX_ITER, REG
 from msarm.allocation.problem import OPTIMAL, AllocationSpec
 from msarm.allocation.solvers.base import Allocator, FloatArray, MethodOutput
+from msarm.small_linalg import cholesky_solve
 
 __all__ = ["INFEASIBLE_CODE", "NOT_CONVERGED", "NewtonAllocator", "dual_newton_tick"]
 
@@ -44,36 +45,6 @@ NOT_CONVERGED = -1
 """Return code of :func:`dual_newton_tick`: no answer (stall, factorisation, iterations)."""
 INFEASIBLE_CODE = -2
 """Return code of :func:`dual_newton_tick`: the problem is proven infeasible."""
-
-
-@numba.njit(cache=True)
-def _cholesky_solve(K, r, out):  # pragma: no cover - compiled
-    """Solve ``K out = r`` for a small symmetric positive definite K (overwritten); ok?"""
-    n = K.shape[0]
-    for j in range(n):
-        s = K[j, j]
-        for k in range(j):
-            s -= K[j, k] * K[j, k]
-        if not s > 0.0:
-            return False
-        d = math.sqrt(s)
-        K[j, j] = d
-        for i in range(j + 1, n):
-            s = K[i, j]
-            for k in range(j):
-                s -= K[i, k] * K[j, k]
-            K[i, j] = s / d
-    for i in range(n):
-        s = r[i]
-        for k in range(i):
-            s -= K[i, k] * out[k]
-        out[i] = s / K[i, i]
-    for i in range(n - 1, -1, -1):
-        s = out[i]
-        for k in range(i + 1, n):
-            s -= K[k, i] * out[k]
-        out[i] = s / K[i, i]
-    return True
 
 
 @numba.njit(cache=True)
@@ -221,7 +192,7 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
     lam, delta, r, r1 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     y, x, s, y1, x1 = np.empty(m), np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     times, deltas = np.empty(2 * m), np.empty(2 * m)
-    if not _cholesky_solve(K, c, lam):
+    if not cholesky_solve(K, c, lam):
         return NOT_CONVERGED
     for j in range(m):
         v = 0.0
@@ -243,7 +214,7 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
         if it == max_iter:
             break
         _hessian(A, y, lo, hi, reg, K, False)
-        if not _cholesky_solve(K, r, delta):
+        if not cholesky_solve(K, r, delta):
             break
         for j in range(m):
             v = 0.0
