@@ -31,6 +31,7 @@ the controller itself (not a subclass) with the ``"newton"`` solver and no activ
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -47,7 +48,17 @@ from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.cable_kernel import step_plant
 from msarm.plant.effects import SensorNoise
 
-__all__ = ["compiled_loop_supported", "run_compiled", "run_ticks"]
+__all__ = [
+    "LOG_KEYS",
+    "TRUTH_KEYS",
+    "Allocation",
+    "Control",
+    "PlantArrays",
+    "Sensing",
+    "compiled_loop_supported",
+    "run_compiled",
+    "run_ticks",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -80,262 +91,269 @@ def compiled_loop_supported(
     )
 
 
+# The tick's parts are functions of their own, inlined into run_ticks (numba passes named
+# tuples by value: called, each part would copy the arrays' descriptors every tick).
+
+
+class Sensing(NamedTuple):
+    """What :func:`run_ticks` needs to read the sensors: the noise and this tick's readings."""
+
+    noisy: bool  # the noise effect is on
+    noise: FloatArray  # its samples, (T, 2n + 3m): q, motor angle, motor torque, tension
+    bias: float  # its load-cell bias [N]
+    q: FloatArray  # this tick's readings, written
+    motor_angle: FloatArray
+    motor_torque: FloatArray
+    tension_motor: FloatArray
+
+
+class Control(NamedTuple):
+    """The controller's gains, state (views, updated) and work arrays, for :func:`run_ticks`."""
+
+    period: float
+    alpha: float
+    kp: FloatArray
+    ki: FloatArray
+    kd: FloatArray
+    bound: FloatArray
+    q_prev: FloatArray
+    qdot: FloatArray
+    integral: FloatArray
+    activation: FloatArray
+    tau: FloatArray
+    reach: NDArray[np.bool_]
+    functions: NDArray[np.intp]  # MuJoCo's kinematics functions (addresses)
+    model: int  # the controller's mjModel and mjData (addresses) and views of the latter
+    data: int
+    qpos: FloatArray
+    ten_length: FloatArray
+    ten_j: FloatArray
+    rownnz: NDArray[np.int32]
+    rowadr: NDArray[np.int32]
+    colind: NDArray[np.int32]
+    jacobian: FloatArray
+    lengths: FloatArray
+    max_shortening: FloatArray
+    speed: FloatArray
+    hill: tuple  # FastHill.parameters
+    active: FloatArray
+    passive: FloatArray
+    min_tension: float
+
+
+class Allocation(NamedTuple):
+    """The allocation's data and work arrays, for :func:`run_ticks`."""
+
+    M: FloatArray
+    weights: FloatArray
+    f_ref: FloatArray
+    f_min: FloatArray
+    f_max: FloatArray
+    force: FloatArray
+    active: NDArray[np.int8]
+    tol: float
+
+
+class PlantArrays(NamedTuple):
+    """The plant's compiled step arguments and state views, for :func:`run_ticks`."""
+
+    step_args: tuple  # ArmPlant's arguments of step_plant after n_steps
+    command: FloatArray
+    theta: FloatArray
+    motor_torque: FloatArray
+    tension_motor: FloatArray
+    tension_insertion: FloatArray
+    ten_length: FloatArray
+    length_ref: FloatArray
+    stretch_motor0: FloatArray
+    stretch_insertion0: FloatArray
+    drum_radius: float
+    wrap_xpos: FloatArray
+    wrap_obj: NDArray[np.int32]
+    wrapadr: NDArray[np.int32]
+    wrapnum: NDArray[np.int32]
+    wrap: FloatArray
+    start_q: FloatArray  # the state a period starts from (for a divergence report)
+    start_qdot: FloatArray
+    start_theta: FloatArray
+    wrap_every: int
+
+
+@numba.njit(cache=True, inline="always")
+def _sense(k, sensing, plant):  # pragma: no cover - compiled
+    """``ArmPlant.sense``: the state, plus the noise effect's tick-``k`` samples and bias."""
+    qpos = plant.step_args[5]
+    n, m = qpos.shape[0], plant.theta.shape[0]
+    noise = sensing.noise
+    for i in range(n):
+        sensing.q[i] = qpos[i] + noise[k, i] if sensing.noisy else qpos[i]
+    for i in range(m):
+        if sensing.noisy:
+            sensing.motor_angle[i] = plant.theta[i] + noise[k, n + i]
+            sensing.motor_torque[i] = plant.motor_torque[i] + noise[k, n + m + i]
+            tension = plant.tension_motor[i] + sensing.bias
+            sensing.tension_motor[i] = tension + noise[k, n + 2 * m + i]
+        else:
+            sensing.motor_angle[i] = plant.theta[i]
+            sensing.motor_torque[i] = plant.motor_torque[i]
+            sensing.tension_motor[i] = plant.tension_motor[i]
+
+
+@numba.njit(cache=True, inline="always")
+def _control_and_allocate(k, reference, sensing, c, a):  # pragma: no cover - compiled
+    """``MuscleSpaceController.update`` up to the allocation's forces; returns a status."""
+    q_ref, qd_ref, tau_id = reference
+    for i in range(c.tau.shape[0]):
+        c.tau[i] = tau_id[k, i]
+    filter_and_pid(
+        sensing.q, q_ref[k], qd_ref[k], c.period, c.alpha, c.kp, c.ki, c.kd, c.bound,
+        c.q_prev, c.qdot, c.integral, c.tau,
+    )  # fmt: skip
+    jacobian_at(
+        c.functions, c.model, c.data, sensing.q, c.qpos, c.ten_j, c.rownnz, c.rowadr,
+        c.colind, c.jacobian,
+    )  # fmt: skip
+    m, n = c.jacobian.shape
+    for i in range(m):
+        c.lengths[i] = c.ten_length[i]
+    muscle_speed(c.jacobian, c.qdot, c.max_shortening, c.speed)
+    f_max, l_opt, l_slack, thickness, v_max, coefficients, curve = c.hill
+    bad = hill_parts(
+        c.lengths, c.speed, f_max, l_opt, l_slack, thickness, v_max, coefficients, curve,
+        c.active, c.passive,
+    )  # fmt: skip
+    if bad >= 0:
+        return BAD_MUSCLE_LENGTH
+    force_bounds(c.active, c.passive, c.min_tension, a.f_min, a.f_max)
+    for i in range(m):
+        for j in range(n):
+            a.M[j, i] = -c.jacobian[i, j]
+    code = dual_newton_tick(
+        a.M, c.tau, a.weights, a.f_ref, a.f_min, a.f_max, a.force, a.active, MAX_ITER
+    )
+    if code < 0:
+        return ALLOCATE
+    # Allocator.solve's acceptance: ||M f - b|| <= tol (1 + ||b||)
+    rr, bb = 0.0, 0.0
+    for j in range(n):
+        r = -c.tau[j]
+        for i in range(m):
+            r += a.M[j, i] * a.force[i]
+        rr += r * r
+        bb += c.tau[j] * c.tau[j]
+    if not np.sqrt(rr) <= a.tol * (1.0 + np.sqrt(bb)):
+        return ALLOCATE
+    return DONE
+
+
+@numba.njit(cache=True, inline="always")
+def _record(k, reference, sensing, c, plant, log, truth):  # pragma: no cover - compiled
+    """The tick's row of the log, then of the ground truth, as the Python loop writes them.
+
+    ``log`` and ``truth`` are in the order of :data:`LOG_KEYS` and :data:`TRUTH_KEYS`.
+    """
+    q_ref, qd_ref, _ = reference
+    qpos, qvel = plant.step_args[5], plant.step_args[6]
+    for i in range(qpos.shape[0]):
+        log[0][k, i] = q_ref[k, i]
+        log[1][k, i] = qd_ref[k, i]
+        log[2][k, i] = sensing.q[i]
+        log[3][k, i] = c.qdot[i]
+        log[4][k, i] = c.tau[i]
+        log[5][k, i] = 0.0  # no feedforward
+        truth[0][k, i] = qpos[i]
+        truth[1][k, i] = qvel[i]
+    for i in range(plant.theta.shape[0]):
+        log[6][k, i] = sensing.motor_angle[i]
+        log[7][k, i] = sensing.motor_torque[i]
+        log[8][k, i] = sensing.tension_motor[i]
+        log[9][k, i] = plant.command[i]
+        log[10][k, i] = c.activation[i]
+        truth[2][k, i] = plant.tension_insertion[i]
+        truth[3][k, i] = plant.tension_motor[i]
+        unstretched = (
+            (plant.length_ref[i] - plant.stretch_motor0[i]) - plant.stretch_insertion0[i]
+        ) - plant.drum_radius * plant.theta[i]
+        truth[4][k, i] = plant.ten_length[i] - unstretched
+        truth[5][k, i] = plant.wrap[i]
+
+
+@numba.njit(cache=True, inline="always")
+def _step(substeps, timestep, clock, plant):  # pragma: no cover - compiled
+    """``ArmPlant.step`` of one control period; returns whether the plant diverged."""
+    step1, step2, model, data, cable_args, qpos, qvel, winch_speed, warnings, unstable = (
+        plant.step_args
+    )
+    for i in range(qpos.shape[0]):
+        plant.start_q[i] = qpos[i]
+        plant.start_qdot[i] = qvel[i]
+    for i in range(plant.theta.shape[0]):
+        plant.start_theta[i] = plant.theta[i]
+    end = clock[0] + substeps * timestep
+    diverged = step_plant(
+        substeps, step1, step2, model, data, cable_args, qpos, qvel, winch_speed, warnings,
+        unstable,
+    )  # fmt: skip
+    for _ in range(substeps):
+        clock[0] += timestep
+    if diverged:
+        clock[1] = end
+    return diverged
+
+
 @numba.njit(cache=True)
 def run_ticks(
-    k_start,
-    k_end,
-    resume,
-    substeps,
-    timestep,
-    clock,
-    reference,
-    sensing,
-    control,
-    allocation,
-    plant,
-    log,
-    truth,
-):  # pragma: no cover - compiled
+    k_start, k_end, resume, substeps, timestep, clock, reference, sensing, control,
+    allocation, plant, log, truth,
+):  # fmt: skip  # pragma: no cover - compiled
     """Ticks ``k_start`` .. ``k_end - 1`` of a run; stops early at a tick Python must handle.
 
     Args:
         k_start: First tick.
         k_end: One past the last tick.
         resume: Tick ``k_start`` was stopped with :data:`ALLOCATE` and Python has written its
-            forces into the allocation's ``f``: go on from there.
+            forces into ``allocation.force``: go on from there.
         substeps: Plant steps per control period.
         timestep: Plant time step [s].
         clock: ``[time before the next step, end of the diverged period]`` [s], updated: the
             plant's time as MuJoCo counts it (one addition of the time step per step).
         reference: ``(q_ref, qd_ref, tau_id)``, each ``(T, n)``.
-        sensing: ``(noisy, noise, bias, q, motor_angle, motor_torque, tension_motor)``: whether
-            the noise effect is on, its samples ``(T, 2n + 3m)`` and load-cell bias [N], and
-            the readings of the current tick (written).
-        control: The controller's gains, state and work arrays (see :func:`run_compiled`).
-        allocation: ``(M, weights, f_ref, f_min, f_max, f, active, tol)``.
-        plant: The plant's step arguments, state views and work arrays.
-        log: The log's arrays, in :data:`msarm.tasks.runner.LOG_UNITS` order, ``(T, .)``.
-        truth: The ground truth's arrays, in :data:`msarm.tasks.runner.TRUTH_UNITS` order.
+        sensing: :class:`Sensing`.
+        control: :class:`Control`.
+        allocation: :class:`Allocation`.
+        plant: :class:`PlantArrays`.
+        log: The log's arrays ``(T, .)``, in the order of :data:`LOG_KEYS`.
+        truth: The ground truth's arrays ``(T, .)``, in the order of :data:`TRUTH_KEYS`.
 
     Returns:
         ``(status, k)``: :data:`DONE` with ``k = k_end``, or the status that stopped tick k.
     """
-    q_ref_all, qd_ref_all, tau_id = reference
-    noisy, noise, bias, read_q, read_angle, read_torque, read_tension = sensing
-    (
-        period,
-        alpha,
-        kp,
-        ki,
-        kd,
-        bound,
-        q_prev,
-        qdot,
-        integral,
-        activation,
-        tau,
-        reach,
-        functions,
-        c_model,
-        c_data,
-        c_qpos,
-        c_length,
-        c_ten_j,
-        rownnz,
-        rowadr,
-        colind,
-        jacobian,
-        lengths,
-        max_shortening,
-        speed,
-        hill,
-        active,
-        passive,
-        min_tension,
-    ) = control
-    f_max_muscle, l_opt, l_slack, thickness, v_max, coefficients, curve = hill
-    M, weights, f_ref, f_min, f_max, force, active_set, tol = allocation
-    (
-        step_args,
-        command,
-        theta,
-        motor_torque,
-        tension_motor,
-        tension_insertion,
-        ten_length,
-        length_ref,
-        stretch_motor0,
-        stretch_insertion0,
-        drum_radius,
-        wrap_xpos,
-        wrap_obj,
-        wrapadr,
-        wrapnum,
-        wrap,
-        start_q,
-        start_qdot,
-        start_theta,
-        wrap_every,
-    ) = plant
-    step1, step2, m_model, m_data, cable_args, qpos, qvel, winch_speed, warnings, unstable = (
-        step_args
-    )
-    (
-        log_q_ref,
-        log_qd_ref,
-        log_q,
-        log_qdot,
-        log_tau,
-        log_ff,
-        log_angle,
-        log_torque,
-        log_tension,
-        log_command,
-        log_activation,
-    ) = log
-    true_q, true_qdot, true_insertion, true_motor, true_stretch, true_wrap = truth
-    n, m = q_prev.shape[0], command.shape[0]
+    c, a = control, allocation
     for k in range(k_start, k_end):
         if not (resume and k == k_start):
-            # the sensors (plant.sense(): the state, plus the noise effect's reading)
-            for i in range(n):
-                read_q[i] = qpos[i] + noise[k, i] if noisy else qpos[i]
-            for i in range(m):
-                if noisy:
-                    read_angle[i] = theta[i] + noise[k, n + i]
-                    read_torque[i] = motor_torque[i] + noise[k, n + m + i]
-                    read_tension[i] = (tension_motor[i] + bias) + noise[k, n + 2 * m + i]
-                else:
-                    read_angle[i] = theta[i]
-                    read_torque[i] = motor_torque[i]
-                    read_tension[i] = tension_motor[i]
-            # the controller (MuscleSpaceController.update) up to the allocation
-            for i in range(n):
-                tau[i] = tau_id[k, i]
-            filter_and_pid(
-                read_q,
-                q_ref_all[k],
-                qd_ref_all[k],
-                period,
-                alpha,
-                kp,
-                ki,
-                kd,
-                bound,
-                q_prev,
-                qdot,
-                integral,
-                tau,
-            )
-            jacobian_at(
-                functions,
-                c_model,
-                c_data,
-                read_q,
-                c_qpos,
-                c_ten_j,
-                rownnz,
-                rowadr,
-                colind,
-                jacobian,
-            )
-            for i in range(m):
-                lengths[i] = c_length[i]
-            muscle_speed(jacobian, qdot, max_shortening, speed)
-            bad = hill_parts(
-                lengths,
-                speed,
-                f_max_muscle,
-                l_opt,
-                l_slack,
-                thickness,
-                v_max,
-                coefficients,
-                curve,
-                active,
-                passive,
-            )
-            if bad >= 0:
-                return BAD_MUSCLE_LENGTH, k
-            force_bounds(active, passive, min_tension, f_min, f_max)
-            for i in range(m):
-                for j in range(n):
-                    M[j, i] = -jacobian[i, j]
-            code = dual_newton_tick(
-                M, tau, weights, f_ref, f_min, f_max, force, active_set, MAX_ITER
-            )
-            if code < 0:
-                return ALLOCATE, k
-            # Allocator.solve's acceptance: ||M f - b|| <= tol (1 + ||b||)
-            rr, bb = 0.0, 0.0
-            for j in range(n):
-                r = -tau[j]
-                for i in range(m):
-                    r += M[j, i] * force[i]
-                rr += r * r
-                bb += tau[j] * tau[j]
-            if not np.sqrt(rr) <= tol * (1.0 + np.sqrt(bb)):
-                return ALLOCATE, k
-        activation_and_reach(force, active, passive, activation, reach)
-        for i in range(m):
-            command[i] = activation[i] * active[i] + passive[i]
-            if not np.isfinite(command[i]):
+            _sense(k, sensing, plant)
+            status = _control_and_allocate(k, reference, sensing, c, a)
+            if status != DONE:
+                return status, k
+        activation_and_reach(a.force, c.active, c.passive, c.activation, c.reach)
+        for i in range(plant.command.shape[0]):
+            plant.command[i] = c.activation[i] * c.active[i] + c.passive[i]
+            if not np.isfinite(plant.command[i]):
                 return BAD_COMMAND, k
-        # the log, then the ground truth, as the Python loop records them
-        for i in range(n):
-            log_q_ref[k, i] = q_ref_all[k, i]
-            log_qd_ref[k, i] = qd_ref_all[k, i]
-            log_q[k, i] = read_q[i]
-            log_qdot[k, i] = qdot[i]
-            log_tau[k, i] = tau[i]
-            log_ff[k, i] = 0.0
-            true_q[k, i] = qpos[i]
-            true_qdot[k, i] = qvel[i]
-        for i in range(m):
-            log_angle[k, i] = read_angle[i]
-            log_torque[k, i] = read_torque[i]
-            log_tension[k, i] = read_tension[i]
-            log_command[k, i] = command[i]
-            log_activation[k, i] = activation[i]
-            true_insertion[k, i] = tension_insertion[i]
-            true_motor[k, i] = tension_motor[i]
-            unstretched = ((length_ref[i] - stretch_motor0[i]) - stretch_insertion0[i]) - (
-                drum_radius * theta[i]
-            )
-            true_stretch[k, i] = ten_length[i] - unstretched
-            true_wrap[k, i] = wrap[i]
-        # the plant's period (ArmPlant.step)
-        for i in range(n):
-            start_q[i] = qpos[i]
-            start_qdot[i] = qvel[i]
-        for i in range(m):
-            start_theta[i] = theta[i]
-        end = clock[0] + substeps * timestep
-        diverged = step_plant(
-            substeps,
-            step1,
-            step2,
-            m_model,
-            m_data,
-            cable_args,
-            qpos,
-            qvel,
-            winch_speed,
-            warnings,
-            unstable,
-        )
-        for _ in range(substeps):
-            clock[0] += timestep
-        if diverged:
-            clock[1] = end
+        _record(k, reference, sensing, c, plant, log, truth)
+        if _step(substeps, timestep, clock, plant):
             return DIVERGED, k
-        if k % wrap_every == 0:
-            wrap_angles_into(wrap_xpos, wrap_obj, wrapadr, wrapnum, wrap)
+        if k % plant.wrap_every == 0:
+            wrap_angles_into(
+                plant.wrap_xpos, plant.wrap_obj, plant.wrapadr, plant.wrapnum, plant.wrap
+            )
     return DONE, k_end
 
 
-class _Work:
-    """The arrays one compiled run works on, and the tuples :func:`run_ticks` takes.
+def _arrays(
+    plant: ArmPlant, controller: MuscleSpaceController, n_ticks: int, wrap_every: int
+) -> tuple[Sensing, Control, Allocation, PlantArrays]:
+    """What :func:`run_ticks` works on: views of the plant's and controller's state, work arrays.
 
     Args:
         plant: The plant (reset for the run).
@@ -343,75 +361,46 @@ class _Work:
         n_ticks: Number of control ticks.
         wrap_every: Wrap-angle refresh period, in control periods.
     """
-
-    def __init__(
-        self, plant: ArmPlant, controller: MuscleSpaceController, n_ticks: int, wrap_every: int
-    ) -> None:
-        n, m = plant.model.n_joints, plant.n_cables
-        # the sensors: the noise effect's samples, drawn now in one call from the plant's
-        # generator (the same stream as one draw of 2n + 3m samples per tick)
-        noise_effects = plant._sensors
-        if noise_effects:
-            effect = noise_effects[0]
-            std = effect._noise_std((n, m, m, m))
-            self.noise = std * plant._rng.standard_normal((n_ticks, std.shape[0]))
-            bias = float(effect.config.tension_bias)
-        else:
-            self.noise, bias = np.zeros((0, 0)), 0.0
-        self.read_q, self.read_tension = np.empty(n), np.empty(m)
-        self.sensing = (
-            bool(noise_effects),
-            self.noise,
-            bias,
-            self.read_q,
-            np.empty(m),
-            np.empty(m),
-            self.read_tension,
-        )
-        # the controller
-        c, state = controller, controller._state
-        data = c._data.mj
-        mj_model = c.model.mj_model
-        self.tau, self.lengths, self.speed = np.empty(n), np.empty(m), np.empty(m)
-        self.jacobian = np.zeros((m, n))
-        self.control = (
-            c.period, c._alpha, c._kp, c._ki, c._kd, c._integral_bound, state.q_prev,
-            state.qdot, state.integral, state.activation, self.tau, np.empty(m, dtype=np.bool_),
-            np.array(function_addresses(*KINEMATICS_FUNCTIONS), dtype=np.intp),
-            mj_model._address, data._address, data.qpos, data.ten_length, data.ten_J,
-            mj_model.ten_J_rownnz, mj_model.ten_J_rowadr, mj_model.ten_J_colind,
-            self.jacobian, self.lengths, c._max_shortening, self.speed, c._hill.parameters,
-            c._hill.active, c._hill.passive, float(c.config.min_tension),
-        )  # fmt: skip
-        spec = c._allocator.spec
-        self.M, self.f_min, self.f_max, self.force = (
-            np.empty((n, m)),
-            np.empty(m),
-            np.empty(m),
-            np.empty(m),
-        )
-        self.allocation = (
-            self.M,
-            np.asarray(spec.weights, dtype=float),
-            np.asarray(spec.f_ref, dtype=float),
-            self.f_min,
-            self.f_max,
-            self.force,
-            np.empty(m, dtype=np.int8),
-            float(spec.tol),
-        )
-        # the plant
-        p, pstate, data = plant, plant._state, plant.mj_data
-        start = p._period_start
-        self.command = p._command
-        self.plant = (
-            p._compiled_args, p._command, pstate.winch_angle, p.motor_torque,
-            pstate.tension_motor, p.tension_insertion, data.ten_length, p._length_ref,
-            p._stretch_motor0, p._stretch_insertion0, float(p.drum_radius),
-            data.wrap_xpos.reshape(-1, 3), data.wrap_obj.reshape(-1), data.ten_wrapadr,
-            data.ten_wrapnum, pstate.wrap_angles, start["q"], start["qdot"],
-            start["winch_angle"], int(wrap_every),
-        )  # fmt: skip
+    n, m = plant.model.n_joints, plant.n_cables
+    # the noise effect's samples, drawn now in one call from the plant's generator (the same
+    # stream as one draw of 2n + 3m samples per tick)
+    if plant._sensors:
+        effect = plant._sensors[0]
+        std = effect._noise_std((n, m, m, m))
+        noise = std * plant._rng.standard_normal((n_ticks, std.shape[0]))
+        bias = float(effect.config.tension_bias)
+    else:
+        noise, bias = np.zeros((0, 0)), 0.0
+    sensing = Sensing(
+        bool(plant._sensors), noise, bias, np.empty(n), np.empty(m), np.empty(m), np.empty(m)
+    )
+    c, state, data = controller, controller._state, controller._data.mj
+    mj_model = c.model.mj_model
+    control = Control(
+        c.period, c._alpha, c._kp, c._ki, c._kd, c._integral_bound, state.q_prev, state.qdot,
+        state.integral, state.activation, np.empty(n), np.empty(m, dtype=np.bool_),
+        np.array(function_addresses(*KINEMATICS_FUNCTIONS), dtype=np.intp), mj_model._address,
+        data._address, data.qpos, data.ten_length, data.ten_J, mj_model.ten_J_rownnz,
+        mj_model.ten_J_rowadr, mj_model.ten_J_colind, np.zeros((m, n)), np.empty(m),
+        c._max_shortening, np.empty(m), c._hill.parameters, c._hill.active, c._hill.passive,
+        float(c.config.min_tension),
+    )  # fmt: skip
+    spec = c._allocator.spec
+    allocation = Allocation(
+        np.empty((n, m)), np.asarray(spec.weights, dtype=float),
+        np.asarray(spec.f_ref, dtype=float), np.empty(m), np.empty(m), np.empty(m),
+        np.empty(m, dtype=np.int8), float(spec.tol),
+    )  # fmt: skip
+    p, pstate, data = plant, plant._state, plant.mj_data
+    start = p._period_start
+    plant_arrays = PlantArrays(
+        p._compiled_args, p._command, pstate.winch_angle, p.motor_torque, pstate.tension_motor,
+        p.tension_insertion, data.ten_length, p._length_ref, p._stretch_motor0,
+        p._stretch_insertion0, float(p.drum_radius), data.wrap_xpos.reshape(-1, 3),
+        data.wrap_obj.reshape(-1), data.ten_wrapadr, data.ten_wrapnum, pstate.wrap_angles,
+        start["q"], start["qdot"], start["winch_angle"], int(wrap_every),
+    )  # fmt: skip
+    return sensing, control, allocation, plant_arrays
 
 
 def run_compiled(
@@ -448,9 +437,9 @@ def run_compiled(
     q_ref, qd_ref, qdd_ref = references
     n_ticks = q_ref.shape[0]
     reference = (q_ref, qd_ref, controller.reference_torques(q_ref, qd_ref, qdd_ref))
-    work = _Work(plant, controller, n_ticks, wrap_every)
-    log_arrays = tuple(log[key] for key in _LOG_KEYS)
-    truth_arrays = tuple(truth[key] for key in _TRUTH_KEYS)
+    sensing, control, allocation, plant_arrays = _arrays(plant, controller, n_ticks, wrap_every)
+    log_arrays = tuple(log[key] for key in LOG_KEYS)
+    truth_arrays = tuple(truth[key] for key in TRUTH_KEYS)
     clock = np.array([float(plant.mj_data.time), np.nan])
     report_every = max(1, n_ticks // 50)
     k, resume = 0, False
@@ -458,20 +447,20 @@ def run_compiled(
         report = -(-k // report_every) * report_every  # the next tick after which to report
         stop = n_ticks if progress is None else min(report + 1, n_ticks)
         status, k = run_ticks(
-            k, stop, resume, substeps, plant.config.timestep, clock, reference, work.sensing,
-            work.control, work.allocation, work.plant, log_arrays, truth_arrays,
+            k, stop, resume, substeps, plant.config.timestep, clock, reference, sensing,
+            control, allocation, plant_arrays, log_arrays, truth_arrays,
         )  # fmt: skip
         resume = status == ALLOCATE
         if status == ALLOCATE:  # the controller's allocator settles it (DAQP, least squares)
             # M as the controller passes it (the same memory layout: the same bits from BLAS)
-            M = -work.jacobian.T
-            result = controller._allocator.solve(M, work.tau, work.f_min, work.f_max)
-            work.force[:] = result.f
+            M = -control.jacobian.T
+            result = controller._allocator.solve(M, control.tau, allocation.f_min, allocation.f_max)
+            allocation.force[:] = result.f
         elif status == BAD_MUSCLE_LENGTH:  # the Hill model raises its InputError
-            controller._hill.parts(work.lengths, work.speed)
+            controller._hill.parts(control.lengths, control.speed)
             raise AssertionError("the Hill model accepted what its kernel refused")
         elif status == BAD_COMMAND:  # the plant raises its InputError
-            plant.command(work.command)
+            plant.command(plant_arrays.command)
             raise AssertionError("the plant accepted what the compiled loop refused")
         elif status == DIVERGED:
             try:
@@ -483,7 +472,8 @@ def run_compiled(
     return None, n_ticks
 
 
-_LOG_KEYS = (
+#: The log's quantities in the order :func:`run_ticks` takes their arrays.
+LOG_KEYS = (
     "q_ref",
     "qd_ref",
     "q",
@@ -496,4 +486,5 @@ _LOG_KEYS = (
     "tension_cmd",
     "activation",
 )
-_TRUTH_KEYS = ("q", "qdot", "tension_insertion", "tension_motor", "stretch", "wrap_angle")
+#: The ground truth's quantities in the order :func:`run_ticks` takes their arrays.
+TRUTH_KEYS = ("q", "qdot", "tension_insertion", "tension_motor", "stretch", "wrap_angle")
