@@ -50,7 +50,9 @@ def _assert_same_bits(python, compiled):
 
 
 @pytest.mark.parametrize(
-    "plant_config", [DEFAULT_PLANT, IDEAL_PLANT, WITH_COGGING], ids=["default", "ideal", "cogging"]
+    "plant_config",
+    [DEFAULT_PLANT, IDEAL_PLANT, WITH_COGGING, replace(DEFAULT_PLANT, timestep=0.0005)],
+    ids=["default", "ideal", "cogging", "2 kHz"],
 )
 def test_compiled_loop_gives_the_python_loops_bits(arm, plant_config):
     (python, compiled), (python_calls, compiled_calls) = _both_loops(arm, plant_config)
