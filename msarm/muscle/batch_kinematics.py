@@ -48,8 +48,7 @@ FloatArray = NDArray[np.float64]
 #: MuJoCo's position stage as far as the tendons need it, in its order.
 _FUNCTIONS = ("mj_kinematics", "mj_comPos", "mj_tendon")
 KINEMATICS_FUNCTIONS = _FUNCTIONS
-"""The MuJoCo functions :data:`jacobian_at` calls, by name (their addresses are its first
-argument, from :func:`msarm.mujoco_c.function_addresses`)."""
+"""The MuJoCo functions :func:`jacobian_at` calls, by name."""
 
 
 class CableKinematics:
@@ -169,7 +168,7 @@ class JacobianAt:
         if self._args is None:
             cable_kinematics(self._m_model, self._m_data, q, self.jacobian)
         else:
-            _jacobian_at(*self._args, q, *self._views)
+            jacobian_at(*self._args, q, *self._views)
         return self.jacobian
 
     def many(self, q: FloatArray, out: FloatArray | None = None) -> FloatArray:
@@ -193,10 +192,16 @@ class JacobianAt:
 
 
 @numba.njit(cache=True)
-def _jacobian_at(
+def jacobian_at(
     functions, model, data, q, qpos, ten_j, rownnz, rowadr, colind, jacobian
 ):  # pragma: no cover - compiled
-    """Set ``qpos``, run the three MuJoCo functions, densify the tendon Jacobian."""
+    """Set ``qpos = q``, run :data:`KINEMATICS_FUNCTIONS`, densify the tendon Jacobian.
+
+    Compiled, also for compiled callers: ``functions`` holds the functions' addresses
+    (:func:`msarm.mujoco_c.function_addresses`), ``model`` and ``data`` the addresses of the
+    ``mjModel``/``mjData`` whose ``qpos`` and ``ten_J`` the arrays view; ``J_c`` is written
+    into ``jacobian`` ``(m, n)`` and the cable lengths are then in MuJoCo's ``ten_length``.
+    """
     for j in range(q.shape[0]):
         qpos[j] = q[j]
     for function in functions:
@@ -208,9 +213,9 @@ def _jacobian_at(
 def _jacobians_at(
     functions, model, data, q, qpos, ten_j, rownnz, rowadr, colind, jacobian, out
 ):  # pragma: no cover - compiled
-    """:func:`_jacobian_at` posture after posture, each Jacobian copied into ``out[w]``."""
+    """:func:`jacobian_at` posture after posture, each Jacobian copied into ``out[w]``."""
     for w in range(q.shape[0]):
-        _jacobian_at(functions, model, data, q[w], qpos, ten_j, rownnz, rowadr, colind, jacobian)
+        jacobian_at(functions, model, data, q[w], qpos, ten_j, rownnz, rowadr, colind, jacobian)
         for i in range(jacobian.shape[0]):
             for j in range(jacobian.shape[1]):
                 out[w, i, j] = jacobian[i, j]
@@ -234,7 +239,7 @@ def current_wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> Float
     round-off), for a control loop that needs them every tick.
     """
     out = np.empty(m_model.ntendon)
-    _wrap_angles(
+    wrap_angles_into(
         m_data.wrap_xpos.reshape(-1, 3),
         m_data.wrap_obj.reshape(-1),
         m_data.ten_wrapadr,
@@ -275,12 +280,17 @@ def _kinematics_loop(
             lengths[t, i] = ten_length[i]
         _dense_jacobian(ten_j, rownnz, rowadr, colind, jacobian[t])
         if with_wrap:
-            _wrap_angles(wrap_xpos, wrap_obj, wrapadr, wrapnum, wrap[t])
+            wrap_angles_into(wrap_xpos, wrap_obj, wrapadr, wrapnum, wrap[t])
 
 
 @numba.njit(cache=True)
-def _wrap_angles(points, objects, wrapadr, wrapnum, out):  # pragma: no cover - compiled
-    """:func:`msarm.muscle.geometry.wrap_angles`, one cable at a time (same arithmetic)."""
+def wrap_angles_into(points, objects, wrapadr, wrapnum, out):  # pragma: no cover - compiled
+    """:func:`msarm.muscle.geometry.wrap_angles`, one cable at a time (same arithmetic).
+
+    Compiled, also for compiled callers: ``points`` is ``wrap_xpos`` as ``(k, 3)``,
+    ``objects`` ``wrap_obj`` flat, then ``ten_wrapadr``, ``ten_wrapnum``; writes ``out``
+    ``(m,)`` [rad].
+    """
     for i in range(out.shape[0]):
         first, count = wrapadr[i], wrapnum[i]
         total = 0.0
@@ -304,13 +314,3 @@ def _wrap_angles(points, objects, wrapadr, wrapnum, out):  # pragma: no cover - 
             ) * (by / norm_b)
             total += math.acos(min(1.0, max(-1.0, cosine)))
         out[i] = total
-
-
-jacobian_at = _jacobian_at
-"""Compiled: ``jacobian_at(functions, model, data, q, qpos, ten_J, rownnz, rowadr, colind,
-jacobian)`` sets ``qpos = q``, runs :data:`KINEMATICS_FUNCTIONS` and densifies ``J_c`` into
-``jacobian`` (the cable lengths are then in MuJoCo's ``ten_length``), for compiled callers."""
-
-wrap_angles_into = _wrap_angles
-"""Compiled: ``wrap_angles_into(wrap_xpos (k, 3), wrap_obj, ten_wrapadr, ten_wrapnum, out)``
-writes the wrap angles of :func:`current_wrap_angles` into ``out``, for compiled callers."""

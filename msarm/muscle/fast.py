@@ -41,7 +41,7 @@ FloatArray = NDArray[np.float64]
 
 
 @numba.njit(cache=True)
-def _hill_parts(
+def hill_parts(
     lengths,
     velocities,
     f_max,
@@ -54,7 +54,11 @@ def _hill_parts(
     active,
     passive,
 ):
-    """Write active and passive tendon-force parts [N]; return the first bad index or -1."""
+    """Write active and passive tendon-force parts [N]; return the first bad index or -1.
+
+    The compiled kernel of :meth:`FastHill.parts`, also for compiled callers: the muscle
+    arrays between ``velocities`` and ``active`` are :attr:`FastHill.parameters`.
+    """
     d1, d2, d3, d4, kpe, e0 = curve[0], curve[1], curve[2], curve[3], curve[4], curve[5]
     for i in range(lengths.shape[0]):
         along = lengths[i] - l_slack[i]
@@ -80,14 +84,6 @@ def _hill_parts(
         active[i] = scale * f_l * f_v
         passive[i] = scale * f_pe
     return -1
-
-
-hill_parts = _hill_parts
-"""The compiled kernel of :meth:`FastHill.parts`, for compiled callers (numba).
-
-``hill_parts(lengths, velocities, *FastHill.parameters, active, passive)`` writes the parts and
-returns the first muscle whose MTU length is not longer than its tendon slack length, or -1.
-"""
 
 
 class FastHill:
@@ -149,7 +145,7 @@ class FastHill:
         Raises:
             InputError: An MTU length is not longer than its tendon slack length.
         """
-        bad = _hill_parts(mtu_length, mtu_velocity, *self.parameters, self.active, self.passive)
+        bad = hill_parts(mtu_length, mtu_velocity, *self.parameters, self.active, self.passive)
         if bad >= 0:
             raise InputError(
                 f"mtu_length[{bad}] (muscle {self.muscles.names[bad]!r}) = {mtu_length[bad]!r} m "
