@@ -49,8 +49,6 @@ from msarm.plant.cable_kernel import step_plant
 from msarm.plant.effects import SensorNoise
 
 __all__ = [
-    "LOG_KEYS",
-    "TRUTH_KEYS",
     "Allocation",
     "Control",
     "PlantArrays",
@@ -158,6 +156,8 @@ class PlantArrays(NamedTuple):
     """The plant's compiled step arguments and state views, for :func:`run_ticks`."""
 
     step_args: tuple  # ArmPlant's arguments of step_plant after n_steps
+    qpos: FloatArray  # views of the plant's MuJoCo state
+    qvel: FloatArray
     command: FloatArray
     theta: FloatArray
     motor_torque: FloatArray
@@ -182,7 +182,7 @@ class PlantArrays(NamedTuple):
 @numba.njit(cache=True, inline="always")
 def _sense(k, sensing, plant):  # pragma: no cover - compiled
     """``ArmPlant.sense``: the state, plus the noise effect's tick-``k`` samples and bias."""
-    qpos = plant.step_args[5]
+    qpos = plant.qpos
     n, m = qpos.shape[0], plant.theta.shape[0]
     noise = sensing.noise
     for i in range(n):
@@ -250,10 +250,10 @@ def _control_and_allocate(k, reference, sensing, c, a):  # pragma: no cover - co
 def _record(k, reference, sensing, c, plant, log, truth):  # pragma: no cover - compiled
     """The tick's row of the log, then of the ground truth, as the Python loop writes them.
 
-    ``log`` and ``truth`` are in the order of :data:`LOG_KEYS` and :data:`TRUTH_KEYS`.
+    ``log`` and ``truth`` are in the order of the runner's ``LOG_UNITS`` and ``TRUTH_UNITS``.
     """
     q_ref, qd_ref, _ = reference
-    qpos, qvel = plant.step_args[5], plant.step_args[6]
+    qpos, qvel = plant.qpos, plant.qvel
     for i in range(qpos.shape[0]):
         log[0][k, i] = q_ref[k, i]
         log[1][k, i] = qd_ref[k, i]
@@ -322,8 +322,8 @@ def run_ticks(
         control: :class:`Control`.
         allocation: :class:`Allocation`.
         plant: :class:`PlantArrays`.
-        log: The log's arrays ``(T, .)``, in the order of :data:`LOG_KEYS`.
-        truth: The ground truth's arrays ``(T, .)``, in the order of :data:`TRUTH_KEYS`.
+        log: The log's arrays ``(T, .)``, in the order of the runner's ``LOG_UNITS``.
+        truth: The ground truth's arrays ``(T, .)``, in the order of ``TRUTH_UNITS``.
 
     Returns:
         ``(status, k)``: :data:`DONE` with ``k = k_end``, or the status that stopped tick k.
@@ -394,11 +394,12 @@ def _arrays(
     p, pstate, data = plant, plant._state, plant.mj_data
     start = p._period_start
     plant_arrays = PlantArrays(
-        p._compiled_args, p._command, pstate.winch_angle, p.motor_torque, pstate.tension_motor,
-        p.tension_insertion, data.ten_length, p._length_ref, p._stretch_motor0,
-        p._stretch_insertion0, float(p.drum_radius), data.wrap_xpos.reshape(-1, 3),
-        data.wrap_obj.reshape(-1), data.ten_wrapadr, data.ten_wrapnum, pstate.wrap_angles,
-        start["q"], start["qdot"], start["winch_angle"], int(wrap_every),
+        p._compiled_args, data.qpos, data.qvel, p._command, pstate.winch_angle,
+        p.motor_torque, pstate.tension_motor, p.tension_insertion, data.ten_length,
+        p._length_ref, p._stretch_motor0, p._stretch_insertion0, float(p.drum_radius),
+        data.wrap_xpos.reshape(-1, 3), data.wrap_obj.reshape(-1), data.ten_wrapadr,
+        data.ten_wrapnum, pstate.wrap_angles, start["q"], start["qdot"],
+        start["winch_angle"], int(wrap_every),
     )  # fmt: skip
     return sensing, control, allocation, plant_arrays
 
@@ -407,8 +408,8 @@ def run_compiled(
     plant: ArmPlant,
     controller: MuscleSpaceController,
     references: tuple[FloatArray, FloatArray, FloatArray],
-    log: dict[str, FloatArray],
-    truth: dict[str, FloatArray],
+    log: tuple[FloatArray, ...],
+    truth: tuple[FloatArray, ...],
     substeps: int,
     wrap_every: int,
     progress: Callable[[float], None] | None = None,
@@ -420,8 +421,8 @@ def run_compiled(
         controller: The controller, reset at the home posture.
         references: ``(q_ref, qd_ref, qdd_ref)`` of every tick [rad, rad/s, rad/s^2],
             each ``(T, n)``.
-        log: The runner's log arrays (the keys of ``LOG_UNITS``), ``(T, .)``, written.
-        truth: The runner's ground-truth arrays (the keys of ``TRUTH_UNITS``), written.
+        log: The runner's log arrays, ``(T, .)``, in the order of its ``LOG_UNITS``, written.
+        truth: Its ground-truth arrays, in the order of ``TRUTH_UNITS``, written.
         substeps: Plant steps per control period.
         wrap_every: Refresh the plant's wrap angles after every this many periods.
         progress: Optional callback with the fraction done, called at the ticks where the
@@ -438,8 +439,6 @@ def run_compiled(
     n_ticks = q_ref.shape[0]
     reference = (q_ref, qd_ref, controller.reference_torques(q_ref, qd_ref, qdd_ref))
     sensing, control, allocation, plant_arrays = _arrays(plant, controller, n_ticks, wrap_every)
-    log_arrays = tuple(log[key] for key in LOG_KEYS)
-    truth_arrays = tuple(truth[key] for key in TRUTH_KEYS)
     clock = np.array([float(plant.mj_data.time), np.nan])
     report_every = max(1, n_ticks // 50)
     k, resume = 0, False
@@ -448,7 +447,7 @@ def run_compiled(
         stop = n_ticks if progress is None else min(report + 1, n_ticks)
         status, k = run_ticks(
             k, stop, resume, substeps, plant.config.timestep, clock, reference, sensing,
-            control, allocation, plant_arrays, log_arrays, truth_arrays,
+            control, allocation, plant_arrays, log, truth,
         )  # fmt: skip
         resume = status == ALLOCATE
         if status == ALLOCATE:  # the controller's allocator settles it (DAQP, least squares)
@@ -470,21 +469,3 @@ def run_compiled(
         elif progress is not None and k - 1 == report:
             progress(report / n_ticks)
     return None, n_ticks
-
-
-#: The log's quantities in the order :func:`run_ticks` takes their arrays.
-LOG_KEYS = (
-    "q_ref",
-    "qd_ref",
-    "q",
-    "qdot_est",
-    "tau_cmd",
-    "tau_ff",
-    "motor_angle",
-    "motor_torque",
-    "tension_motor",
-    "tension_cmd",
-    "activation",
-)
-#: The ground truth's quantities in the order :func:`run_ticks` takes their arrays.
-TRUTH_KEYS = ("q", "qdot", "tension_insertion", "tension_motor", "stretch", "wrap_angle")

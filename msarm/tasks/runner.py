@@ -210,7 +210,14 @@ def run_tracking(
     references = (q_ref_all, qd_ref_all, qdd_ref_all)
     if supported and compiled is not False:
         error, done = run_compiled(
-            plant, controller, references, log, truth, substeps, _WRAP_REFRESH_PERIODS, progress
+            plant,
+            controller,
+            references,
+            tuple(log[key] for key in LOG_UNITS),
+            tuple(truth[key] for key in TRUTH_UNITS),
+            substeps,
+            _WRAP_REFRESH_PERIODS,
+            progress,
         )
     else:
         error, done = _python_loop(
