@@ -48,14 +48,14 @@ INFEASIBLE_CODE = -2
 
 
 @numba.njit(cache=True)
-def _hessian(A, y, lo, hi, reg, K, all_free):  # pragma: no cover - compiled
-    """``K = A D A^T + reg I``, D the entries of y strictly inside (lo, hi) (all if all_free)."""
+def _hessian(A, free, reg, K):  # pragma: no cover - compiled
+    """``K = A D A^T + reg I``, D the diagonal 0/1 matrix of the ``free`` entries ``(m,)``."""
     n, m = A.shape
     for i in range(n):
         for k in range(i + 1):
             s = 0.0
             for j in range(m):
-                if all_free or (y[j] > lo[j] and y[j] < hi[j]):
+                if free[j]:
                     s += A[i, j] * A[k, j]
             K[i, k] = s
             K[k, i] = s
@@ -182,7 +182,8 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
         lo[j] = w[j] * (f_min[j] - f_ref[j])
         hi[j] = w[j] * (f_max[j] - f_ref[j])
     K = np.empty((n, n))
-    _hessian(A, lo, lo, hi, 0.0, K, True)
+    free = np.ones(m, dtype=np.bool_)
+    _hessian(A, free, 0.0, K)  # A A^T
     trace = 0.0
     for i in range(n):
         trace += K[i, i]
@@ -213,7 +214,9 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
             return it
         if it == max_iter:
             break
-        _hessian(A, y, lo, hi, reg, K, False)
+        for j in range(m):
+            free[j] = y[j] > lo[j] and y[j] < hi[j]
+        _hessian(A, free, reg, K)
         if not cholesky_solve(K, r, delta):
             break
         for j in range(m):
