@@ -19,6 +19,9 @@ from msarm.tasks.trajectories import hold_then_move
 HOME = np.array([0.0, 0.0, 0.0, -0.2])
 TARGET = np.array([0.1, 0.3, -0.2, -0.8])
 SHORT = hold_then_move("short", HOME, TARGET, wait=0.2, move_time=1.0, duration=2.0)
+WITH_DELAY = replace(
+    DEFAULT_PLANT, effects=replace(DEFAULT_PLANT.effects, delay=DelayConfig(enabled=True))
+)
 WITH_COGGING = replace(
     DEFAULT_PLANT,
     effects=replace(DEFAULT_PLANT.effects, cogging=CoggingConfig(enabled=True, amplitude=0.02)),
@@ -51,8 +54,20 @@ def _assert_same_bits(python, compiled):
 
 @pytest.mark.parametrize(
     "plant_config",
-    [DEFAULT_PLANT, IDEAL_PLANT, WITH_COGGING, replace(DEFAULT_PLANT, timestep=0.0005)],
-    ids=["default", "ideal", "cogging", "2 kHz"],
+    [
+        DEFAULT_PLANT,
+        IDEAL_PLANT,
+        WITH_COGGING,
+        replace(DEFAULT_PLANT, timestep=0.0005),
+        WITH_DELAY,
+        replace(
+            IDEAL_PLANT,
+            effects=replace(
+                IDEAL_PLANT.effects, delay=DelayConfig(True, sensing_periods=0, actuation_periods=2)
+            ),
+        ),
+    ],
+    ids=["default", "ideal", "cogging", "2 kHz", "sensing delay", "actuation delay"],
 )
 def test_compiled_loop_gives_the_python_loops_bits(arm, plant_config):
     (python, compiled), (python_calls, compiled_calls) = _both_loops(arm, plant_config)
@@ -131,10 +146,7 @@ def test_runs_the_compiled_loop_cannot_do_take_the_python_one(arm):
     assert not compiled_loop_supported(plant, fast, None)
     dynamics = MuscleSpaceController(arm, ArmControllerConfig(activation_dynamics=True))
     assert not compiled_loop_supported(plant, dynamics, None)
-    delayed = replace(
-        DEFAULT_PLANT, effects=replace(DEFAULT_PLANT.effects, delay=DelayConfig(enabled=True))
-    )
-    assert not compiled_loop_supported(ArmPlant(arm, delayed, seed=0), controller, None)
+    assert compiled_loop_supported(ArmPlant(arm, WITH_DELAY, seed=0), controller, None)
 
     class LouderNoise(SensorNoise):  # a user's sensor effect runs in Python
         pass

@@ -11,7 +11,7 @@ Measures, on one core and in one process:
   ``run_tracking`` runs it (the compiled loop of :mod:`msarm.tasks.compiled_loop` where the
   run qualifies);
 - the closed loop with Python ticks: the same task through the Python loop (the path of runs
-  with a feedforward, user effects or a delay), for comparison.
+  with a feedforward or user effects), for comparison.
 
 Each is the best of ``repeats`` runs. The real-time factor is simulated time over wall time;
 the ratio says how many times slower than bare MuJoCo stepping each one is.

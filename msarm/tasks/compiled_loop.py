@@ -8,13 +8,15 @@ same ticks in one compiled function, :func:`run_ticks`, that calls the very kern
 path calls:
 
 - sensors: the plant's state plus the sensor noise, whose samples are drawn beforehand from the
-  plant's generator in one call (the same stream as one draw per tick);
+  plant's generator in one call (the same stream as one draw per tick), through the delay
+  effect's ring of readings;
 - controller: the reference's inverse-dynamics torques come from Pinocchio before the loop
   (:meth:`MuscleSpaceController.reference_torques`, the same call as every tick's), then
   ``filter_and_pid``, the cable kinematics by MuJoCo's own functions
   (:mod:`msarm.mujoco_c`), ``muscle_speed``, the Hill kernel, ``force_bounds``, the allocation
   by :func:`msarm.allocation.solvers.newton.dual_newton_tick` and ``activation_and_reach``;
-- plant: :func:`msarm.plant.cable_kernel.step_plant` and the wrap-angle refresh;
+- plant: the delay effect's ring of commands, :func:`msarm.plant.cable_kernel.step_plant` and
+  the wrap-angle refresh;
 - log and ground truth: written row by row into the runner's arrays.
 
 The result is the same bits as the Python loop (tested). What the compiled loop cannot
@@ -24,8 +26,9 @@ there; a bad muscle length, a non-finite command or a diverged simulation are ra
 Python functions that raise them on the Python path, with the same messages.
 
 :func:`compiled_loop_supported` says when a run qualifies: no feedforward, a plant whose step
-is compiled and whose only sensor effect is the built-in noise (no delay, no user hooks), and
-the controller itself (not a subclass) with the ``"newton"`` solver and no activation dynamics.
+is compiled and whose only sensor and actuation effects are the built-in noise and delay (no
+user hooks), and the controller itself (not a subclass) with the ``"newton"`` solver and no
+activation dynamics.
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ from msarm.muscle.batch_kinematics import KINEMATICS_FUNCTIONS, jacobian_at, wra
 from msarm.muscle.fast import hill_parts
 from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.cable_kernel import step_plant
-from msarm.plant.effects import SensorNoise
+from msarm.plant.effects import Delay, SensorNoise
 
 __all__ = [
     "Allocation",
@@ -72,6 +75,10 @@ DIVERGED = 4
 """Status: the plant diverged during this tick's step."""
 
 
+#: The sensor effects the compiled loop renders, in the plant's order (noise, then delay).
+_SENSOR_EFFECTS = ([], [SensorNoise], [Delay], [SensorNoise, Delay])
+
+
 def compiled_loop_supported(
     plant: ArmPlant, controller: MuscleSpaceController, feedforward: object | None
 ) -> bool:
@@ -79,9 +86,8 @@ def compiled_loop_supported(
     return (
         feedforward is None
         and plant.compiled
-        and all(type(effect) is SensorNoise for effect in plant._sensors)
-        and len(plant._sensors) <= 1
-        and not plant._actuators
+        and [type(effect) for effect in plant._sensors] in _SENSOR_EFFECTS
+        and [type(effect) for effect in plant._actuators] in ([], [Delay])
         and type(controller) is MuscleSpaceController
         and controller.config.solver == "newton"
         and not controller.config.activation_dynamics
@@ -94,12 +100,14 @@ def compiled_loop_supported(
 
 
 class Sensing(NamedTuple):
-    """What :func:`run_ticks` needs to read the sensors: the noise and this tick's readings."""
+    """What :func:`run_ticks` needs to read the sensors, and this tick's readings."""
 
     noisy: bool  # the noise effect is on
     noise: FloatArray  # its samples, (T, 2n + 3m): q, motor angle, motor torque, tension
     bias: float  # its load-cell bias [N]
-    q: FloatArray  # this tick's readings, written
+    delay: int  # the delay effect's sensing delay [control periods] (0 without it)
+    history: FloatArray  # the last delay + 1 readings, (delay + 1, 2n + 3m), a ring
+    q: FloatArray  # this tick's readings (as the controller gets them), written
     motor_angle: FloatArray
     motor_torque: FloatArray
     tension_motor: FloatArray
@@ -119,6 +127,7 @@ class Control(NamedTuple):
     integral: FloatArray
     activation: FloatArray
     tau: FloatArray
+    command: FloatArray  # the tension command the controller sends [N]
     reach: NDArray[np.bool_]
     functions: NDArray[np.intp]  # MuJoCo's kinematics functions (addresses)
     model: int  # the controller's mjModel and mjData (addresses) and views of the latter
@@ -158,7 +167,9 @@ class PlantArrays(NamedTuple):
     step_args: tuple  # ArmPlant's arguments of step_plant after n_steps
     qpos: FloatArray  # views of the plant's MuJoCo state
     qvel: FloatArray
-    command: FloatArray
+    command: FloatArray  # the command the drives get (after the delay effect)
+    command_delay: int  # the delay effect's actuation delay [control periods] (0 without it)
+    command_history: FloatArray  # the last command_delay + 1 commands, a ring
     theta: FloatArray
     motor_torque: FloatArray
     tension_motor: FloatArray
@@ -181,22 +192,32 @@ class PlantArrays(NamedTuple):
 
 @numba.njit(cache=True, inline="always")
 def _sense(k, sensing, plant):  # pragma: no cover - compiled
-    """``ArmPlant.sense``: the state, plus the noise effect's tick-``k`` samples and bias."""
+    """``ArmPlant.sense``: the state plus the noise effect's tick-``k`` samples and bias.
+
+    The controller gets the reading of tick ``max(k - delay, 0)`` (the delay effect).
+    """
     qpos = plant.qpos
     n, m = qpos.shape[0], plant.theta.shape[0]
-    noise = sensing.noise
+    noise, fresh = sensing.noise, sensing.history[k % sensing.history.shape[0]]
     for i in range(n):
-        sensing.q[i] = qpos[i] + noise[k, i] if sensing.noisy else qpos[i]
+        fresh[i] = qpos[i] + noise[k, i] if sensing.noisy else qpos[i]
     for i in range(m):
         if sensing.noisy:
-            sensing.motor_angle[i] = plant.theta[i] + noise[k, n + i]
-            sensing.motor_torque[i] = plant.motor_torque[i] + noise[k, n + m + i]
+            fresh[n + i] = plant.theta[i] + noise[k, n + i]
+            fresh[n + m + i] = plant.motor_torque[i] + noise[k, n + m + i]
             tension = plant.tension_motor[i] + sensing.bias
-            sensing.tension_motor[i] = tension + noise[k, n + 2 * m + i]
+            fresh[n + 2 * m + i] = tension + noise[k, n + 2 * m + i]
         else:
-            sensing.motor_angle[i] = plant.theta[i]
-            sensing.motor_torque[i] = plant.motor_torque[i]
-            sensing.tension_motor[i] = plant.tension_motor[i]
+            fresh[n + i] = plant.theta[i]
+            fresh[n + m + i] = plant.motor_torque[i]
+            fresh[n + 2 * m + i] = plant.tension_motor[i]
+    seen = sensing.history[max(k - sensing.delay, 0) % sensing.history.shape[0]]
+    for i in range(n):
+        sensing.q[i] = seen[i]
+    for i in range(m):
+        sensing.motor_angle[i] = seen[n + i]
+        sensing.motor_torque[i] = seen[n + m + i]
+        sensing.tension_motor[i] = seen[n + 2 * m + i]
 
 
 @numba.njit(cache=True, inline="always")
@@ -267,7 +288,7 @@ def _record(k, reference, sensing, c, plant, log, truth):  # pragma: no cover - 
         log[6][k, i] = sensing.motor_angle[i]
         log[7][k, i] = sensing.motor_torque[i]
         log[8][k, i] = sensing.tension_motor[i]
-        log[9][k, i] = plant.command[i]
+        log[9][k, i] = c.command[i]
         log[10][k, i] = c.activation[i]
         truth[2][k, i] = plant.tension_insertion[i]
         truth[3][k, i] = plant.tension_motor[i]
@@ -336,10 +357,14 @@ def run_ticks(
             if status != DONE:
                 return status, k
         activation_and_reach(a.force, c.active, c.passive, c.activation, c.reach)
-        for i in range(plant.command.shape[0]):
-            plant.command[i] = c.activation[i] * c.active[i] + c.passive[i]
-            if not np.isfinite(plant.command[i]):
+        for i in range(c.command.shape[0]):
+            c.command[i] = c.activation[i] * c.active[i] + c.passive[i]
+            if not np.isfinite(c.command[i]):
                 return BAD_COMMAND, k
+        # ArmPlant.command: the drives get the command of tick max(k - delay, 0)
+        size = plant.command_history.shape[0]
+        plant.command_history[k % size] = c.command
+        plant.command[:] = plant.command_history[max(k - plant.command_delay, 0) % size]
         _record(k, reference, sensing, c, plant, log, truth)
         if _step(substeps, timestep, clock, plant):
             return DIVERGED, k
@@ -362,23 +387,28 @@ def _arrays(
         wrap_every: Wrap-angle refresh period, in control periods.
     """
     n, m = plant.model.n_joints, plant.n_cables
+    noise_effects = [e for e in plant._sensors if type(e) is SensorNoise]
+    delays = [e.config for e in plant._sensors + plant._actuators if type(e) is Delay]
+    sensing_delay = delays[0].sensing_periods if delays else 0
+    command_delay = delays[0].actuation_periods if delays else 0
     # the noise effect's samples, drawn now in one call from the plant's generator (the same
     # stream as one draw of 2n + 3m samples per tick)
-    if plant._sensors:
-        effect = plant._sensors[0]
-        std = effect._noise_std((n, m, m, m))
+    if noise_effects:
+        std = noise_effects[0]._noise_std((n, m, m, m))
         noise = std * plant._rng.standard_normal((n_ticks, std.shape[0]))
-        bias = float(effect.config.tension_bias)
+        bias = float(noise_effects[0].config.tension_bias)
     else:
         noise, bias = np.zeros((0, 0)), 0.0
     sensing = Sensing(
-        bool(plant._sensors), noise, bias, np.empty(n), np.empty(m), np.empty(m), np.empty(m)
-    )
+        bool(noise_effects), noise, bias, int(sensing_delay),
+        np.empty((sensing_delay + 1, n + 3 * m)), np.empty(n), np.empty(m), np.empty(m),
+        np.empty(m),
+    )  # fmt: skip
     c, state, data = controller, controller._state, controller._data.mj
     mj_model = c.model.mj_model
     control = Control(
         c.period, c._alpha, c._kp, c._ki, c._kd, c._integral_bound, state.q_prev, state.qdot,
-        state.integral, state.activation, np.empty(n), np.empty(m, dtype=np.bool_),
+        state.integral, state.activation, np.empty(n), np.empty(m), np.empty(m, dtype=np.bool_),
         np.array(function_addresses(*KINEMATICS_FUNCTIONS), dtype=np.intp), mj_model._address,
         data._address, data.qpos, data.ten_length, data.ten_J, mj_model.ten_J_rownnz,
         mj_model.ten_J_rowadr, mj_model.ten_J_colind, np.zeros((m, n)), np.empty(m),
@@ -394,7 +424,8 @@ def _arrays(
     p, pstate, data = plant, plant._state, plant.mj_data
     start = p._period_start
     plant_arrays = PlantArrays(
-        p._compiled_args, data.qpos, data.qvel, p._command, pstate.winch_angle,
+        p._compiled_args, data.qpos, data.qvel, p._command, int(command_delay),
+        np.empty((command_delay + 1, m)), pstate.winch_angle,
         p.motor_torque, pstate.tension_motor, p.tension_insertion, data.ten_length,
         p._length_ref, p._stretch_motor0, p._stretch_insertion0, float(p.drum_radius),
         data.wrap_xpos.reshape(-1, 3), data.wrap_obj.reshape(-1), data.ten_wrapadr,
@@ -459,7 +490,7 @@ def run_compiled(
             controller._hill.parts(control.lengths, control.speed)
             raise AssertionError("the Hill model accepted what its kernel refused")
         elif status == BAD_COMMAND:  # the plant raises its InputError
-            plant.command(plant_arrays.command)
+            plant.command(control.command)
             raise AssertionError("the plant accepted what the compiled loop refused")
         elif status == DIVERGED:
             try:

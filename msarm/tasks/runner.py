@@ -162,7 +162,8 @@ def run_tracking(
     if compiled and not supported:
         raise InputError(
             "this run cannot take the compiled loop (it needs no feedforward, a plant with a "
-            "compiled step and only the built-in sensor noise, and the controller with the "
+            "compiled step and no sensor or actuation effect but the built-in noise and delay, "
+            "and the controller with the "
             "'newton' solver and no activation dynamics): pass compiled=None or False"
         )
     n_ticks = int(round(task.duration / period))
