@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.model import RobotModel
+from msarm.muscle.batch_kinematics import cable_kinematics_batch
 from msarm.muscle.geometry import joint_grid
 from msarm.tasks import metrics
 
@@ -97,7 +98,7 @@ def cable_travel(model: RobotModel) -> FloatArray:
     """
     if model.sha256 not in _TRAVEL_CACHE:
         grid = joint_grid(model.joint_lower, model.joint_upper, 7)
-        lengths = np.array([model.geometry(q, with_wrap_angles=False).lengths for q in grid])
+        lengths = cable_kinematics_batch(model, list(grid), with_wrap_angles=False).lengths
         _TRAVEL_CACHE[model.sha256] = lengths.max(axis=0) - lengths.min(axis=0)
     return _TRAVEL_CACHE[model.sha256].copy()
 
@@ -141,7 +142,7 @@ def evaluate_run(
         if settle is None
         else 1000.0 * float(np.linalg.norm(hand_position(model, q[settle])[0] - p_target))
     )
-    theory = np.array([model.geometry(posture, with_wrap_angles=False).lengths for posture in q])
+    theory = cable_kinematics_batch(model, q, with_wrap_angles=False).lengths
     motor = _matrix(columns, "motor_angle", cables)
     valid = theory[0] - drum_radius * (motor - motor[0])
     _, length_percent = metrics.cable_length_error(valid, theory, cable_travel(model))
