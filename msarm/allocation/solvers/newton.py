@@ -63,6 +63,17 @@ def _hessian(A, free, reg, K):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _transposed_product(A, v, out):  # pragma: no cover - compiled
+    """``out = A^T v``, shapes ``(n, m)``, ``(n,)`` -> ``(m,)``."""
+    n, m = A.shape
+    for j in range(m):
+        total = 0.0
+        for i in range(n):
+            total += A[i, j] * v[i]
+        out[j] = total
+
+
+@numba.njit(cache=True)
 def _clip_and_residual(A, c, y, lo, hi, x, r):  # pragma: no cover - compiled
     """``x = clip(y, lo, hi)`` and ``r = c - A x``; returns ``||r||_inf``."""
     n, m = A.shape
@@ -195,11 +206,7 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
     times, deltas = np.empty(2 * m), np.empty(2 * m)
     if not cholesky_solve(K, c, lam):
         return NOT_CONVERGED
-    for j in range(m):
-        v = 0.0
-        for i in range(n):
-            v += A[i, j] * lam[i]
-        y[j] = v
+    _transposed_product(A, lam, y)
     worst = _clip_and_residual(A, c, y, lo, hi, x, r)
     tol = CONV_TOL * (1.0 + c_max)
     for it in range(max_iter + 1):
@@ -219,23 +226,19 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
         _hessian(A, free, reg, K)
         if not cholesky_solve(K, r, delta):
             break
+        _transposed_product(A, delta, s)
         for j in range(m):
-            v = 0.0
-            for i in range(n):
-                v += A[i, j] * delta[i]
-            s[j] = v
-            y1[j] = y[j] + v
+            y1[j] = y[j] + s[j]
         if _farkas(delta, s, c, lo, hi):
             return INFEASIBLE_CODE
         worst1 = _clip_and_residual(A, c, y1, lo, hi, x1, r1)
         rise = 0.0
         for i in range(n):
             rise += delta[i] * r1[i]
-        d0 = _dual_value(lam, c, y, x)
+        d0 = _dual_value(lam, c, y, x) if rise < 0.0 else 0.0  # only asked when rise < 0
         for i in range(n):
             lam[i] += delta[i]
-        d1 = _dual_value(lam, c, y1, x1)
-        if rise >= 0.0 or d1 > d0 + 1e-12 * abs(d0):
+        if rise >= 0.0 or _dual_value(lam, c, y1, x1) > d0 + 1e-12 * abs(d0):
             for j in range(m):
                 y[j], x[j] = y1[j], x1[j]
             for i in range(n):
