@@ -239,17 +239,28 @@ class SensorNoise(Effect):
             self._sizes = sizes
         return self._std
 
+    def draw(
+        self, sizes: tuple[int, ...], rng: np.random.Generator, readings: int | None = None
+    ) -> FloatArray:
+        """Noise samples of one reading, ``(d,)``, or of ``readings`` readings, ``(readings, d)``.
+
+        ``d = sum(sizes)``: the channels ``q``, ``motor_angle``, ``motor_torque``,
+        ``tension_motor`` side by side. Drawn in one call: the generator's stream is the same
+        as with one draw per channel in that order, or per reading (the compiled closed loop
+        draws a whole run's at once).
+        """
+        std = self._noise_std(sizes)
+        shape = std.shape if readings is None else (readings, std.shape[0])
+        return std * rng.standard_normal(shape)
+
     def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:
         """Add the noise (and the load-cell bias) to every channel (each of shape ``(k,)``).
 
-        The samples are drawn in one call for the four channels in the order ``q``,
-        ``motor_angle``, ``motor_torque``, ``tension_motor``: the generator's stream is the same
-        as with one draw per channel in that order.
+        The samples come from :meth:`draw`.
         """
         channels = (readings.q, readings.motor_angle, readings.motor_torque)
         sizes = (*(x.size for x in channels), readings.tension_motor.size)
-        std = self._noise_std(sizes)
-        noise = std * rng.standard_normal(std.shape[0])
+        noise = self.draw(sizes, rng)
         a = sizes[0]
         b = a + sizes[1]
         c = b + sizes[2]

@@ -391,11 +391,9 @@ def _arrays(
     delays = [e.config for e in plant._sensors + plant._actuators if type(e) is Delay]
     sensing_delay = delays[0].sensing_periods if delays else 0
     command_delay = delays[0].actuation_periods if delays else 0
-    # the noise effect's samples, drawn now in one call from the plant's generator (the same
-    # stream as one draw of 2n + 3m samples per tick)
+    # the noise effect's samples of every tick, drawn now from the plant's generator
     if noise_effects:
-        std = noise_effects[0]._noise_std((n, m, m, m))
-        noise = std * plant._rng.standard_normal((n_ticks, std.shape[0]))
+        noise = noise_effects[0].draw((n, m, m, m), plant._rng, n_ticks)
         bias = float(noise_effects[0].config.tension_bias)
     else:
         noise, bias = np.zeros((0, 0)), 0.0
