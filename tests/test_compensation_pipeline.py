@@ -11,8 +11,12 @@ from typer.testing import CliRunner
 
 from msarm.cli import app
 from msarm.compensation.checkpoint import CheckpointError, Compensator
-from msarm.compensation.compare import WITH, WITHOUT, compare_feedforward
-from msarm.compensation.feedforward import load_feedforward, trained_controller
+from msarm.compensation.compare import SHEATH_ONLY, WITH, WITHOUT, compare_feedforward
+from msarm.compensation.feedforward import (
+    LearnedFeedforward,
+    load_feedforward,
+    trained_controller,
+)
 from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
 from msarm.control import ArmControllerConfig
 from msarm.io.config import load_config, write_config
@@ -52,19 +56,40 @@ def test_training_writes_a_checkpoint_for_this_model(trained):
     del compensator.metadata["recipe"]
     assert trained_controller(compensator) == ArmControllerConfig()
     assert all(r2 > 0 for r2 in report.test_r2)  # explains some held-out T_f variance
+    # the sheath stage was identified from the runs and travels with the network
+    mu = DEFAULT_PLANT.effects.sheath_friction.mu
+    assert report.sheath is not None and abs(report.sheath.mu - mu) < 0.1 * mu
+    saved = Compensator.load(recipe.checkpoint).metadata["sheath"]
+    assert saved["parameters"]["mu"] == report.sheath.mu
+    assert load_feedforward(recipe.checkpoint, arm).sheath is not None
 
 
 def test_feedforward_improves_tracking_and_final_error_on_the_held_out_tasks(trained):
     arm, recipe, report, folder = trained
     feedforward = load_feedforward(recipe.checkpoint, arm)
+    stage_alone = LearnedFeedforward(arm, None, feedforward.sheath)
     comparison = compare_feedforward(
-        arm, feedforward, DEFAULT_PLANT, recipe.controller, report.split["test"], folder / "compare"
+        arm,
+        feedforward,
+        DEFAULT_PLANT,
+        recipe.controller,
+        report.split["test"],
+        folder / "compare",
+        parts={SHEATH_ONLY: stage_alone},
     )
+    assert comparison.labels == (WITHOUT, WITH, SHEATH_ONLY)
     for task in comparison.held_out:
         without, with_ff = comparison.metrics[task][WITHOUT], comparison.metrics[task][WITH]
         assert with_ff.completed
         assert np.mean(with_ff.joint_rmse) < 0.8 * np.mean(without.joint_rmse)
         assert with_ff.final_error_mm < without.final_error_mm
+        assert comparison.metrics[task][SHEATH_ONLY].final_error_mm < without.final_error_mm
+    # the true joint angles' final error is the encoders' one up to their noise (1e-4 rad)
+    for task in comparison.tasks:
+        for label in comparison.labels:
+            measured = comparison.metrics[task][label].final_error_mm
+            assert abs(comparison.true_final_error_mm[task][label] - measured) < 0.15
+    assert comparison.as_dict()["true_final_error_ratio_held_out"] > 1
     assert (folder / "compare" / "error_statistics.png").is_file()
 
 
@@ -98,6 +123,16 @@ def test_train_command_reads_a_recipe(tmp_path, trained):
     result = CliRunner().invoke(app, ["train", "--config", str(path), "--json"])
     assert result.exit_code == 0, result.output
     assert '"test_r2"' in result.output
+
+
+def test_compare_parts_needs_a_compensator_with_a_sheath_stage(tmp_path, trained):
+    _, recipe, _, _ = trained
+    compensator = Compensator.load(recipe.checkpoint)
+    del compensator.metadata["sheath"]
+    path = compensator.save(tmp_path / "network_alone.pt")
+    result = CliRunner().invoke(app, ["compare", "--ff", str(path), "--parts"])
+    assert result.exit_code != 0
+    assert "has no sheath stage" in result.output
 
 
 def test_compare_refuses_extra_tasks_that_were_trained_on(tmp_path, trained):

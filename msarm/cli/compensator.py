@@ -69,9 +69,17 @@ def train_command(
 
         def on_round(round_: int, rounds: int) -> None:
             label = f"round {round_}/{rounds}"
-            total = recipe.data.n_runs if round_ == 0 else rerun
-            bar.update(runs, completed=0, total=total, description=f"collect runs, {label}")
+            if round_ > 0:  # round 0 trains on the runs already collected
+                bar.update(runs, completed=0, total=rerun, description=f"collect runs, {label}")
             bar.update(epochs, completed=0, description=f"train, {label}")
+
+        def on_sheath(parameters, total: int) -> None:
+            bar.update(
+                runs,
+                completed=0,
+                total=total,
+                description=f"collect runs with the sheath stage (mu {parameters.mu:.4f})",
+            )
 
         report = train_compensator(
             arm,
@@ -81,6 +89,7 @@ def train_command(
             on_run=on_run,
             on_epoch=on_epoch,
             on_round=on_round,
+            on_sheath=on_sheath,
         )
         bar.update(epochs, completed=recipe.network.max_epochs)
     payload = {
@@ -94,6 +103,7 @@ def train_command(
         "test_rmse_Nm": report.test_rmse,
         "test_baseline_rmse_Nm": report.test_baseline_rmse,
         "test_r2": report.test_r2,
+        "sheath": None if report.sheath is None else report.sheath.as_dict(),
     }
     if json_output:
         typer.echo(json.dumps(payload, indent=2))
@@ -110,6 +120,13 @@ def train_command(
             f"{report.test_r2[k]:.3f}",
         )
     out.print(table)
+    if report.sheath is not None:
+        p = report.sheath
+        out.print(
+            f"sheath stage: mu {p.mu:.4f} (held-out share of the joint residual "
+            f"{p.mu_share:.2f}), cable compliance {p.compliance:.3g} m/N (of the length "
+            f"residual {p.compliance_share:.2f}); the network learns what the stage leaves"
+        )
     out.print(
         f"runs: train {report.split['train']}, validation {report.split['validation']}, "
         f"test {report.split['test']}; samples {report.samples}"
@@ -136,20 +153,44 @@ def compare_command(
             "a steadier mean than the two test runs alone.",
         ),
     ] = 0,
+    parts: Annotated[
+        bool,
+        typer.Option(
+            "--parts",
+            help="Also run the compensator's sheath stage alone (without the network), to see "
+            "what each part does.",
+        ),
+    ] = False,
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
 ) -> None:
-    """Table I tasks and held-out random tasks, without and with feedforward: table and plots."""
+    """Table I tasks and held-out random tasks, without and with feedforward: table and plots.
+
+    The summary also gives the final error of the plant's true joint angles (simulation only):
+    the table's comes from the encoders, whose noise is a good part of a final error of a
+    tenth of a millimetre.
+    """
     from rich.progress import Progress
 
-    from msarm.compensation.compare import WITH, WITHOUT, compare_feedforward
-    from msarm.compensation.feedforward import load_feedforward, trained_controller
+    from msarm.compensation.compare import SHEATH_ONLY, compare_feedforward
+    from msarm.compensation.feedforward import (
+        LearnedFeedforward,
+        load_feedforward,
+        trained_controller,
+    )
     from msarm.model import load_arm
-    from msarm.tasks.evaluate import SETTLE_DELAY
 
     if not ff.is_file():
         raise typer.BadParameter(f"no checkpoint at {ff}: run `msarm train` first, or give --ff")
     arm = load_arm()
     feedforward = load_feedforward(ff, arm)
+    variants = {}
+    if parts:
+        if feedforward.sheath is None:
+            raise typer.BadParameter(
+                f"--parts: the compensator {ff} has no sheath stage (trained with "
+                "sheath.enabled: false); nothing to run apart"
+            )
+        variants[SHEATH_ONLY] = LearnedFeedforward(arm, None, feedforward.sheath)
     meta = feedforward.compensator.metadata
     held_out = list(meta["split"]["test"])
     seen = set(meta["split"]["train"]) | set(meta["split"]["validation"])
@@ -161,7 +202,7 @@ def compare_command(
         )
     held_out += [s for s in more if s not in held_out]
     gains = trained_controller(feedforward.compensator)
-    n_runs = 2 * (4 + len(held_out))
+    n_runs = (2 + len(variants)) * (4 + len(held_out))
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task("compare", total=n_runs)
 
@@ -169,33 +210,57 @@ def compare_command(
             bar.update(job, advance=1, description=label)
 
         result = compare_feedforward(
-            arm, feedforward, resolve_plant(plant), gains, held_out, out, seed=seed, progress=step
+            arm,
+            feedforward,
+            resolve_plant(plant),
+            gains,
+            held_out,
+            out,
+            seed=seed,
+            progress=step,
+            parts=variants,
         )
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))
         return
     out_console = console()
     out_console.print(comparison_table(result, arm.joint_names))
-    for label, tasks in (
+    for group, tasks in (
         ("held-out random tasks", list(result.held_out)),
         ("Table I tasks", [t for t in result.tasks if t.startswith("table1")]),
     ):
-        if not tasks:
-            continue
-        without = np.mean([result.metrics[t][WITHOUT].final_error_mm for t in tasks])
-        with_ff = np.mean([result.metrics[t][WITH].final_error_mm for t in tasks])
-        rmse_without = np.mean([np.mean(result.metrics[t][WITHOUT].joint_rmse) for t in tasks])
-        rmse_with = np.mean([np.mean(result.metrics[t][WITH].joint_rmse) for t in tasks])
-        settle_without = np.mean([result.metrics[t][WITHOUT].settle_error_mm for t in tasks])
-        settle_with = np.mean([result.metrics[t][WITH].settle_error_mm for t in tasks])
-        out_console.print(
-            f"{label}: mean final error {without:.2f} mm without, {with_ff:.2f} mm with "
-            f"feedforward (ratio {without / with_ff:.2f}); mean joint RMSE "
-            f"{1000 * rmse_without:.1f} -> {1000 * rmse_with:.1f} mrad; mean error "
-            f"{SETTLE_DELAY:g} s after the move {settle_without:.2f} -> {settle_with:.2f} mm"
-        )
+        if tasks:
+            for line in summary_lines(result, group, tasks):
+                out_console.print(line)
     for kind, path in result.files.items():
         out_console.print(f"{kind}: {path}")
+
+
+def summary_lines(result, group: str, tasks: list[str]) -> list[str]:
+    """Means over ``tasks``: the feedforward against none, then each part against none."""
+    from msarm.compensation.compare import WITH, WITHOUT
+    from msarm.tasks.evaluate import SETTLE_DELAY
+
+    def mean(label: str, key: str) -> float:
+        return float(np.mean([np.mean(getattr(result.metrics[t][label], key)) for t in tasks]))
+
+    def true(label: str) -> float:
+        return float(np.mean([result.true_final_error_mm[t][label] for t in tasks]))
+
+    lines = []
+    for label in result.labels[1:]:
+        name = "feedforward" if label == WITH else label
+        lines.append(
+            f"{group}, {name}: mean final error {mean(WITHOUT, 'final_error_mm'):.2f} mm "
+            f"without, {mean(label, 'final_error_mm'):.2f} mm with (ratio "
+            f"{result.ratio(tasks, label):.2f}; of the true joint angles "
+            f"{true(WITHOUT):.2f} -> {true(label):.2f} mm, ratio "
+            f"{result.ratio(tasks, label, true=True):.2f}); mean joint RMSE "
+            f"{1000 * mean(WITHOUT, 'joint_rmse'):.1f} -> {1000 * mean(label, 'joint_rmse'):.1f} "
+            f"mrad; mean error {SETTLE_DELAY:g} s after the move "
+            f"{mean(WITHOUT, 'settle_error_mm'):.2f} -> {mean(label, 'settle_error_mm'):.2f} mm"
+        )
+    return lines
 
 
 def comparison_table(result, joint_names) -> Table:

@@ -11,11 +11,16 @@ for training or early stopping). Writes, into one folder:
 - ``error_statistics.png``: final end-effector error per task and cable length error per
   cable (mean and standard deviation over the tasks) without and with feedforward
   (paper 003 Fig. 9).
+
+Besides, every run's final error from the plant's true joint angles (the ground truth of the
+simulation, which a real robot does not have) is kept next to the encoders' one: it tells how
+much of a small final error is the encoders' noise. ``parts`` runs more variants of the
+feedforward on the same tasks (the sheath stage alone, say) to show what each part does.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,17 +32,20 @@ import numpy as np  # noqa: E402
 
 from msarm import plots  # noqa: E402
 from msarm.control import ArmControllerConfig  # noqa: E402
+from msarm.errors import InputError  # noqa: E402
 from msarm.io.atomic import write_json_atomic  # noqa: E402
 from msarm.model import RobotModel  # noqa: E402
 from msarm.plant import PlantConfig  # noqa: E402
-from msarm.tasks.evaluate import SETTLE_DELAY, TrackingMetrics  # noqa: E402
+from msarm.tasks.evaluate import SETTLE_DELAY, TrackingMetrics, hand_position  # noqa: E402
 from msarm.tasks.registry import get_task  # noqa: E402
 from msarm.tasks.runner import Feedforward  # noqa: E402
 from msarm.tasks.track import TrackSettings, track  # noqa: E402
 
-__all__ = ["Comparison", "compare_feedforward"]
+__all__ = ["SHEATH_ONLY", "Comparison", "compare_feedforward"]
 
 WITHOUT, WITH = "without feedforward", "with feedforward"
+#: Label of the sheath stage run alone (``msarm compare --parts``).
+SHEATH_ONLY = "sheath stage alone"
 
 
 @dataclass(frozen=True)
@@ -47,23 +55,41 @@ class Comparison:
     Attributes:
         tasks: Task names, in order.
         held_out: The subset of ``tasks`` that are held-out random tasks.
-        metrics: ``metrics[task][WITHOUT | WITH]``.
+        metrics: ``metrics[task][label]``, labels :data:`WITHOUT`, :data:`WITH` and those of
+            the parts.
+        true_final_error_mm: ``[task][label]``: the final error of the plant's true joint
+            angles [mm] (simulation ground truth; the metrics' is the encoders').
         files: Files written (plots, JSON).
     """
 
     tasks: tuple[str, ...]
     held_out: tuple[str, ...]
     metrics: dict[str, dict[str, TrackingMetrics]]
+    true_final_error_mm: dict[str, dict[str, float]]
     files: dict[str, Path]
 
-    def ratio(self, tasks: Sequence[str]) -> float:
-        """Mean final error without over mean final error with feedforward, over ``tasks``."""
-        without = np.mean([self.metrics[t][WITHOUT].final_error_mm for t in tasks])
-        with_ff = np.mean([self.metrics[t][WITH].final_error_mm for t in tasks])
-        return float(without / with_ff) if with_ff > 0 else float("inf")
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The variants run: :data:`WITHOUT`, :data:`WITH`, then the parts."""
+        return tuple(self.metrics[self.tasks[0]])
+
+    def ratio(self, tasks: Sequence[str], label: str = WITH, true: bool = False) -> float:
+        """Mean final error without over mean final error of ``label``, over ``tasks``.
+
+        With ``true``, of the final errors of the true joint angles.
+        """
+
+        def mean(which: str) -> float:
+            if true:
+                return float(np.mean([self.true_final_error_mm[t][which] for t in tasks]))
+            return float(np.mean([self.metrics[t][which].final_error_mm for t in tasks]))
+
+        with_ff = mean(label)
+        return mean(WITHOUT) / with_ff if with_ff > 0 else float("inf")
 
     def as_dict(self) -> dict:
         """JSON-ready form."""
+        table1 = [t for t in self.tasks if t.startswith("table1")]
         return {
             "tasks": list(self.tasks),
             "held_out": list(self.held_out),
@@ -71,10 +97,13 @@ class Comparison:
                 task: {label: m.as_dict() for label, m in runs.items()}
                 for task, runs in self.metrics.items()
             },
+            "true_final_error_mm": self.true_final_error_mm,
             "final_error_ratio_held_out": self.ratio(self.held_out) if self.held_out else None,
-            "final_error_ratio_table1": self.ratio(
-                [t for t in self.tasks if t.startswith("table1")]
+            "final_error_ratio_table1": self.ratio(table1),
+            "true_final_error_ratio_held_out": (
+                self.ratio(self.held_out, true=True) if self.held_out else None
             ),
+            "true_final_error_ratio_table1": self.ratio(table1, true=True),
             "files": {kind: str(path) for kind, path in self.files.items()},
         }
 
@@ -88,6 +117,7 @@ def compare_feedforward(
     out_dir: Path,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    parts: Mapping[str, Feedforward] | None = None,
 ) -> Comparison:
     """Run the Table I tasks and the held-out random tasks without and with feedforward.
 
@@ -100,6 +130,7 @@ def compare_feedforward(
         out_dir: Folder for the runs, plots and JSON.
         seed: Seed of the plant's noise for the Table I tasks (a random task uses its own).
         progress: Called with a label before each run.
+        parts: More feedforwards to run on the same tasks, by label (e.g. :data:`SHEATH_ONLY`).
 
     Returns:
         The comparison.
@@ -107,20 +138,34 @@ def compare_feedforward(
     out_dir = Path(out_dir)
     tasks = [f"table1-{k}" for k in range(1, 5)] + [f"random-{s}" for s in held_out_seeds]
     held_out = tuple(f"random-{s}" for s in held_out_seeds)
+    variants: list[tuple[str, Feedforward | None, str]] = [
+        (WITHOUT, None, "without_ff"),
+        (WITH, feedforward, "with_ff"),
+    ]
+    for label, part in (parts or {}).items():
+        if label in (WITHOUT, WITH):
+            raise InputError(f"parts: the label {label!r} is taken; expected another name")
+        variants.append((label, part, label.replace(" ", "_")))
     metrics: dict[str, dict[str, TrackingMetrics]] = {}
+    true_final: dict[str, dict[str, float]] = {}
     columns: dict[str, dict[str, dict]] = {}
     for name in tasks:
         task = get_task(name, model)
         run_seed = int(name.split("-")[1]) if name.startswith("random-") else seed
-        metrics[name], columns[name] = {}, {}
-        for label, ff in ((WITHOUT, None), (WITH, feedforward)):
+        metrics[name], columns[name], true_final[name] = {}, {}, {}
+        target = hand_position(model, task.target)[0]
+        for label, ff, folder_name in variants:
             if progress is not None:
                 progress(f"{name}, {label}")
-            settings = TrackSettings(name, run_seed, plant, controller, "learned" if ff else "")
-            folder = out_dir / name / ("with_ff" if ff else "without_ff")
+            settings = TrackSettings(name, run_seed, plant, controller, folder_name if ff else "")
+            folder = out_dir / name / folder_name
             result = track(model, task, settings, folder, feedforward=ff, plots_too=False)
             metrics[name][label] = result.metrics
             columns[name][label] = result.run.columns
+            q_true = np.array([result.run.truth[f"q.{j}"][-1] for j in model.joint_names])
+            true_final[name][label] = 1000.0 * float(
+                np.linalg.norm(hand_position(model, q_true)[0] - target)
+            )
     files: dict[str, Path] = {}
     for name in tasks[:4] + list(held_out[:2]):
         files[f"trajectories_{name}"] = plots.plot_joint_tracking(
@@ -128,12 +173,12 @@ def compare_feedforward(
             model.joint_names,
             out_dir / f"trajectories_{name}.png",
             title=f"{name}: without (measured) and with feedforward",
-            others={WITH: columns[name][WITH]},
+            others={label: columns[name][label] for label, _, _ in variants[1:]},
         )
     files["error_statistics"] = _plot_error_statistics(
         metrics, tasks, model.cable_names, out_dir / "error_statistics.png"
     )
-    comparison = Comparison(tuple(tasks), held_out, metrics, files)
+    comparison = Comparison(tuple(tasks), held_out, metrics, true_final, files)
     files["json"] = out_dir / "comparison.json"
     write_json_atomic(files["json"], comparison.as_dict())
     return comparison
@@ -149,6 +194,9 @@ def _plot_error_statistics(
         1, 3, figsize=(18, 4.5), layout="constrained"
     )
     x = np.arange(len(tasks))
+    labels = list(metrics[tasks[0]])
+    width = 0.8 / len(labels)
+    offsets = [(k - (len(labels) - 1) / 2) * width for k in range(len(labels))]
     for ax, key, ylabel in (
         (
             ax_settle,
@@ -157,17 +205,17 @@ def _plot_error_statistics(
         ),
         (ax_final, "final_error_mm", "final end-effector error [mm]"),
     ):
-        for offset, label in ((-0.2, WITHOUT), (0.2, WITH)):
+        for offset, label in zip(offsets, labels, strict=True):
             values = [getattr(metrics[t][label], key) for t in tasks]
-            ax.bar(x + offset, values, 0.4, label=label)
+            ax.bar(x + offset, values, width, label=label)
         ax.set_xticks(x, tasks, rotation=30, ha="right")
         ax.set_ylabel(ylabel)
         ax.legend()
     c = np.arange(len(cable_names))
-    for offset, label in ((-0.2, WITHOUT), (0.2, WITH)):
+    for offset, label in zip(offsets, labels, strict=True):
         values = np.array([metrics[t][label].cable_length_error_percent for t in tasks])
         ax_cable.bar(
-            c + offset, values.mean(axis=0), 0.4, yerr=values.std(axis=0), capsize=3, label=label
+            c + offset, values.mean(axis=0), width, yerr=values.std(axis=0), capsize=3, label=label
         )
     ax_cable.set_xticks(c, cable_names, rotation=30, ha="right")
     ax_cable.set_ylabel("cable length error [% of travel]")

@@ -33,16 +33,19 @@ its ``dtau`` raises the commanded tensions, which raise those inputs, which rais
 Trained on runs without feedforward, a network with those inputs predicts the torque error
 well offline (R^2 about 0.95-0.98 on held-out runs) and drives the arm unstable in closed
 loop (final errors of 170-500 mm where the plain controller has 1-6 mm, both with the
-default gains; see the README). The default inputs (:data:`DEFAULT_GROUPS`, 29) are the
+default gains; see the README). The default inputs (:data:`DEFAULT_GROUPS`, 25) are the
 motion state of the task's reference: ``q`` (wrap angles, moment arms and gravity load:
 posture-dependent capstan friction), ``qdot`` and its smoothed signs (the friction
-direction), the sign of each cable's velocity, and the smoothed sign of each joint's
-tracking error. The last one is the only measured input: once the reference rests, the
-friction the arm still has to overcome is in the direction it must still move, which no
-function of the reference tells (a cable at rest sticks in its sheath on either side);
-without it the network can only predict the average torque at rest, and the final error
-does not improve (README). It makes the compensator a
-learned feedback on the error's sign, bounded by ``tanh``, not a pure feedforward. Two
+direction) and the sign of each cable's velocity: a true feedforward, as in paper 003. What
+a cable that sticks in its sheath does at rest (on either side of its friction band) no
+function of the reference tells; the compensator's sheath stage
+(:mod:`msarm.compensation.sheath`) deals with that in tension space, and the network learns
+what it leaves. A network alone can be given ``sign_error``, the smoothed sign of each
+joint's tracking error (measured): once the reference rests, the friction left to overcome
+is in the direction the arm must still move. It was the default before the sheath stage
+(final error on the validation tasks 0.55 -> 0.39 mm, against 0.56 mm without it); on top
+of the stage it made the final error worse (0.12 -> 0.20 mm, README). It makes the
+compensator a learned feedback on the error's sign, bounded by ``tanh``. Two
 Dahl-type direction memories (``joint_memory``, ``cable_memory``; paper 001 eq. 12-14 use the
 same idea for friction at a direction change) remember which way each joint or cable last
 moved; they were the default before ``sign_error`` and are still available. The sign
@@ -103,16 +106,15 @@ FEATURE_GROUPS = {
 STICTION_MUS = (0.03, 0.06, 0.12, 0.24)
 #: Least tension taken for the logarithm of a stick-slip element [N].
 _STICTION_FLOOR = 1e-3
-#: The default inputs: the state of paper 003 eq. 8 without the two groups that the
-#: compensator's own output feeds back into (``cable_length_error`` and ``tension``, see the
-#: module docstring), plus the sign of the tracking error.
+#: The default inputs: the motion state of paper 003 eq. 8 from the task's reference, without
+#: the two groups that the compensator's own output feeds back into (``cable_length_error``
+#: and ``tension``, see the module docstring): a true feedforward.
 DEFAULT_GROUPS = (
     "q",
     "qdot",
     "sign_qdot",
     "exp_sign_qdot",
     "exp_sign_ldot",
-    "sign_error",
 )
 
 

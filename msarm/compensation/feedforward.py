@@ -1,7 +1,9 @@
 """The learned feedforward in the control loop: features online, fast network, ``dtau``.
 
 ``dtau = T_f_hat(features)`` is added to the controller's wanted joint torque, so it goes
-through the same allocation and inverse muscle model (paper 003 section 3.1).
+through the same allocation and inverse muscle model (paper 003 section 3.1). A compensator
+trained with the sheath stage (:mod:`msarm.compensation.sheath`, its identified parameters in
+the checkpoint) also turns the wanted tensions into the drives' command.
 """
 
 from __future__ import annotations
@@ -14,11 +16,18 @@ from numpy.typing import NDArray
 from msarm.compensation.checkpoint import Compensator
 from msarm.compensation.fast import FastCompensator
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
+from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.control import ArmControllerConfig
 from msarm.io.config import load_config
 from msarm.model import RobotModel
 
-__all__ = ["LearnedFeedforward", "feature_spec_of", "load_feedforward", "trained_controller"]
+__all__ = [
+    "LearnedFeedforward",
+    "feature_spec_of",
+    "load_feedforward",
+    "sheath_stage_of",
+    "trained_controller",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -44,35 +53,73 @@ def trained_controller(compensator: Compensator) -> ArmControllerConfig:
     return load_config(recipe["controller"], ArmControllerConfig)
 
 
+def sheath_stage_of(model: RobotModel, compensator: Compensator) -> SheathInverse | None:
+    """The sheath stage a compensator was trained with, or None (a network alone)."""
+    saved = compensator.metadata.get("sheath")
+    if not saved:
+        return None
+    spec = SheathSpec(**saved["spec"])
+    parameters = SheathParameters.from_dict(saved["parameters"])
+    return SheathInverse(model, spec, parameters, 1.0 / trained_controller(compensator).rate_hz)
+
+
 class LearnedFeedforward:
     """A trained compensator as the controller's feedforward (see ``msarm.tasks.runner``).
 
     Args:
         model: The nominal arm model.
-        compensator: The trained compensator.
+        compensator: The trained network, or None (no ``dtau``: the sheath stage alone, as
+            while the first network's data are collected).
+        sheath: The sheath stage, or None (the compensator's own when ``compensator`` has
+            one, see :func:`load_feedforward`).
     """
 
-    def __init__(self, model: RobotModel, compensator: Compensator) -> None:
+    def __init__(
+        self,
+        model: RobotModel,
+        compensator: Compensator | None,
+        sheath: SheathInverse | None = None,
+    ) -> None:
         self.compensator = compensator
-        self.extractor = FeatureExtractor(model, feature_spec_of(compensator))
-        self.fast = FastCompensator(compensator)
+        self.sheath = sheath
+        self._zeros = np.zeros(model.n_joints)
+        self.extractor = None
+        self.fast = None
+        if compensator is not None:
+            self.extractor = FeatureExtractor(model, feature_spec_of(compensator))
+            self.fast = FastCompensator(compensator)
 
     def reset(self) -> None:
         """Start a new run."""
-        self.extractor.reset()
+        if self.extractor is not None:
+            self.extractor.reset()
+        if self.sheath is not None:
+            self.sheath.reset()
 
     def __call__(
         self, readings, qdot_estimate: FloatArray, q_ref: FloatArray, qd_ref: FloatArray
     ) -> FloatArray:
         """``dtau`` [N m], shape ``(n,)``, for this tick."""
+        if self.fast is None:
+            return self._zeros.copy()
         return self.fast(self.extractor(readings, qdot_estimate, q_ref, qd_ref))
+
+    def tension_command(self, tension: FloatArray, q_ref: FloatArray) -> FloatArray:
+        """The drives' command [N], ``(m,)``, for the wanted tensions ``(m,)`` [N]."""
+        if self.sheath is None:
+            return tension
+        return self.sheath(tension, q_ref)
 
     def observe_command(self, tension_command: FloatArray) -> None:
         """The tension command [N], ``(m,)``, the controller sent this tick (features)."""
-        self.extractor.observe_command(tension_command)
+        if self.extractor is not None:
+            self.extractor.observe_command(tension_command)
 
 
 def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:
-    """Load a checkpoint for ``model``; refuses one made for another model (reason given)."""
+    """Load a checkpoint for ``model`` (with its sheath stage, if it was trained with one).
+
+    Refuses a checkpoint made for another model (reason given).
+    """
     compensator = Compensator.load(path, expected_model_sha256=model.sha256)
-    return LearnedFeedforward(model, compensator)
+    return LearnedFeedforward(model, compensator, sheath_stage_of(model, compensator))

@@ -2,16 +2,18 @@
 
 ``msarm train --config training/compensator.yaml`` runs :func:`train_compensator`. The
 checkpoint holds the network, its normalisation, the feature and target specs, the model's
-SHA-256, the recipe, the run split and the training metrics; it is written atomically and an
+SHA-256, the recipe, the run split, the training metrics and, when the recipe has the sheath
+stage on, the stage's settings and identified parameters; it is written atomically and an
 interrupted training resumes from it.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +22,9 @@ from msarm.compensation.checkpoint import Compensator
 from msarm.compensation.dataset import DataConfig, build_arrays, collect_runs, split_runs
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.feedforward import LearnedFeedforward
+from msarm.compensation.identify import identify_sheath
 from msarm.compensation.network import NetworkConfig, train_network
+from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec
 from msarm.control import ArmControllerConfig
 from msarm.io.config import config_to_dict
@@ -41,6 +45,7 @@ class CompensatorRecipe:
         target: How the torque-error target is computed.
         network: Network and training settings.
         controller: The controller's gains while collecting data.
+        sheath: The sheath stage (:mod:`msarm.compensation.sheath`).
         checkpoint: Where the trained compensator is written.
     """
 
@@ -50,6 +55,7 @@ class CompensatorRecipe:
     target: TargetSpec = field(default_factory=TargetSpec)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     controller: ArmControllerConfig = field(default_factory=ArmControllerConfig)
+    sheath: SheathSpec = field(default_factory=SheathSpec)
     checkpoint: str = "runs/compensator/compensator.pt"
 
 
@@ -67,6 +73,7 @@ class TrainingReport:
         test_rmse: RMS error of the predicted T_f on the test runs [N m], per joint.
         test_baseline_rmse: RMS of T_f itself on the test runs (predicting 0) [N m].
         test_r2: Share of T_f variance explained on the test runs, per joint.
+        sheath: The sheath stage's identified parameters, or None (stage off).
     """
 
     checkpoint: Path
@@ -78,6 +85,12 @@ class TrainingReport:
     test_rmse: tuple[float, ...]
     test_baseline_rmse: tuple[float, ...]
     test_r2: tuple[float, ...]
+    sheath: SheathParameters | None = None
+
+
+def _stage_hash(spec: SheathSpec, parameters: SheathParameters) -> str:
+    text = json.dumps({"spec": asdict(spec), "parameters": parameters.as_dict()}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def _weights_hash(compensator: Compensator) -> str:
@@ -96,6 +109,7 @@ def train_compensator(
     on_run: Callable[[int, int, bool], None] | None = None,
     on_epoch: Callable[[int, int, float, float], None] | None = None,
     on_round: Callable[[int, int], None] | None = None,
+    on_sheath: Callable[[SheathParameters, int], None] | None = None,
 ) -> TrainingReport:
     """Collect (or reuse) the runs, train on the training runs, test on the test runs.
 
@@ -103,7 +117,15 @@ def train_compensator(
     training runs (early stopping on the validation runs). Each further round (``rounds``)
     runs the training and validation tasks again with the feedforward of the previous round,
     adds those runs to their sets and trains a fresh network on all of them. The test runs
-    are collected once, without feedforward, and never trained on.
+    are collected once and never trained on.
+
+    With the sheath stage on (``recipe.sheath.enabled``), the runs without feedforward are
+    for identifying it only (``mu`` and the cable compliance, fitted on the training runs and
+    scored on the validation runs, :func:`~msarm.compensation.identify.identify_sheath`).
+    Every run is then collected again with the stage on, and the networks learn what the
+    stage leaves (the target takes off what it added, see
+    :mod:`msarm.compensation.target`); from round 1 on the stage and the previous round's
+    network run together.
 
     Args:
         model: The arm.
@@ -113,6 +135,8 @@ def train_compensator(
         on_run: Progress of the data collection ``(done, total, reused)``.
         on_epoch: Progress of the training ``(epoch, max_epochs, train_loss, val_loss)``.
         on_round: Called at the start of each round ``(round, rounds)``.
+        on_sheath: Called once the sheath stage is identified, with its parameters and the
+            number of runs then collected with it on.
 
     Returns:
         The report; the checkpoint is written to ``recipe.checkpoint``.
@@ -126,9 +150,33 @@ def train_compensator(
     split = split_runs(data.seeds, data.split)
     train_paths = [by_seed[s] for s in split.train]
     val_paths = [by_seed[s] for s in split.validation]
-    test_arrays = build_arrays(
-        model, [by_seed[s] for s in split.test], recipe.features, recipe.target
-    )
+    test_paths = [by_seed[s] for s in split.test]
+    stage: SheathInverse | None = None
+    identified: SheathParameters | None = None
+    stage_name = ""
+    if recipe.sheath.enabled:
+        identified = identify_sheath(model, train_paths, val_paths)
+        stage_name = f"-sheath-{_stage_hash(recipe.sheath, identified)}"
+        stage = SheathInverse(model, recipe.sheath, identified, 1.0 / recipe.controller.rate_hz)
+        if on_sheath is not None:
+            on_sheath(identified, data.n_runs)
+        start = time.perf_counter()
+        staged = collect_runs(
+            model,
+            data,
+            plant,
+            recipe.controller,
+            progress=on_run,
+            feedforward=LearnedFeedforward(model, None, stage),
+            feedforward_name=f"{recipe.name}{stage_name}",
+            folder=Path(data.folder) / "sheath",
+        )
+        collect_time += time.perf_counter() - start
+        by_seed = dict(zip(data.seeds, staged, strict=True))
+        train_paths = [by_seed[s] for s in split.train]
+        val_paths = [by_seed[s] for s in split.validation]
+        test_paths = [by_seed[s] for s in split.test]
+    test_arrays = build_arrays(model, test_paths, recipe.features, recipe.target)
     names = FeatureExtractor(model, recipe.features).names
     checkpoint = Path(recipe.checkpoint)
     checkpoint.parent.mkdir(parents=True, exist_ok=True)
@@ -145,12 +193,14 @@ def train_compensator(
             "test": list(split.test),
         },
     }
+    if identified is not None:
+        metadata["sheath"] = {"spec": asdict(recipe.sheath), "parameters": identified.as_dict()}
     compensator: Compensator | None = None
     for round_ in range(data.rounds + 1):
         if on_round is not None:
             on_round(round_, data.rounds)
         if compensator is not None:
-            feedforward = LearnedFeedforward(model, compensator)
+            feedforward = LearnedFeedforward(model, compensator, stage)
             seeds = list(split.train) + list(split.validation)
             start = time.perf_counter()
             new = collect_runs(
@@ -160,7 +210,8 @@ def train_compensator(
                 recipe.controller,
                 progress=on_run,
                 feedforward=feedforward,
-                feedforward_name=f"{recipe.name}-round{round_}-{_weights_hash(compensator)}",
+                feedforward_name=f"{recipe.name}-round{round_}-{_weights_hash(compensator)}"
+                + stage_name,
                 seeds=seeds,
                 folder=Path(data.folder) / f"round-{round_}",
             )
@@ -205,6 +256,7 @@ def train_compensator(
         test_rmse=tuple(float(v) for v in rmse),
         test_baseline_rmse=tuple(float(v) for v in baseline),
         test_r2=tuple(float(v) for v in r2),
+        sheath=identified,
     )
     compensator.metadata["training"] = {
         "rounds": data.rounds,

@@ -6,6 +6,11 @@
 
 with ``tau_MS = -J_c(q)^T F_sensor`` the torque the logged motor-side tensions would deliver
 through ideal cables, and ``ID`` Pinocchio's inverse dynamics (RNEA) of the logged motion.
+In a run with the compensator's sheath stage on, the drives were asked on purpose for more
+(or less) than the tension meant for the insertions; what the stage added is logged
+(``tension_ff``) and taken off: ``F_sensor - F_ff`` is the tension the stage meant to arrive,
+so ``T_f`` is the torque error the stage leaves, which is what a network on top of it has to
+learn. Logs without ``tension_ff`` columns (runs without the stage) count it as zero.
 The derivatives come from the joint encoders through a Savitzky-Golay filter (zero phase:
 this is offline, for training only). On a plant without unmodelled effects ``T_f`` is zero up
 to filtering error; friction, slack and cable elasticity make it differ.
@@ -87,6 +92,8 @@ def torque_error(
     qd = savgol_filter(q_raw, spec.window, spec.polyorder, deriv=1, delta=dt, axis=0)
     qdd = savgol_filter(q_raw, spec.window, spec.polyorder, deriv=2, delta=dt, axis=0)
     tension = log.matrix("tension_motor", cables)
+    if all(f"tension_ff.{c}" in log.columns for c in cables):
+        tension = tension - log.matrix("tension_ff", cables)
     data = model.create_data()
     out = np.empty_like(q)
     index = model.pin_q_index

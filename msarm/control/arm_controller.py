@@ -12,8 +12,11 @@ At every control tick (250 Hz by default), from sensor readings only:
    full activation]``), minimising the sum of squared activations ``sum (f_i / F_max,i)^2``;
 4. activations from the inverse Hill model (clipped to [0, 1], flagged when out of reach),
    optionally filtered by the activation dynamics;
-5. the muscle force at that activation (forward Hill model) is the tension command that the
-   motor drives render at the motor side.
+5. the muscle force at that activation (forward Hill model) is the tension wanted at the
+   insertions, and the tension command that the motor drives render at the motor side;
+6. optionally a feedforward reshapes that command in tension space (the compensator's sheath
+   stage, :mod:`msarm.compensation.sheath`, asks the drives for what the sheaths will let
+   through): ``T_cmd = shape(F, q_r)``.
 
 The controller's model is the nominal one: rigid, frictionless cables through
 ``msarm.muscle.geometry``; it never reads the plant's internals.
@@ -97,6 +100,8 @@ class ControlOutput:
         tension_command: Tension for each motor drive [N], shape ``(m,)``.
         joint_torque: Wanted joint torque (feedforward compensation included) [N m], ``(n,)``.
         feedforward: The feedforward compensation ``dtau`` added [N m], ``(n,)`` (zeros if none).
+        tension_feedforward: What a tension-space feedforward added to the wanted tensions,
+            ``tension_command - F`` [N], ``(m,)`` (zeros if none).
         muscle_force: Allocated muscle forces [N], shape ``(m,)``.
         activation: Muscle activations [-], shape ``(m,)``.
         qdot_estimate: Estimated joint velocities [rad/s], shape ``(n,)``.
@@ -107,6 +112,7 @@ class ControlOutput:
     tension_command: FloatArray
     joint_torque: FloatArray
     feedforward: FloatArray
+    tension_feedforward: FloatArray
     muscle_force: FloatArray
     activation: FloatArray
     qdot_estimate: FloatArray
@@ -228,8 +234,10 @@ class MuscleSpaceController:
             qdd_ref: Reference joint accelerations [rad/s^2], shape ``(n,)``.
             feedforward: Joint-torque compensation ``dtau`` [N m], shape ``(n,)``; or a callable
                 ``(readings, qdot_estimate, q_ref, qd_ref) -> dtau`` called after this tick's
-                velocity estimate (one with an ``observe_command(tension_command)`` method is
-                then told the tick's tension command [N], ``(m,)``); or None.
+                velocity estimate; or None. A callable with a ``tension_command(tension,
+                q_ref)`` method turns the wanted tensions [N], ``(m,)``, into the drives'
+                command (a tension-space feedforward); one with an
+                ``observe_command(tension_command)`` method is then told the tick's command.
 
         Returns:
             The commands and what led to them.
@@ -256,6 +264,7 @@ class MuscleSpaceController:
         )
         qdot = state.qdot
         observe = getattr(feedforward, "observe_command", None)
+        shape = getattr(feedforward, "tension_command", None)
         if callable(feedforward):
             feedforward = feedforward(readings, qdot, q_ref, qd_ref)
         if feedforward is not None:
@@ -279,12 +288,20 @@ class MuscleSpaceController:
         else:
             state.activation = activation
         force = state.activation * active + passive
+        command = force
+        if shape is not None:  # a feedforward in tension space
+            command = np.asarray(shape(force, q_ref), dtype=float)
+            if command.shape != force.shape or not np.all(np.isfinite(command)):
+                raise InputError(
+                    f"feedforward.tension_command must give {force.shape} finite N, got {command}"
+                )
         if observe is not None:  # a feedforward with memory of the commands
-            observe(force)
+            observe(command)
         return ControlOutput(
-            tension_command=force,
+            tension_command=command,
             joint_torque=tau,
             feedforward=np.zeros(tau.shape) if feedforward is None else dtau,
+            tension_feedforward=command - force,
             muscle_force=result.f,
             activation=state.activation.copy(),
             qdot_estimate=qdot.copy(),

@@ -108,6 +108,7 @@ STANDARD_UNITS: Mapping[str, str] = {
     "tau": "N m",
     "tau_ff": "N m",
     "tension_cmd": "N",
+    "tension_ff": "N",
     "tension_motor": "N",
     "motor_angle": "rad",
     "motor_torque": "N m",

@@ -290,6 +290,7 @@ def _record(k, reference, sensing, c, plant, log, truth):  # pragma: no cover - 
         log[8][k, i] = sensing.tension_motor[i]
         log[9][k, i] = c.command[i]
         log[10][k, i] = c.activation[i]
+        log[11][k, i] = 0.0  # no tension-space feedforward either
         truth[2][k, i] = plant.tension_insertion[i]
         truth[3][k, i] = plant.tension_motor[i]
         unstretched = (

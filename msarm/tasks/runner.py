@@ -43,6 +43,7 @@ LOG_UNITS = {
     "tension_motor": "N",
     "tension_cmd": "N",
     "activation": "1",
+    "tension_ff": "N",
 }
 #: Units of the ground-truth (sidecar) quantities.
 TRUTH_UNITS = {
@@ -62,9 +63,12 @@ class Feedforward(Protocol):
     """A joint-torque feedforward compensation ``dtau`` (e.g. the learned compensator).
 
     The controller calls it every tick after estimating the joint velocities. One that also
-    has an ``observe_command(tension_command)`` method is told each tick's tension command
-    [N], ``(m,)``, once the controller has computed it (a feedforward with memory of the
-    commands, e.g. the ``sheath_stiction`` features).
+    has a ``tension_command(tension, q_ref)`` method reshapes the wanted tensions [N],
+    ``(m,)``, into the drives' command (a tension-space feedforward, e.g. the compensator's
+    sheath stage; what it adds is logged as ``tension_ff``). One with an
+    ``observe_command(tension_command)`` method is told each tick's tension command [N],
+    ``(m,)``, once the controller has computed it (a feedforward with memory of the commands,
+    e.g. the ``sheath_stiction`` features).
     """
 
     def reset(self) -> None:
@@ -195,6 +199,7 @@ def run_tracking(
             ("tension_motor", m),
             ("tension_cmd", m),
             ("activation", m),
+            ("tension_ff", m),
         ]
     }
     truth = {
@@ -301,6 +306,7 @@ def _record(
     log["tension_motor"][k] = readings.tension_motor
     log["tension_cmd"][k] = out.tension_command
     log["activation"][k] = out.activation
+    log["tension_ff"][k] = out.tension_feedforward
 
 
 def _record_truth(truth: dict[str, FloatArray], k: int, plant: ArmPlant) -> None:

@@ -1,0 +1,95 @@
+"""Identify the sheath stage's parameters from logs, with the diagnosis's candidate terms.
+
+The sheath stage (:mod:`msarm.compensation.sheath`) needs the sheaths' friction coefficient
+``mu`` and the cables' compliance. Both come from the training runs, fitted with the terms
+that ``msarm diagnose`` uses, and are scored on the validation runs:
+
+- ``mu``: the ``capstan`` term (:class:`~msarm.diagnose.effects.CableCapstanFriction`, one
+  ``mu`` shared by the cables, its smoothing speed fitted too, by IPOPT) on the joint-torque
+  residual. The smooth term follows the friction while the cables slide, which is where the
+  capstan law holds with its full ``mu``;
+- the compliance: the ``elasticity`` term (:class:`~msarm.diagnose.cable_effects.CableElasticity`,
+  shared, least squares) on the cable length residual: motor encoder against path length.
+  Without that residual (no motor encoders, or rigid cables) the compliance is 0; a negative
+  fit (no stretch that grows with the tension) counts as 0 too, with a warning.
+
+The score of each is its held-out explained share on the validation runs (the diagnosis's
+score: ``1 - sum (r - pred)^2 / sum r^2``), so a recipe can see whether the logs support it.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.compensation.sheath import SheathParameters
+from msarm.diagnose.builder import channels_from_logs
+from msarm.diagnose.cable_effects import CableElasticity
+from msarm.diagnose.effects import CableCapstanFriction
+from msarm.diagnose.fitting import fit
+from msarm.errors import InputError
+from msarm.model import RobotModel
+
+__all__ = ["identify_sheath"]
+
+FloatArray = NDArray[np.float64]
+
+
+def _held_out_share(residual: FloatArray, prediction: FloatArray) -> float:
+    energy = float(np.sum(residual**2))
+    if energy == 0.0:
+        return float("nan")
+    return 1.0 - float(np.sum((residual - prediction) ** 2)) / energy
+
+
+def identify_sheath(
+    model: RobotModel,
+    train_paths: Sequence[str | Path],
+    validation_paths: Sequence[str | Path],
+) -> SheathParameters:
+    """Fit ``mu`` and the cable compliance on ``train_paths``, score them on the others.
+
+    Args:
+        model: The nominal robot model the logs were recorded with.
+        train_paths: Logs to fit on (runs without compensation), at least one.
+        validation_paths: Logs to score on, at least one.
+
+    Returns:
+        The identified parameters with their held-out shares.
+
+    Raises:
+        InputError: No logs on either side.
+        LogError: A log the diagnosis cannot read (file and reason named).
+    """
+    if not train_paths or not validation_paths:
+        raise InputError("identify_sheath needs training and validation logs, at least one each")
+    train, residual, _ = channels_from_logs(model, train_paths)
+    held, held_residual, _ = channels_from_logs(model, validation_paths)
+    capstan = fit(
+        CableCapstanFriction(n_cables=model.n_cables, n_joints=model.n_joints, fit_eps=True),
+        train,
+        residual["joint"],
+    )
+    mu_share = _held_out_share(held_residual["joint"], capstan.predict(held))
+    compliance, compliance_share = 0.0, float("nan")
+    if "length" in residual and "length" in held_residual:
+        elastic = fit(CableElasticity(n_cables=model.n_cables), train, residual["length"])
+        compliance = float(elastic.parameters[0])
+        if compliance < 0:
+            warnings.warn(
+                f"identify_sheath: the elasticity fit gives a negative compliance "
+                f"({compliance:.3g} m/N); the sheath stage takes the cables as rigid (0)",
+                stacklevel=2,
+            )
+            compliance = 0.0
+        compliance_share = _held_out_share(held_residual["length"], elastic.predict(held))
+    return SheathParameters(
+        mu=float(capstan.parameters[0]),
+        compliance=compliance,
+        mu_share=mu_share,
+        compliance_share=compliance_share,
+    )

@@ -1,0 +1,210 @@
+"""The sheath stage: a tension-space inverse of a sheath that sticks, and its identification."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from msarm.compensation.feedforward import LearnedFeedforward
+from msarm.compensation.identify import identify_sheath
+from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
+from msarm.compensation.target import TargetSpec, torque_error
+from msarm.control import ArmControllerConfig, MuscleSpaceController
+from msarm.errors import InputError
+from msarm.io.logs import RunLog, read_log
+from msarm.plant import DEFAULT_PLANT
+from msarm.plant.effects import SensorReadings
+from msarm.tasks.registry import get_task
+from msarm.tasks.track import TrackSettings, track
+from tests.conftest import short_move_logs
+
+POSTURE = np.array([0.1, 0.3, -0.2, -0.8])
+PERIOD = 0.004
+
+
+def _stage(arm, **spec) -> SheathInverse:
+    settings = {"enabled": True, "width": 1e-3, "gain": 1.0, "filter_time": 0.0}
+    settings.update(spec)
+    return SheathInverse(
+        arm, SheathSpec(**settings), SheathParameters(mu=0.1, compliance=2e-5), PERIOD
+    )
+
+
+def test_the_memory_is_a_stop_operator_of_the_tension_and_the_command_its_capstan_factor(arm):
+    stage = _stage(arm, width=1e-4, compliance_share=0.5)  # c_s = 1e-5 m/N: 10 N turns it fully
+    wrap = arm.geometry(POSTURE).wrap_angles
+    tensions = [20.0, 24.0, 40.0, 37.0, 25.0, 26.0]
+    expected_side = [0.0, 0.4, 1.0, 0.7, -0.5, -0.4]  # clip(s + 1e-5 dF / 1e-4, -1, 1)
+    for force, side in zip(tensions, expected_side, strict=True):
+        command = stage(np.full(9, force), POSTURE)
+        np.testing.assert_allclose(stage.side, side, atol=1e-12)
+        np.testing.assert_allclose(command, force * np.exp(0.1 * wrap * side), rtol=1e-12)
+    stage.reset()
+    np.testing.assert_array_equal(stage(np.full(9, 30.0), POSTURE), np.full(9, 30.0))
+
+
+def test_the_wanted_tension_reaches_the_memory_through_a_low_pass(arm):
+    stage = _stage(arm, width=1.0, compliance_share=1.0, filter_time=0.012)  # alpha = 0.25
+    stage(np.full(9, 10.0), POSTURE)
+    stage(np.full(9, 18.0), POSTURE)  # filtered 12: s = 2e-5 (12 - 10) / 1
+    np.testing.assert_allclose(stage.side, 4e-5, atol=1e-15)
+    stage(np.full(9, 18.0), POSTURE)  # filtered 13.5
+    np.testing.assert_allclose(stage.side, 2e-5 * 3.5, atol=1e-15)
+
+
+def test_a_cable_the_reference_shortens_turns_its_memory_towards_the_motor(arm):
+    stage = _stage(arm, width=1e-3, compliance_share=0.0)  # the path alone drives it
+    other = POSTURE + np.array([0.0, 0.0, 0.0, -0.05])  # elbow flexes: biceps shortens
+    lengths = [arm.geometry(q).lengths for q in (POSTURE, other)]
+    stage(np.full(9, 30.0), POSTURE)
+    stage(np.full(9, 30.0), other)
+    expected = np.clip(-(lengths[1] - lengths[0]) / 1e-3, -1, 1)
+    np.testing.assert_allclose(stage.side, expected, atol=1e-12)
+    biceps = arm.cable_names.index("biceps")
+    assert stage.side[biceps] > 0 > stage.side[arm.cable_names.index("triceps")]
+
+
+def _sticking_sheath(command, wrap, mu, start):
+    """Reference sheath: the insertion keeps its tension unless the motor side leaves the
+    capstan band [T_i / beta, beta T_i], then it slides (beta = exp(mu Theta))."""
+    beta = np.exp(mu * wrap)
+    insertion = [start]
+    for t_m in command:
+        insertion.append(np.clip(insertion[-1], t_m / beta, t_m * beta))
+    return np.array(insertion[1:])
+
+
+def test_the_stage_inverts_a_sticking_sheath_once_its_memory_has_turned(arm):
+    wrap = arm.geometry(POSTURE).wrap_angles
+    # a wanted tension with reversals, at a fixed posture (the tension drives the memory alone)
+    wanted = np.concatenate(
+        [np.linspace(30, 60, 40), np.linspace(60, 35, 40), np.linspace(35, 50, 30)]
+    )
+    stage = _stage(arm, width=1e-6, compliance_share=0.5)  # turns over within 0.2 N
+    commands = np.array([stage(np.full(9, f), POSTURE) for f in wanted])
+    arrived = _sticking_sheath(commands, wrap, 0.1, np.full(9, 30.0))
+    np.testing.assert_allclose(arrived, wanted[:, None] * np.ones(9), rtol=1e-12)
+    # a wide memory turns over slowly: after a reversal the insertion sticks for a while
+    slow = _stage(arm, width=1e-4, compliance_share=0.5)  # 20 N to turn over
+    late = _sticking_sheath(
+        np.array([slow(np.full(9, f), POSTURE) for f in wanted]), wrap, 0.1, np.full(9, 30.0)
+    )
+    assert np.max(np.abs(late - wanted[:, None])) > 1.0
+    # without the stage the insertion lags the wanted tension by up to the friction band
+    stuck = _sticking_sheath(wanted[:, None] * np.ones(9), wrap, 0.1, np.full(9, 30.0))
+    assert np.max(np.abs(stuck - wanted[:, None])) > 0.2 * 50
+
+
+def test_bad_inputs_and_settings_are_refused(arm):
+    stage = _stage(arm)
+    with pytest.raises(InputError, match="shape"):
+        stage(np.full(8, 10.0), POSTURE)
+    with pytest.raises(InputError, match="non-finite"):
+        stage(np.full(9, np.nan), POSTURE)
+    with pytest.raises(InputError, match=">= 0"):
+        stage(np.full(9, -1.0), POSTURE)
+    for bad in ({"width": 0.0}, {"gain": 1.5}, {"filter_time": -1.0}, {"compliance_share": 2.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            SheathSpec(**bad)
+    with pytest.raises(ValueError, match="mu"):
+        SheathParameters(mu=-0.1, compliance=1e-5)
+    with pytest.raises(InputError, match="period"):
+        SheathInverse(arm, SheathSpec(), SheathParameters(0.1, 1e-5), 0.0)
+    saved = SheathParameters(0.1, 2e-5, mu_share=0.5)  # compliance_share: NaN, None saved
+    assert saved.as_dict()["compliance_share"] is None
+    assert SheathParameters.from_dict(saved.as_dict()).as_dict() == saved.as_dict()
+
+
+def test_the_controller_sends_the_reshaped_command_and_logs_what_it_added(arm):
+    stage = _stage(arm, width=1e-4)
+    feedforward = LearnedFeedforward(arm, None, stage)
+    controller = MuscleSpaceController(arm)
+    controller.reset(POSTURE)
+    feedforward.reset()
+    readings = SensorReadings(
+        t=0.0,
+        q=POSTURE,
+        motor_angle=np.zeros(9),
+        motor_torque=np.zeros(9),
+        tension_motor=np.ones(9),
+    )
+    for tick in range(3):  # the PID's integral changes the wanted tensions: the memory moves
+        q_ref = POSTURE + 0.002 * tick
+        out = controller.update(readings, q_ref, np.zeros(4), np.zeros(4), feedforward)
+        wanted = out.tension_command - out.tension_feedforward
+        np.testing.assert_allclose(
+            out.tension_command,
+            wanted * np.exp(0.1 * arm.geometry(q_ref).wrap_angles * stage.side),
+            rtol=1e-12,
+        )
+        np.testing.assert_array_equal(out.feedforward, np.zeros(4))
+    assert np.any(out.tension_feedforward != 0)
+    plain = MuscleSpaceController(arm)
+    plain.reset(POSTURE)
+    assert not np.any(plain.update(readings, POSTURE, np.zeros(4), np.zeros(4)).tension_feedforward)
+
+
+def test_the_target_takes_off_what_the_stage_added(arm, tmp_path):
+    task = get_task("table1-2", arm)
+    settings = TrackSettings("table1-2", 0, DEFAULT_PLANT, ArmControllerConfig())
+    stage = LearnedFeedforward(arm, None, _stage(arm, width=4e-5, gain=0.9, filter_time=0.02))
+    result = track(arm, task, settings, tmp_path / "staged", feedforward=stage, plots_too=False)
+    log = read_log(result.files["log"])
+    added = log.matrix("tension_ff")
+    assert np.abs(added).max() > 1.0  # N: the stage was at work
+    without = RunLog(
+        {k: v for k, v in log.columns.items() if not k.startswith("tension_ff.")}, log.metadata
+    )
+    spec = TargetSpec()
+    difference = torque_error(arm, log, spec) - torque_error(arm, without, spec)
+    q = log.matrix("q")
+    for k in (100, 2500, 4000):
+        jacobians = arm.geometry(q[k]).jacobian
+        np.testing.assert_allclose(difference[k], jacobians.T @ added[k], rtol=1e-9, atol=1e-9)
+
+
+def test_the_logs_identify_the_plants_sheath_and_cables(arm, tmp_path):
+    plant = replace(
+        DEFAULT_PLANT,
+        effects=replace(
+            DEFAULT_PLANT.effects,
+            winch_friction=replace(DEFAULT_PLANT.effects.winch_friction, enabled=False),
+            joint_friction=replace(DEFAULT_PLANT.effects.joint_friction, enabled=False),
+        ),
+    )
+    logs = short_move_logs(arm, tmp_path, plant, 3)
+    found = identify_sheath(arm, logs[:2], logs[2:])
+    mu = plant.effects.sheath_friction.mu
+    assert abs(found.mu - mu) < 0.15 * mu
+    assert found.mu_share > 0.5 and found.compliance_share > 0.5
+    # the length residual sees the stretch of a cable whose far end loses its tension
+    assert 0.5 / plant.effects.elasticity.stiffness < found.compliance
+    assert found.compliance < 1.0 / plant.effects.elasticity.stiffness
+    with pytest.raises(InputError, match="training and validation"):
+        identify_sheath(arm, logs[:1], [])
+
+
+def test_the_stage_brings_the_arm_closer_to_its_target_on_the_default_plant(arm):
+    gains = ArmControllerConfig(
+        kp=(90.0, 90.0, 45.0, 45.0), ki=(640.0, 640.0, 320.0, 320.0), integral_limit=10.0
+    )
+    task = get_task("random-3001", arm)
+    settings = TrackSettings("random-3001", 3001, DEFAULT_PLANT, gains)
+    friction = DEFAULT_PLANT.effects
+    stage = SheathInverse(
+        arm,
+        SheathSpec(enabled=True),
+        SheathParameters(
+            mu=friction.sheath_friction.mu, compliance=1 / friction.elasticity.stiffness
+        ),
+        1.0 / gains.rate_hz,
+    )
+    plain = track(arm, task, settings, plots_too=False).metrics
+    staged = track(
+        arm, task, settings, feedforward=LearnedFeedforward(arm, None, stage), plots_too=False
+    ).metrics
+    assert staged.completed and sum(staged.slack_events) == 0
+    assert staged.final_error_mm < 0.5 * plain.final_error_mm
+    assert np.mean(staged.joint_rmse) < 0.5 * np.mean(plain.joint_rmse)
