@@ -163,12 +163,10 @@ def compare_command(
     ] = False,
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
 ) -> None:
-    """Table I tasks and held-out random tasks, without and with feedforward: table and plots.
-
-    The summary also gives the final error of the plant's true joint angles (simulation only):
-    the table's comes from the encoders, whose noise is a good part of a final error of a
-    tenth of a millimetre.
-    """
+    """Table I tasks and held-out random tasks, without and with feedforward: table and plots."""
+    # the summary also gives the final error of the plant's true joint angles (simulation
+    # only): the table's comes from the encoders, whose noise is a good part of a final error
+    # of a tenth of a millimetre
     from rich.progress import Progress
 
     from msarm.compensation.compare import SHEATH_ONLY, compare_feedforward
