@@ -242,17 +242,17 @@ def summary_lines(result, group: str, tasks: list[str]) -> list[str]:
     def mean(label: str, key: str) -> float:
         return float(np.mean([np.mean(getattr(result.metrics[t][label], key)) for t in tasks]))
 
-    def true(label: str) -> float:
-        return float(np.mean([result.true_final_error_mm[t][label] for t in tasks]))
+    def final(label: str, true: bool = False) -> float:
+        return result.mean_final_error(tasks, label, true)
 
     lines = []
     for label in result.labels[1:]:
         name = "feedforward" if label == WITH else label
         lines.append(
-            f"{group}, {name}: mean final error {mean(WITHOUT, 'final_error_mm'):.2f} mm "
-            f"without, {mean(label, 'final_error_mm'):.2f} mm with (ratio "
+            f"{group}, {name}: mean final error {final(WITHOUT):.2f} mm "
+            f"without, {final(label):.2f} mm with (ratio "
             f"{result.ratio(tasks, label):.2f}; of the true joint angles "
-            f"{true(WITHOUT):.2f} -> {true(label):.2f} mm, ratio "
+            f"{final(WITHOUT, True):.2f} -> {final(label, True):.2f} mm, ratio "
             f"{result.ratio(tasks, label, true=True):.2f}); mean joint RMSE "
             f"{1000 * mean(WITHOUT, 'joint_rmse'):.1f} -> {1000 * mean(label, 'joint_rmse'):.1f} "
             f"mrad; mean error {SETTLE_DELAY:g} s after the move "

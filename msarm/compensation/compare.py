@@ -73,19 +73,23 @@ class Comparison:
         """The variants run: :data:`WITHOUT`, :data:`WITH`, then the parts."""
         return tuple(self.metrics[self.tasks[0]])
 
+    def mean_final_error(self, tasks: Sequence[str], label: str, true: bool = False) -> float:
+        """Mean final error of ``label`` over ``tasks`` [mm].
+
+        The encoders' final errors, or with ``true`` those of the true joint angles.
+        """
+        if true:
+            return float(np.mean([self.true_final_error_mm[t][label] for t in tasks]))
+        return float(np.mean([self.metrics[t][label].final_error_mm for t in tasks]))
+
     def ratio(self, tasks: Sequence[str], label: str = WITH, true: bool = False) -> float:
         """Mean final error without over mean final error of ``label``, over ``tasks``.
 
         With ``true``, of the final errors of the true joint angles.
         """
-
-        def mean(which: str) -> float:
-            if true:
-                return float(np.mean([self.true_final_error_mm[t][which] for t in tasks]))
-            return float(np.mean([self.metrics[t][which].final_error_mm for t in tasks]))
-
-        with_ff = mean(label)
-        return mean(WITHOUT) / with_ff if with_ff > 0 else float("inf")
+        with_ff = self.mean_final_error(tasks, label, true)
+        without = self.mean_final_error(tasks, WITHOUT, true)
+        return without / with_ff if with_ff > 0 else float("inf")
 
     def as_dict(self) -> dict:
         """JSON-ready form."""

@@ -13,8 +13,9 @@ that ``msarm diagnose`` uses, and are scored on the validation runs:
   Without that residual (no motor encoders, or rigid cables) the compliance is 0; a negative
   fit (no stretch that grows with the tension) counts as 0 too, with a warning.
 
-The score of each is its held-out explained share on the validation runs (the diagnosis's
-score: ``1 - sum (r - pred)^2 / sum r^2``), so a recipe can see whether the logs support it.
+The score of each is its held-out explained share on the validation runs, the diagnosis's
+score (:func:`msarm.diagnose.stack.group_scores`, ``1 - sum (r - pred)^2 / sum r^2``), so a
+recipe can see whether the logs support it.
 """
 
 from __future__ import annotations
@@ -24,26 +25,17 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from msarm.compensation.sheath import SheathParameters
 from msarm.diagnose.builder import channels_from_logs
 from msarm.diagnose.cable_effects import CableElasticity
 from msarm.diagnose.effects import CableCapstanFriction
 from msarm.diagnose.fitting import fit
+from msarm.diagnose.stack import Layout, group_scores
 from msarm.errors import InputError
 from msarm.model import RobotModel
 
 __all__ = ["identify_sheath"]
-
-FloatArray = NDArray[np.float64]
-
-
-def _held_out_share(residual: FloatArray, prediction: FloatArray) -> float:
-    energy = float(np.sum(residual**2))
-    if energy == 0.0:
-        return float("nan")
-    return 1.0 - float(np.sum((residual - prediction) ** 2)) / energy
 
 
 def identify_sheath(
@@ -74,10 +66,11 @@ def identify_sheath(
         train,
         residual["joint"],
     )
-    mu_share = _held_out_share(held_residual["joint"], capstan.predict(held))
-    compliance, compliance_share = 0.0, float("nan")
+    predictions = {"joint": capstan.predict(held)}
+    compliance = 0.0
     if "length" in residual and "length" in held_residual:
         elastic = fit(CableElasticity(n_cables=model.n_cables), train, residual["length"])
+        predictions["length"] = elastic.predict(held)
         compliance = float(elastic.parameters[0])
         if compliance < 0:
             warnings.warn(
@@ -86,10 +79,15 @@ def identify_sheath(
                 stacklevel=2,
             )
             compliance = 0.0
-        compliance_share = _held_out_share(held_residual["length"], elastic.predict(held))
+    layout = Layout({g: held_residual[g] for g in predictions})
+    scores = group_scores(
+        layout,
+        np.concatenate([held_residual[g] for g in layout.groups], axis=1),
+        np.concatenate([predictions[g] for g in layout.groups], axis=1),
+    )
     return SheathParameters(
         mu=float(capstan.parameters[0]),
         compliance=compliance,
-        mu_share=mu_share,
-        compliance_share=compliance_share,
+        mu_share=scores["joint"],
+        compliance_share=scores.get("length", float("nan")),
     )

@@ -88,9 +88,8 @@ class TrainingReport:
     sheath: SheathParameters | None = None
 
 
-def _stage_hash(spec: SheathSpec, parameters: SheathParameters) -> str:
-    text = json.dumps({"spec": asdict(spec), "parameters": parameters.as_dict()}, sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()[:12]
+def _paths_of(by_seed: dict[int, Path], seeds: tuple[int, ...]) -> list[Path]:
+    return [by_seed[s] for s in seeds]
 
 
 def _weights_hash(compensator: Compensator) -> str:
@@ -148,15 +147,17 @@ def train_compensator(
     collect_time += time.perf_counter() - start
     by_seed = dict(zip(data.seeds, paths, strict=True))
     split = split_runs(data.seeds, data.split)
-    train_paths = [by_seed[s] for s in split.train]
-    val_paths = [by_seed[s] for s in split.validation]
-    test_paths = [by_seed[s] for s in split.test]
+    train_paths = _paths_of(by_seed, split.train)
+    val_paths = _paths_of(by_seed, split.validation)
     stage: SheathInverse | None = None
     identified: SheathParameters | None = None
+    saved_stage: dict | None = None  # the stage as the checkpoint keeps it
     stage_name = ""
     if recipe.sheath.enabled:
         identified = identify_sheath(model, train_paths, val_paths)
-        stage_name = f"-sheath-{_stage_hash(recipe.sheath, identified)}"
+        saved_stage = {"spec": asdict(recipe.sheath), "parameters": identified.as_dict()}
+        text = json.dumps(saved_stage, sort_keys=True)
+        stage_name = f"-sheath-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
         stage = SheathInverse(model, recipe.sheath, identified, 1.0 / recipe.controller.rate_hz)
         if on_sheath is not None:
             on_sheath(identified, data.n_runs)
@@ -173,9 +174,9 @@ def train_compensator(
         )
         collect_time += time.perf_counter() - start
         by_seed = dict(zip(data.seeds, staged, strict=True))
-        train_paths = [by_seed[s] for s in split.train]
-        val_paths = [by_seed[s] for s in split.validation]
-        test_paths = [by_seed[s] for s in split.test]
+        train_paths = _paths_of(by_seed, split.train)
+        val_paths = _paths_of(by_seed, split.validation)
+    test_paths = _paths_of(by_seed, split.test)
     test_arrays = build_arrays(model, test_paths, recipe.features, recipe.target)
     names = FeatureExtractor(model, recipe.features).names
     checkpoint = Path(recipe.checkpoint)
@@ -193,8 +194,8 @@ def train_compensator(
             "test": list(split.test),
         },
     }
-    if identified is not None:
-        metadata["sheath"] = {"spec": asdict(recipe.sheath), "parameters": identified.as_dict()}
+    if saved_stage is not None:
+        metadata["sheath"] = saved_stage
     compensator: Compensator | None = None
     for round_ in range(data.rounds + 1):
         if on_round is not None:
