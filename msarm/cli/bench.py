@@ -123,7 +123,7 @@ def diagnose_bench(
     n_null: int = typer.Option(3, "--null", min=0, help="Null plants (sensor noise only)."),
     n_train: int = typer.Option(4, "--train", min=1, help="Training tasks per scenario."),
     n_holdout: int = typer.Option(2, "--holdout", min=1, help="Held-out tasks per scenario."),
-    duration: float = typer.Option(10.0, "--duration", min=2.0, help="Task length [s]."),
+    duration: float = typer.Option(10.0, "--duration", min=2.0, help=r"Task length \[s]."),
     n_boot: int = typer.Option(10, "--boot", min=0, help="Bootstrap draws of the diagnosis."),
     effects: list[str] = typer.Option(  # noqa: B008
         [],

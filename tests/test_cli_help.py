@@ -1,0 +1,43 @@
+"""Every ``msarm … --help`` shows its options' help texts whole.
+
+Typer renders help through rich, whose markup reads ``[s]``, ``[b]``, ``[i]`` … as styles: a
+unit written as ``[s]`` would vanish from the help unless escaped. This walks the whole
+command tree and checks that every bracketed piece of every option's help is printed.
+"""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from msarm.cli import app
+
+_BRACKETED = re.compile(r"\[[^\]\[]*\]")
+
+
+def _commands(command, path: tuple[str, ...] = ()):
+    yield path, command
+    for name, sub in getattr(command, "commands", {}).items():
+        yield from _commands(sub, (*path, name))
+
+
+_TREE = list(_commands(typer.main.get_command(app)))
+
+
+def _plain(text: str) -> str:
+    """Help text as rich prints it, without escapes, box drawing or line breaks."""
+    text = re.sub(r"[│╭╮╰╯─]", " ", text)
+    return re.sub(r"\s+", " ", text.replace("\\[", "["))
+
+
+@pytest.mark.parametrize("path,command", _TREE, ids=[" ".join(p) or "msarm" for p, _ in _TREE])
+def test_help_keeps_bracketed_units(path, command):
+    result = CliRunner().invoke(app, [*path, "--help"], env={"COLUMNS": "400"})
+    assert result.exit_code == 0, result.output
+    shown = _plain(result.output)
+    for param in command.params:
+        for piece in _BRACKETED.findall(_plain(getattr(param, "help", None) or "")):
+            assert piece in shown, f"{' '.join(path)} {param.opts}: {piece!r} lost in --help"
