@@ -46,6 +46,10 @@ def test_tiny_benchmark_names_the_withheld_effects(report):
     assert ours["mean_excess_shrink"] > ours["mean_shrink"]
     assert set(ours["shrink_by_effect"]) == {"winch_friction", "sensor_bias"}
     assert set(summary["noise_floor"]) >= {"joint", "drive"}
+    # the ceiling is what a perfect diagnosis would reach: the diagnosis comes close to it,
+    # not past it by more than the noise floor's own scatter between plants
+    assert ours["mean_shrink"] - 0.02 < summary["shrink_ceiling"] < 1.0
+    assert set(summary["shrink_ceiling_by_effect"]) == {"winch_friction", "sensor_bias"}
     # the selection's share of the time: read at the bootstrap's start, before the end
     for row in result["scenarios"]:
         assert row["load_seconds"] < row["msarm"]["selection_seconds"] < row["msarm"]["seconds"]
@@ -105,6 +109,9 @@ def test_scores_are_computed_from_the_names():
     # floor 0.3: 1 - sqrt((0.25 - 0.09) / (1 - 0.09))
     assert summary["msarm"]["mean_excess_shrink"] == pytest.approx(1 - (0.16 / 0.91) ** 0.5)
     assert summary["sindy"]["mean_extra_terms"] == 1.0
+    # a perfect diagnosis leaves the 0.3 of noise out of 1.0: 70 %, whatever the method
+    assert summary["shrink_ceiling"] == pytest.approx(0.7)
+    assert summary["shrink_ceiling_by_effect"] == {"winch_friction": pytest.approx(0.7)}
 
 
 def test_baseline_runs_on_the_same_data(arm, report):

@@ -233,6 +233,13 @@ def diagnose_bench(
         fmt(ours["mean_excess_shrink"]),
         fmt(theirs["mean_excess_shrink"]),
     )
+    ceiling = summary.get("shrink_ceiling")
+    table.add_row(
+        "  ceiling: a perfect diagnosis, only the noise left",
+        "",
+        fmt(ceiling),
+        fmt(ceiling),
+    )
     table.add_row(
         "extra terms named (per scenario with effects)",
         "",
@@ -257,11 +264,13 @@ def diagnose_bench(
         for e in ours["top1_by_effect"]
     )
     console.print(f"top-1 by effect (msarm/PySINDy): {by_effect}")
+    ceilings = summary.get("shrink_ceiling_by_effect", {})
     shrink = ", ".join(
         f"{e} {ours['shrink_by_effect'][e]:.0%}/{theirs['shrink_by_effect'].get(e, 0):.0%}"
+        f"/{fmt(ceilings.get(e))}"
         for e in ours["shrink_by_effect"]
     )
-    console.print(f"held-out gap shrink by effect (msarm/PySINDy): {shrink}")
+    console.print(f"held-out gap shrink by effect (msarm/PySINDy/ceiling): {shrink}")
     for failure in report["failed"]:
         console.print(
             f"not scored (simulation diverged): {failure['scenario']}: {failure['error']}"

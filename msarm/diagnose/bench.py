@@ -17,7 +17,11 @@ Scores (each for both methods):
   pooled held-out residual on the groups the effect shows in (:data:`EFFECT_GROUPS`, mean over
   them). Sensor noise bounds it below 1, so the *excess* shrink is also given: the same with
   the noise floor removed, ``1 - sqrt((after^2 - floor^2) / (before^2 - floor^2))``, the floor
-  of each group being the mean held-out RMSE of the null scenarios (same tasks, same noise);
+  of each group being the mean held-out RMSE of the null scenarios (same tasks, same noise).
+  The *ceiling* is the raw shrink of a perfect diagnosis, one that leaves only the noise:
+  ``1 - floor / RMSE_before`` (a group without a floor, such as the cable lengths that rigid
+  null plants lack, counted noise-free). It is an estimate (the floor is the null plants'
+  mean), so a method can land a little above it;
 - **extra terms**: terms named beyond the candidates of the scenario's effects, mean per
   scenario with effects (a precision score; some are real side effects of the plant, e.g. an
   elastic cable's winch dynamics show as a drive lag);
@@ -316,17 +320,36 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
     Returns:
         ``{method: {top1_accuracy, both_found, false_alarms, null_scenarios, mean_shrink,
-        mean_excess_shrink, seconds_per_scenario, ...}}`` plus the noise floor used.
+        mean_excess_shrink, seconds_per_scenario, ...}}`` plus the noise floor used and the
+        shrink ceiling: the raw shrink of a perfect diagnosis, which leaves only the noise
+        floor (``1 - floor / before`` on the effect's groups, a group without a floor counted
+        as noise-free; None without null scenarios), overall and by effect.
     """
     null = [r for r in rows if not r["effects"]]
     floor: dict[str, float] = {}
     if null:
         groups = set.intersection(*(set(r["msarm"]["gap_before"]) for r in null))
         floor = {g: float(np.mean([r["msarm"]["gap_before"][g] for r in null])) for g in groups}
-    out: dict[str, Any] = {"noise_floor": floor}
+    single = [r for r in rows if len(r["effects"]) == 1]
+    pairs = [r for r in rows if len(r["effects"]) == 2]
+    # a perfect diagnosis leaves the noise: its shrink is the ceiling of any method's
+    ceiling_by_effect: dict[str, list[float]] = {}
+    for r in single:
+        before = r["msarm"]["gap_before"]
+        perfect = {g: min(floor.get(g, 0.0), gap) for g, gap in before.items()}
+        effect = r["effects"][0]
+        ceiling_by_effect.setdefault(effect, []).append(
+            _shrink(before, perfect, EFFECT_GROUPS[effect])
+        )
+    ceilings = [c for values in ceiling_by_effect.values() for c in values]
+    out: dict[str, Any] = {
+        "noise_floor": floor,
+        "shrink_ceiling": float(np.nanmean(ceilings)) if ceilings and null else None,
+        "shrink_ceiling_by_effect": (
+            {e: float(np.nanmean(v)) for e, v in ceiling_by_effect.items()} if null else {}
+        ),
+    }
     for method in ("msarm", "sindy"):
-        single = [r for r in rows if len(r["effects"]) == 1]
-        pairs = [r for r in rows if len(r["effects"]) == 2]
         shrinks, excess = [], []
         shrink_by_effect: dict[str, list[float]] = {}
         for r in single:
