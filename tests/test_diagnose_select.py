@@ -296,3 +296,32 @@ def test_the_console_script_holds_out_every_log_after_holdout(noise_logs, monkey
     assert set(payload["step_scores"][0]) == {"coulomb", "viscous"}
     with pytest.raises(InputError, match="--shortlist: expected a number of candidates >= 0"):
         diagnose_command(noise_logs[:2], noise_logs[2:], True, None, shortlist=-1)
+
+
+def test_fits_thin_the_training_samples_and_scores_keep_the_held_out_ones(arm):
+    """``max_samples`` caps the fits' training samples, ``max_score_samples`` the scores'."""
+    import msarm.diagnose.select as select
+    from msarm.diagnose.stack import Sampled
+
+    data = _synthetic_data(arm)
+    n_train, n_hold = data.train.n_samples, data.hold.n_samples
+    assert n_train > 200 and n_hold > 600
+    sampled = Sampled(data, 150, max_hold=600)
+    assert len(sampled.rows["train"]) == 150 and len(sampled.rows["hold"]) == 600
+    assert sampled.rows["hold"][0] == 0 and sampled.rows["hold"][-1] == n_hold - 1  # even
+    assert sampled.residual["hold"].shape[0] == 600
+    assert len(Sampled(data, 150).rows["hold"]) == 150  # one cap for both by default
+    full = select.select_effects(data, n_boot=0, replay=False)
+    thin = select.select_effects(
+        data, n_boot=0, replay=False, max_samples=n_train // 2, max_score_samples=n_hold
+    )
+    assert thin.names == full.names
+    assert thin.search["max_samples"] == n_train // 2
+    assert thin.search["max_score_samples"] == n_hold
+    for k, name in enumerate(thin.names):  # half the fitting samples, about the same gains
+        assert thin.step_scores[k][name] == pytest.approx(full.step_scores[k][name], abs=0.01)
+    for bad in (99, 150.5):
+        with pytest.raises(InputError, match="max_score_samples: expected an integer >= 100"):
+            select.select_effects(data, max_score_samples=bad)
+        with pytest.raises(InputError, match="max_samples: expected an integer >= 100"):
+            select.select_effects(data, max_samples=bad)

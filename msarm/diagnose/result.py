@@ -107,8 +107,9 @@ class Diagnosis:
             dynamics driven by the logged commands over 0.2 s windows, without and with the
             selected drive and joint terms; None when not computed.
         search: The selection's settings besides the threshold: ``shortlist`` (None: every
-            candidate fitted jointly), ``screen_samples``, ``max_samples``, ``n_boot`` and
-            ``seed`` (empty when not recorded).
+            candidate fitted jointly), ``screen_samples``, ``max_samples`` (training samples
+            the fits use), ``max_score_samples`` (held-out samples the scores use), ``n_boot``
+            and ``seed`` (empty when not recorded).
     """
 
     selected: tuple[SelectedEffect, ...]

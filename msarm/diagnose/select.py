@@ -81,6 +81,7 @@ from msarm.diagnose.signals import Signals
 from msarm.diagnose.stack import (
     CONFOUNDING_LIMIT,
     MAX_FIT_SAMPLES,
+    MAX_SCORE_SAMPLES,
     Confounding,
     DiagnosisData,
     Embedded,
@@ -102,6 +103,7 @@ __all__ = [
     "DEFAULT_COGGING_PERIODS",
     "DEFAULT_THRESHOLD",
     "MAX_FIT_SAMPLES",
+    "MAX_SCORE_SAMPLES",
     "Diagnosis",
     "DiagnosisData",
     "SelectedEffect",
@@ -566,6 +568,7 @@ def select_effects(
     shortlist: int | None = DEFAULT_SHORTLIST,
     screen_samples: int = SCREEN_SAMPLES,
     progress: Callable[[str], None] | None = None,
+    max_score_samples: int = MAX_SCORE_SAMPLES,
 ) -> Diagnosis:
     """Forward selection, final fit, bootstrap and gaps on prepared data (see :func:`diagnose`).
 
@@ -575,8 +578,7 @@ def select_effects(
         n_boot: Bootstrap draws over training runs (< 2: none).
         seed: Seed of the bootstrap.
         replay: Also replay the held-out runs without and with the effects (the gap as motion).
-        max_samples: The fits and scores use at most this many training and as many held-out
-            samples, evenly thinned (the gaps reported use every held-out sample).
+        max_samples: The fits use at most this many training samples, evenly thinned.
         shortlist: How many candidates of a step (those with the largest screening gains)
             are fitted jointly with the terms already selected; only they may be added (at
             the first step on unthinned samples the screening fit is that joint fit).
@@ -585,12 +587,15 @@ def select_effects(
             held-out) samples, evenly thinned; when that thins the data, every shortlisted
             candidate (at the first step too) is refitted on the ``max_samples`` ones.
         progress: Called with a line saying what the selection is doing, or None.
+        max_score_samples: The held-out scores use at most this many held-out samples, evenly
+            thinned (the gaps reported use every held-out sample).
 
     Raises:
-        InputError: A bad threshold, ``max_samples`` or ``shortlist``.
+        InputError: A bad threshold, ``max_samples``, ``max_score_samples`` or ``shortlist``.
     """
-    if int(max_samples) < 100:
-        raise InputError(f"max_samples: expected an integer >= 100, got {max_samples}")
+    for name, value in (("max_samples", max_samples), ("max_score_samples", max_score_samples)):
+        if int(value) != value or value < 100:
+            raise InputError(f"{name}: expected an integer >= 100, got {value}")
     if shortlist is not None and (int(shortlist) != shortlist or shortlist < 1):
         raise InputError(f"shortlist: expected None or an integer >= 1, got {shortlist}")
     if int(screen_samples) != screen_samples or screen_samples < 100:
@@ -600,8 +605,8 @@ def select_effects(
         raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
     hold, layout = data.hold, data.layout
     r_hold = data.r_hold
-    sampled = Sampled(data, int(max_samples))
-    thin = min(int(screen_samples), int(max_samples))
+    sampled = Sampled(data, int(max_samples), max_hold=int(max_score_samples))
+    thin = int(screen_samples)
     thinned = thin < max(sampled.residual["train"].shape[0], sampled.residual["hold"].shape[0])
     screen = Sampled(data, thin, parent=sampled) if thinned else sampled
     embedded = list(data.candidates)
@@ -723,6 +728,7 @@ def select_effects(
             "shortlist": shortlist,
             "screen_samples": int(screen_samples),
             "max_samples": int(max_samples),
+            "max_score_samples": int(max_score_samples),
             "n_boot": int(n_boot),
             "seed": int(seed),
         },
