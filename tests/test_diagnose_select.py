@@ -318,6 +318,10 @@ def test_fits_thin_the_training_samples_and_scores_keep_the_held_out_ones(arm):
     assert thin.names == full.names
     assert thin.search["max_samples"] == n_train // 2
     assert thin.search["max_score_samples"] == n_hold
+    assert (
+        f"on at most {n_train // 2} training samples, scored on at most {n_hold} held-out ones"
+        in thin.to_markdown()
+    )
     for k, name in enumerate(thin.names):  # half the fitting samples, about the same gains
         assert thin.step_scores[k][name] == pytest.approx(full.step_scores[k][name], abs=0.01)
     for bad in (99, 150.5):

@@ -227,8 +227,18 @@ class Diagnosis:
                 " Each step screens every candidate on at most "
                 f"{self.search.get('screen_samples')} samples and fits "
                 + ("every one" if short is None else f"the best {short}")
-                + " jointly with the effects already named; "
-                f"{self.search.get('n_boot')} bootstrap draws (seed {self.search.get('seed')})."
+                + " jointly with the effects already named"
+                + (
+                    f" on at most {self.search['max_samples']} training samples"
+                    if "max_samples" in self.search
+                    else ""
+                )
+                + (
+                    f", scored on at most {self.search['max_score_samples']} held-out ones"
+                    if "max_score_samples" in self.search
+                    else ""
+                )
+                + f"; {self.search.get('n_boot')} bootstrap draws (seed {self.search.get('seed')})."
             )
         lines += ["", "## Which: the selected effects", ""]
         if not self.selected:
