@@ -13,6 +13,7 @@ from msarm.diagnose.builder import channels_from_logs
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
+    CableSheathStretch,
     CableSlack,
     CommandDelay,
     DriveCogging,
@@ -27,7 +28,9 @@ from msarm.io.logs import read_log, write_log
 from msarm.plant import IDEAL_PLANT
 from msarm.plant.config import (
     DelayConfig,
+    ElasticityConfig,
     SensorNoiseConfig,
+    SheathFrictionConfig,
     WinchFrictionConfig,
 )
 
@@ -59,6 +62,8 @@ def _cases():
         (CableBacklash(DRUM, shared=False), rng.uniform(1e-4, 6e-4, size=9)),
         (CableSlack(tension_scale=4.0), np.array([3e-4])),
         (CableSlack(tension_scale=4.0, shared=False), rng.uniform(1e-4, 6e-4, size=9)),
+        (CableSheathStretch(DRUM), np.array([3e-6])),
+        (CableSheathStretch(DRUM, shared=False), rng.uniform(1e-6, 5e-6, size=9)),
     ]
 
 
@@ -76,6 +81,8 @@ IDS = [
     "backlash_per_cable",
     "slack",
     "slack_per_cable",
+    "sheath_stretch",
+    "sheath_stretch_per_cable",
 ]
 
 
@@ -89,7 +96,9 @@ def test_noise_free_recovery(signals, case):
     np.testing.assert_allclose(result.parameters, truth, rtol=1e-6, atol=1e-9 * np.abs(truth).max())
 
 
-@pytest.mark.parametrize("case", [0, 2, 6, 11], ids=["winch", "cogging", "elasticity", "slack"])
+@pytest.mark.parametrize(
+    "case", [0, 2, 6, 11, 13], ids=["winch", "cogging", "elasticity", "slack", "sheath_stretch"]
+)
 def test_noisy_recovery_within_bootstrap_std(signals, case):
     effect, truth = _cases()[case]
     clean = effect.torque(signals, truth)
@@ -198,3 +207,46 @@ def test_logs_without_commands_lose_only_the_drive_terms(arm, winch_logs, tmp_pa
         pytest.raises(InputError, match="command_delay cannot be fitted"),
     ):
         diagnose(arm, stripped[:2], stripped[2:], candidates=["command_delay"], n_boot=0)
+
+
+def test_sheath_stretch_is_the_plant_s_two_segment_cable():
+    """First order in mu Theta, the term is the stretch of the plant's cable in a sheath.
+
+    The plant's elastic cable is two springs of stiffness 2k joined at the sheath, which lets
+    ``T_i = F exp(-mu Theta z)`` through while sliding: the stretch is ``(F + T_i) / (2k)``.
+    """
+    k, mu, theta = 2e4, 0.12, np.array([[0.5, 1.5, 2.5]])
+    force = np.array([[40.0, 60.0, 80.0]])
+    for z in (-1.0, 1.0):
+        exact = (force + force * np.exp(-mu * theta * z)) / (2 * k)
+        first_order = force / k - (mu / (2 * k)) * theta * z * force
+        np.testing.assert_allclose(first_order, exact, rtol=0.03)  # mu Theta up to 0.3
+
+
+@pytest.fixture(scope="module")
+def sheath_elastic_logs(arm, tmp_path_factory):
+    plant = _plant(
+        elasticity=ElasticityConfig(enabled=True, stiffness=2e4),
+        sheath_friction=SheathFrictionConfig(enabled=True, mu=0.12),
+    )
+    return _logs(arm, tmp_path_factory.mktemp("sheath_elastic"), plant)
+
+
+def test_elastic_cables_in_sheaths_are_named_with_the_sheath_not_a_backlash(
+    arm, sheath_elastic_logs
+):
+    result = diagnose(arm, sheath_elastic_logs[:2], sheath_elastic_logs[2:], n_boot=0)
+    fitted = {s.name: s.parameters for s in result.selected}
+    assert "sheath_stretch" in fitted and "elasticity" in fitted
+    assert "backlash" not in fitted  # the plant has none
+    compliance, c_mu_half = fitted["elasticity"][0], fitted["sheath_stretch"][0]
+    assert 1.0 / compliance == pytest.approx(2e4, rel=0.05)
+    assert 2.0 * c_mu_half / compliance == pytest.approx(0.12, rel=0.2)  # mu = 2 b / c
+
+
+def test_elastic_cables_without_sheath_friction_leave_no_sheath_stretch(arm, tmp_path):
+    plant = _plant(elasticity=ElasticityConfig(enabled=True, stiffness=5e4))
+    logs = _logs(arm, tmp_path, plant)
+    result = diagnose(arm, logs[:2], logs[2:], n_boot=0)
+    assert result.names[0] == "elasticity"
+    assert "sheath_stretch" not in result.names

@@ -71,7 +71,8 @@ __all__ = [
 
 #: Plant effect -> the candidate names that count as naming it.
 EFFECT_CANDIDATES: dict[str, tuple[str, ...]] = {
-    "sheath_friction": ("capstan", "capstan_hysteresis"),
+    # sheath_stretch: the sheath's friction seen in the lengths of elastic cables
+    "sheath_friction": ("capstan", "capstan_hysteresis", "sheath_stretch"),
     "winch_friction": ("winch_friction",),
     "elasticity": ("elasticity",),
     "joint_friction": ("coulomb", "viscous", "stribeck", "dahl"),

@@ -34,6 +34,7 @@ from msarm.errors import InputError
 __all__ = [
     "CableBacklash",
     "CableElasticity",
+    "CableSheathStretch",
     "CableSlack",
     "CommandDelay",
     "DriveCogging",
@@ -316,6 +317,54 @@ class CableBacklash(CandidateEffect):
         self._check_cables(signals, self.n_cables)
         z = self.state(signals)
         return _per_cable_or_shared([0.5 * (z - signals.run_mean(z))], self.shared)
+
+
+@register
+class CableSheathStretch(CandidateEffect):
+    """An elastic cable in a sheath with friction: it stretches less while pulled in.
+
+    A cable of compliance ``c`` [m/N] that runs through a sheath is stretched on the motor's
+    side of the sheath by the load cell's tension ``F`` and on the insertion's side by the
+    tension the sheath lets through, ``F exp(-mu Theta z)``: ``z = +1`` while the drum reels
+    in (the cable slides towards the motor and the sheath holds part of the tension back),
+    ``-1`` while it pays out, in between while the cable sticks (the drums' direction state of
+    :class:`CableBacklash`, over a drum travel ``w``). With half the compliance on either side,
+    the stretch is ``(c / 2) F (1 + exp(-mu Theta z))``, to first order in ``mu Theta``
+    ``c F - (c mu / 2) Theta z F``. :class:`CableElasticity` explains ``c F``; this term the
+    rest, in the length residual: ``e_l = b (Theta z F - mean_run)`` with ``b = c mu / 2``
+    [m/N], linear, shared by all cables or per cable. With the elasticity term's ``c``, the
+    sheath's friction coefficient is ``mu = 2 b / c``. It is the sheath friction's trace in
+    the cable lengths; rigid cables, or cables without sheath friction, leave none.
+    """
+
+    name = "sheath_stretch"
+    description = (
+        "e_l = b (Theta z F - mean_run), b = c mu / 2: an elastic cable stretches less while "
+        "pulled in through a sheath with friction (z: the drum's direction, Theta: wrap angle)"
+    )
+    linear = True
+    groups = ("length",)
+
+    def __init__(
+        self, drum_radius: float, n_cables: int = 9, travel: float = 5e-4, shared: bool = True
+    ) -> None:
+        """Build the term.
+
+        Args:
+            drum_radius: Drum radius ``rho`` [m].
+            n_cables: Number of cables ``m``.
+            travel: Drum travel ``w`` over which the direction state reverses [m].
+            shared: One ``b`` for all cables.
+        """
+        self.direction = CableBacklash(drum_radius, n_cables, travel, shared)
+        self.n_cables, self.shared = int(n_cables), bool(shared)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = _names(("c_mu_half",), self.shared, self.n_cables)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        held = signals.wrap * self.direction.state(signals) * signals.tension
+        return _per_cable_or_shared([held - signals.run_mean(held)], self.shared)
 
 
 @register

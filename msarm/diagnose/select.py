@@ -57,6 +57,7 @@ from msarm.diagnose.builder import GROUPS, channels_from_logs
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
+    CableSheathStretch,
     CableSlack,
     CommandDelay,
     DriveCogging,
@@ -142,6 +143,7 @@ DEFAULT_CANDIDATES = (
     "motor_cogging",
     "command_delay",
     "elasticity",
+    "sheath_stretch",
     "backlash",
     "slack",
 )
@@ -161,7 +163,8 @@ def available_candidates(
     late against the encoders, first order). Joint and drive: ``sensor`` (load-cell bias and
     scale shared by all cables). Drive terms: ``winch_friction``, ``motor_cogging``
     (:data:`DEFAULT_COGGING_PERIODS` periods per revolution) and ``command_delay``. Cable
-    length: ``elasticity``, ``backlash`` and ``slack`` (a dead zone). Drive terms use
+    length: ``elasticity``, ``sheath_stretch`` (an elastic cable in a sheath with friction
+    stretches less while pulled in), ``backlash`` and ``slack`` (a dead zone). Drive terms use
     ``spec.drum_radius`` and ``spec.drive_gain``.
 
     Args:
@@ -183,6 +186,7 @@ def available_candidates(
         DriveCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, spec.drive_gain, n_cables=m),
         CommandDelay(n_cables=m),
         CableElasticity(n_cables=m),
+        CableSheathStretch(spec.drum_radius, n_cables=m),
         CableBacklash(spec.drum_radius, n_cables=m),
         CableSlack(n_cables=m),
         MotorCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, n_cables=m, n_joints=n),
