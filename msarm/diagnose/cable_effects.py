@@ -268,25 +268,18 @@ class CableElasticity(CandidateEffect):
         return _per_cable_or_shared([-(tension - signals.run_mean(tension))], self.shared)
 
 
-@register
-class CableBacklash(CandidateEffect):
-    """Backlash between winch and cable: a play that the cable takes up at each reversal.
+class _DrumDirectionTerm(CandidateEffect):
+    """A cable-length term driven by the drums' direction state (backlash, sheath stretch).
 
-    With a play ``b`` [m] the cable end follows the drum only once the play is taken up, so
-    the encoder's length and the path length differ by ``(b / 2) z``, ``z`` in ``[-1, 1]``
-    the direction the drum last moved in, smoothed over a travel ``w`` [m] (a Dahl-type state
-    ``dz/dt = (v - |v| z) / w`` on the drum's surface speed ``v = rho omega``, integrated per
-    run from 0). Demeaned per run like the length residual; linear in ``b`` for a fixed
-    ``w``, shared by all cables or per cable.
+    ``z`` in ``[-1, 1]`` is the direction the drum last moved in, smoothed over a travel ``w``
+    [m]: a Dahl-type state ``dz/dt = (v - |v| z) / w`` on the drum's surface speed
+    ``v = rho omega`` (positive reeling in), integrated per run from 0.
     """
 
-    name = "backlash"
-    description = (
-        "e_l = (b/2) (z - mean_run z), dz/dt = (v - |v| z)/w: play b [m] taken up at each "
-        "reversal of the drum (travel w to reverse)"
-    )
     linear = True
     groups = ("length",)
+    #: The kind of the term's parameter, in its parameter names.
+    parameter_kind = ""
 
     def __init__(
         self, drum_radius: float, n_cables: int = 9, travel: float = 5e-4, shared: bool = True
@@ -297,7 +290,7 @@ class CableBacklash(CandidateEffect):
             drum_radius: Drum radius ``rho`` [m].
             n_cables: Number of cables ``m``.
             travel: Drum travel ``w`` over which the direction state reverses [m].
-            shared: One play for all cables.
+            shared: One parameter for all cables.
         """
         if not drum_radius > 0:
             raise InputError(f"drum_radius: expected > 0 m, got {drum_radius}")
@@ -306,12 +299,30 @@ class CableBacklash(CandidateEffect):
         self.drum_radius, self.travel = float(drum_radius), float(travel)
         self.n_cables, self.shared = int(n_cables), bool(shared)
         self.channels = tuple(range(self.n_cables))
-        self.parameter_names = _names(("play",), self.shared, self.n_cables)
+        self.parameter_names = _names((self.parameter_kind,), self.shared, self.n_cables)
 
     def state(self, signals: Signals) -> FloatArray:
         """The direction state ``z`` [-] of every drum, shape ``(T, m)``."""
         speed = self.drum_radius * signals.require("motor_speed", self.name)
         return direction_memory(speed, signals.t, signals.run, 1.0 / self.travel)
+
+
+@register
+class CableBacklash(_DrumDirectionTerm):
+    """Backlash between winch and cable: a play that the cable takes up at each reversal.
+
+    With a play ``b`` [m] the cable end follows the drum only once the play is taken up, so
+    the encoder's length and the path length differ by ``(b / 2) z``, ``z`` the drum's
+    direction state (see :class:`_DrumDirectionTerm`). Demeaned per run like the length
+    residual; linear in ``b`` for a fixed ``w``, shared by all cables or per cable.
+    """
+
+    name = "backlash"
+    description = (
+        "e_l = (b/2) (z - mean_run z), dz/dt = (v - |v| z)/w: play b [m] taken up at each "
+        "reversal of the drum (travel w to reverse)"
+    )
+    parameter_kind = "play"
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_cables(signals, self.n_cables)
@@ -320,16 +331,16 @@ class CableBacklash(CandidateEffect):
 
 
 @register
-class CableSheathStretch(CandidateEffect):
+class CableSheathStretch(_DrumDirectionTerm):
     """An elastic cable in a sheath with friction: it stretches less while pulled in.
 
     A cable of compliance ``c`` [m/N] that runs through a sheath is stretched on the motor's
     side of the sheath by the load cell's tension ``F`` and on the insertion's side by the
     tension the sheath lets through, ``F exp(-mu Theta z)``: ``z = +1`` while the drum reels
     in (the cable slides towards the motor and the sheath holds part of the tension back),
-    ``-1`` while it pays out, in between while the cable sticks (the drums' direction state of
-    :class:`CableBacklash`, over a drum travel ``w``). With half the compliance on either side,
-    the stretch is ``(c / 2) F (1 + exp(-mu Theta z))``, to first order in ``mu Theta``
+    ``-1`` while it pays out, in between while the cable sticks (the drum's direction state,
+    see :class:`_DrumDirectionTerm`). With half the compliance on either side, the stretch is
+    ``(c / 2) F (1 + exp(-mu Theta z))``, to first order in ``mu Theta``
     ``c F - (c mu / 2) Theta z F``. :class:`CableElasticity` explains ``c F``; this term the
     rest, in the length residual: ``e_l = b (Theta z F - mean_run)`` with ``b = c mu / 2``
     [m/N], linear, shared by all cables or per cable. With the elasticity term's ``c``, the
@@ -342,28 +353,11 @@ class CableSheathStretch(CandidateEffect):
         "e_l = b (Theta z F - mean_run), b = c mu / 2: an elastic cable stretches less while "
         "pulled in through a sheath with friction (z: the drum's direction, Theta: wrap angle)"
     )
-    linear = True
-    groups = ("length",)
-
-    def __init__(
-        self, drum_radius: float, n_cables: int = 9, travel: float = 5e-4, shared: bool = True
-    ) -> None:
-        """Build the term.
-
-        Args:
-            drum_radius: Drum radius ``rho`` [m].
-            n_cables: Number of cables ``m``.
-            travel: Drum travel ``w`` over which the direction state reverses [m].
-            shared: One ``b`` for all cables.
-        """
-        self.direction = CableBacklash(drum_radius, n_cables, travel, shared)
-        self.n_cables, self.shared = int(n_cables), bool(shared)
-        self.channels = tuple(range(self.n_cables))
-        self.parameter_names = _names(("c_mu_half",), self.shared, self.n_cables)
+    parameter_kind = "c_mu_half"
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_cables(signals, self.n_cables)
-        held = signals.wrap * self.direction.state(signals) * signals.tension
+        held = signals.wrap * self.state(signals) * signals.tension
         return _per_cable_or_shared([held - signals.run_mean(held)], self.shared)
 
 
