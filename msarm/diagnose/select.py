@@ -597,13 +597,16 @@ def select_effects(
     Raises:
         InputError: A bad threshold, ``max_samples``, ``max_score_samples`` or ``shortlist``.
     """
-    for name, value in (("max_samples", max_samples), ("max_score_samples", max_score_samples)):
+    counts = {
+        "max_samples": max_samples,
+        "max_score_samples": max_score_samples,
+        "screen_samples": screen_samples,
+    }
+    for name, value in counts.items():
         if int(value) != value or value < 100:
             raise InputError(f"{name}: expected an integer >= 100, got {value}")
     if shortlist is not None and (int(shortlist) != shortlist or shortlist < 1):
         raise InputError(f"shortlist: expected None or an integer >= 1, got {shortlist}")
-    if int(screen_samples) != screen_samples or screen_samples < 100:
-        raise InputError(f"screen_samples: expected an integer >= 100, got {screen_samples}")
     threshold = float(threshold)
     if not np.isfinite(threshold) or threshold < 0:
         raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
