@@ -10,7 +10,7 @@ import pytest
 from msarm.compensation.feedforward import LearnedFeedforward
 from msarm.compensation.identify import identify_sheath
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
-from msarm.compensation.target import TargetSpec, torque_error
+from msarm.compensation.target import TargetSpec, delivered_torque, torque_error
 from msarm.control import ArmControllerConfig, MuscleSpaceController
 from msarm.errors import InputError
 from msarm.io.logs import RunLog, read_log
@@ -157,12 +157,22 @@ def test_the_target_takes_off_what_the_stage_added(arm, tmp_path):
     without = RunLog(
         {k: v for k, v in log.columns.items() if not k.startswith("tension_ff.")}, log.metadata
     )
-    spec = TargetSpec()
-    difference = torque_error(arm, log, spec) - torque_error(arm, without, spec)
     q = log.matrix("q")
+    # per sample, without the alignment and the smoothing: J^T of what the stage added
+    spec = TargetSpec(smooth_tension=False)
+    difference = torque_error(arm, log, spec) - torque_error(arm, without, spec)
     for k in (100, 2500, 4000):
         jacobians = arm.geometry(q[k]).jacobian
         np.testing.assert_allclose(difference[k], jacobians.T @ added[k], rtol=1e-9, atol=1e-9)
+    # with them (the default), the same torque filtered as the joint angles are
+    per_sample = np.array([arm.geometry(q[k]).jacobian.T @ added[k] for k in range(len(q))])
+    flat = np.zeros((len(q), 1, 1))
+    flat[:, 0, 0] = -1.0
+    dt = 1.0 / log.metadata.sample_rate_hz
+    difference = torque_error(arm, log, TargetSpec()) - torque_error(arm, without, TargetSpec())
+    for j in range(arm.n_joints):
+        expected = delivered_torque(flat, per_sample[:, j : j + 1], TargetSpec(), dt)[:, 0]
+        np.testing.assert_allclose(difference[:, j], expected, rtol=1e-7, atol=1e-7)
 
 
 def test_the_logs_identify_the_plants_sheath_and_cables(arm, tmp_path):

@@ -28,6 +28,7 @@ from msarm.cli.common import console
 from msarm.errors import InputError
 
 if TYPE_CHECKING:
+    from msarm.diagnose.residuals import ResidualSpec
     from msarm.diagnose.result import Diagnosis
     from msarm.diagnose.where import GapBreakdown
     from msarm.model import RobotModel
@@ -64,7 +65,10 @@ def split_runs(logs: list[Path], holdout: list[Path] | None) -> tuple[list[Path]
 
 
 def where_breakdowns(
-    model: RobotModel, logs: Sequence[Path], groups: Sequence[str] | None = None
+    model: RobotModel,
+    logs: Sequence[Path],
+    groups: Sequence[str] | None = None,
+    spec: ResidualSpec | None = None,
 ) -> tuple[dict[str, GapBreakdown], dict[str, str]]:
     """The "where" breakdowns of ``logs`` for every residual kind they support.
 
@@ -79,6 +83,7 @@ def where_breakdowns(
         groups: The channel groups to break down (:data:`KIND_GROUPS`), e.g. those the
             diagnosis kept (``Diagnosis.groups``: a cable-length error below the encoders'
             resolution is left out there); all when ``None``.
+        spec: Residual settings (those of the diagnosis); the defaults when ``None``.
 
     Returns:
         ``(breakdowns, skipped)``: the breakdowns by kind, and the reason of each kind skipped.
@@ -89,7 +94,7 @@ def where_breakdowns(
     with warnings.catch_warnings():
         # diagnose() has already warned about missing columns of these logs
         warnings.simplefilter("ignore", DiagnosisWarning)
-        runs = [residuals_from_log(model, path) for path in logs]
+        runs = [residuals_from_log(model, path, spec=spec) for path in logs]
     breakdowns: dict[str, GapBreakdown] = {}
     skipped: dict[str, str] = {}
     for kind in WHERE_KINDS:
@@ -219,6 +224,15 @@ def diagnose_command(
             "the effects already named; 0: every candidate (slower).",
         ),
     ] = 3,
+    tension_timing: Annotated[
+        str,
+        typer.Option(
+            metavar="period|instant",
+            help="What a load-cell sample is: the tension held over the sample period that "
+            "ends at its time stamp (period: drives that hold each command, as msarm's), or "
+            "the tension at its time stamp (instant).",
+        ),
+    ] = "period",
     model_path: Annotated[
         Path | None,
         typer.Option(
@@ -229,7 +243,8 @@ def diagnose_command(
     ] = None,
 ) -> None:
     """Find which candidate effects explain the sim-to-real gap, scored on held-out runs."""
-    from msarm.diagnose.residuals import DiagnosisWarning
+    from msarm.compensation.target import TENSION_TIMINGS, TargetSpec
+    from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec
     from msarm.diagnose.select import diagnose
     from msarm.model import load_arm
 
@@ -238,7 +253,18 @@ def diagnose_command(
         raise InputError(f"--boot: expected a number of draws >= 0, got {boot}")
     if shortlist < 0:
         raise InputError(f"--shortlist: expected a number of candidates >= 0, got {shortlist}")
-    options: dict = {"n_boot": int(boot), "seed": int(seed), "shortlist": shortlist or None}
+    if tension_timing not in TENSION_TIMINGS:
+        raise InputError(
+            f"--tension-timing: expected one of {', '.join(TENSION_TIMINGS)}, "
+            f"got {tension_timing!r}"
+        )
+    spec = ResidualSpec(target=TargetSpec(tension_timing=tension_timing))
+    options: dict = {
+        "n_boot": int(boot),
+        "seed": int(seed),
+        "shortlist": shortlist or None,
+        "spec": spec,
+    }
     if candidates:
         options["candidates"] = list(candidates)
     if threshold is not None:
@@ -266,7 +292,7 @@ def diagnose_command(
             from msarm.io.atomic import write_bytes_atomic
 
             say("breaking the gap of the training logs down")
-            breakdowns, where_skipped = where_breakdowns(model, train, result.groups)
+            breakdowns, where_skipped = where_breakdowns(model, train, result.groups, spec)
             say(f"writing the report into {out}")
             written = write_report(result, out, breakdowns)
             written["diagnosis_md"] = write_bytes_atomic(

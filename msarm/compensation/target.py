@@ -15,6 +15,19 @@ The derivatives come from the joint encoders through a Savitzky-Golay filter (ze
 this is offline, for training only). On a plant without unmodelled effects ``T_f`` is zero up
 to filtering error; friction, slack and cable elasticity make it differ.
 
+Both sides of the balance go through the same filter (parallel filtering, as in the
+identification of robot dynamics): the delivered torque ``-J_c^T F`` is integrated twice over
+time, as the joints integrate it, and the result differentiated twice by the Savitzky-Golay
+filter that gives the joint angles their accelerations, so that it keeps exactly the part of
+the torque that the smoothed accelerations can show. Without it, ``T_f`` carries the load
+cells' noise and the tension's fast part (the controller's answer to the encoders' noise).
+The integration follows the load cells' timing (``TargetSpec.tension_timing``): msarm's
+drives hold each command over a control period, so a load-cell sample is the tension of the
+period that ends at its time stamp (``"period"``); a load cell read at its instant gives a
+tension taken as linear between samples (``"instant"``). On the diagnosis benchmark's plants
+with sensor noise alone, whose ``T_f`` should be zero, its RMS is 0.056 N m without parallel
+filtering and 0.016 N m with it; from the sidecar's noise-free signals, 0.042 and 0.002 N m.
+
 The feedforward compensation is ``dtau = T_f_hat``: asking the muscles for ``tau + T_f``
 makes the joints receive ``tau``.
 """
@@ -33,9 +46,18 @@ from msarm.io.logs import RunLog
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import cable_kinematics_batch
 
-__all__ = ["TargetSpec", "torque_error"]
+__all__ = [
+    "TENSION_TIMINGS",
+    "TargetSpec",
+    "delivered_torque",
+    "torque_balance",
+    "torque_error",
+]
 
 FloatArray = NDArray[np.float64]
+
+#: What a load-cell sample can be (:attr:`TargetSpec.tension_timing`).
+TENSION_TIMINGS = ("period", "instant")
 
 
 @dataclass(frozen=True)
@@ -45,15 +67,27 @@ class TargetSpec:
     Attributes:
         window: Savitzky-Golay window [samples], odd (25 samples = 0.1 s at 250 Hz).
         polyorder: Savitzky-Golay polynomial order.
+        smooth_tension: Filter the delivered torque as the joint angles are (parallel
+            filtering; see the module docstring); False: the torque of each sample as it is.
+        tension_timing: What a load-cell sample is: ``"period"``, the tension held over the
+            sample period that ends at its time stamp (msarm's drives); ``"instant"``, the
+            tension at its time stamp, linear between samples.
     """
 
     window: int = 25
     polyorder: int = 3
+    smooth_tension: bool = True
+    tension_timing: str = "period"
 
     def __post_init__(self) -> None:
         if self.window % 2 == 0 or self.window <= self.polyorder:
             raise ValueError(
                 f"window must be odd and > polyorder, got {self.window}, {self.polyorder}"
+            )
+        if self.tension_timing not in TENSION_TIMINGS:
+            raise ValueError(
+                f"tension_timing must be one of {', '.join(TENSION_TIMINGS)}, "
+                f"got {self.tension_timing!r}"
             )
 
 
@@ -78,6 +112,25 @@ def torque_error(
     Raises:
         InputError: Too few samples for the filter, or a needed channel is missing.
     """
+    delivered, needed = torque_balance(model, log, spec, source, jacobians)
+    return delivered - needed
+
+
+def torque_balance(
+    model: RobotModel,
+    log: RunLog,
+    spec: TargetSpec | None = None,
+    source: str = "log",
+    jacobians: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """The two sides of ``T_f``: the delivered torque and the inverse dynamics [N m].
+
+    Arguments and errors as :func:`torque_error`, which is their difference.
+
+    Returns:
+        ``(delivered, needed)``, each ``(T, n)``: ``-J_c^T F`` filtered as ``spec`` says
+        (:func:`delivered_torque`), and Pinocchio's RNEA of the filtered motion.
+    """
     spec = spec or TargetSpec()
     joints, cables = list(model.joint_names), list(model.cable_names)
     for quantity, names in (("q", joints), ("tension_motor", cables)):
@@ -95,7 +148,7 @@ def torque_error(
     if all(f"tension_ff.{c}" in log.columns for c in cables):
         tension = tension - log.matrix("tension_ff", cables)
     data = model.create_data()
-    out = np.empty_like(q)
+    needed = np.empty_like(q)
     index = model.pin_q_index
     inverse = np.argsort(index)
     if jacobians is None:
@@ -106,9 +159,38 @@ def torque_error(
             f", got {jacobians.shape}"
         )
     for k in range(len(q)):
-        delivered = -jacobians[k].T @ tension[k]
-        needed = pinocchio.rnea(
+        needed[k] = pinocchio.rnea(
             model.pin_model, data.pin, q[k][index], qd[k][index], qdd[k][index]
         )[inverse]
-        out[k] = delivered - needed
-    return out
+    return delivered_torque(jacobians, tension, spec, dt), needed
+
+
+def delivered_torque(
+    jacobians: FloatArray, tension: FloatArray, spec: TargetSpec, dt: float
+) -> FloatArray:
+    """``-J_c^T F`` of every sample, filtered as the joint angles are [N m], ``(T, n)``.
+
+    With ``spec.smooth_tension`` the torque is integrated twice over time (exactly, for a
+    torque held over each period or linear between samples, as ``spec.tension_timing`` says;
+    from zero at the first sample) and differentiated twice by the Savitzky-Golay filter of
+    ``spec``: the filter the joint accelerations come from, so that both sides of the torque
+    balance have one bandwidth and one timing.
+
+    Args:
+        jacobians: Muscle Jacobians at the logged postures, ``(T, m, n)``.
+        tension: Load-cell tensions (less a tension-space feedforward) [N], ``(T, m)``.
+        spec: The filter and the load cells' timing.
+        dt: Sample period [s].
+    """
+    delivered = -np.einsum("tmn,tm->tn", jacobians, tension)
+    if not spec.smooth_tension:
+        return delivered
+    before, after = delivered[:-1], delivered[1:]
+    if spec.tension_timing == "period":  # held over [t_k, t_k+1): the sample at t_k+1
+        rise, bend = after, 0.5 * after
+    else:  # linear from one sample to the next
+        rise, bend = 0.5 * (before + after), before / 3.0 + after / 6.0
+    zero = np.zeros((1, delivered.shape[1]))
+    speed = np.concatenate([zero, dt * np.cumsum(rise, axis=0)])
+    travel = np.concatenate([zero, np.cumsum(dt * speed[:-1] + dt * dt * bend, axis=0)])
+    return savgol_filter(travel, spec.window, spec.polyorder, deriv=2, delta=dt, axis=0)

@@ -77,6 +77,8 @@ def _one_run(
         arrays["tension_cmd"] = residuals.tension_cmd[valid]
     if residuals.motor_speed is not None:
         arrays["motor_speed"] = residuals.motor_speed[valid]
+    if residuals.qdd_ref is not None:
+        arrays["qdd_ref"] = residuals.qdd_ref[valid]
     for name, value in arrays.items():
         if not np.all(np.isfinite(value)):
             row = int(np.argwhere(~np.isfinite(value))[0][0])

@@ -5,7 +5,9 @@ Three residuals say, sample by sample, how far the logged robot is from the nomi
 - ``joint_torque`` [N m], shape ``(T, n)``: ``T_f = -J_c^T F - ID(q, qd, qdd)``
   (:func:`msarm.compensation.target.torque_error`): the torque the motor-side load cells
   would deliver through ideal cables minus what the nominal inverse dynamics needs for the
-  logged motion (Savitzky-Golay derivatives of the joint encoders).
+  logged motion (Savitzky-Golay derivatives of the joint encoders). The delivered torque is
+  taken at the encoders' instant and smoothed by the same filter (parallel filtering), so
+  that the two sides of the balance have one bandwidth.
 - ``cable_length`` [m], shape ``(T, m)``: ``l_hat - l(q)``, the cable length the motor
   encoders say (``l_hat = l(q_0) - r (theta - theta_0)``, drum radius ``r``, from the first
   sample of each contiguous segment) minus the path length of the logged posture. Zero for
@@ -39,7 +41,7 @@ import pinocchio
 from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
-from msarm.compensation.target import TargetSpec, torque_error
+from msarm.compensation.target import TargetSpec, torque_balance
 from msarm.errors import LogError
 from msarm.io.logs import TIME, RunLog, read_log
 from msarm.model import RobotModel
@@ -147,6 +149,8 @@ class Residuals:
             segment takes its own) [N], shape ``(T, m)``; None without ``tension_cmd``.
         motor_speed: Filtered motor speeds [rad/s], shape ``(T, m)``; None without
             ``motor_angle``.
+        qdd_ref: Filtered accelerations of the logged reference [rad/s^2], shape ``(T, n)``;
+            None without ``q_ref`` channels.
         lengths: Nominal cable path lengths ``l(q)`` [m], shape ``(T, m)``; None unless
             asked for (``with_geometry``).
         jacobian: Nominal cable Jacobians ``J_c(q)`` [m/rad], shape ``(T, m, n)``; likewise.
@@ -171,6 +175,7 @@ class Residuals:
     tension: FloatArray
     tension_cmd: FloatArray | None = None
     motor_speed: FloatArray | None = None
+    qdd_ref: FloatArray | None = None
     lengths: FloatArray | None = None
     jacobian: FloatArray | None = None
     wrap: FloatArray | None = None
@@ -262,6 +267,7 @@ def residuals_from_log(
             DiagnosisWarning,
             stacklevel=2,
         )
+    has_reference = all(f"q_ref.{j}" in log.columns for j in joints)
     has_command = all(f"tension_cmd.{c}" in log.columns for c in cables)
     if not has_command:
         missing = next(c for c in cables if f"tension_cmd.{c}" not in log.columns)
@@ -281,6 +287,7 @@ def residuals_from_log(
         "drive": np.full((n_samples, m), np.nan) if has_command else None,
         "tension_cmd": np.full((n_samples, m), np.nan) if has_command else None,
         "motor_speed": np.full((n_samples, m), np.nan) if has_motor else None,
+        "qdd_ref": np.full((n_samples, n), np.nan) if has_reference else None,
         "lengths": np.full((n_samples, m), np.nan) if with_geometry else None,
         "jacobian": np.full((n_samples, m, n), np.nan) if with_geometry else None,
         "wrap": np.full((n_samples, m), np.nan) if with_geometry else None,
@@ -294,6 +301,7 @@ def residuals_from_log(
     tension_all = log.matrix("tension_motor", cables)
     motor_all = log.matrix("motor_angle", cables) if has_motor else None
     command_all = log.matrix("tension_cmd", cables) if has_command else None
+    reference_all = log.matrix("q_ref", joints) if has_reference else None
     dt = 1.0 / log.metadata.sample_rate_hz
     work = _Work(model)
     for start, stop in segments:
@@ -301,9 +309,8 @@ def residuals_from_log(
         sub = RunLog({k: v[part] for k, v in log.columns.items()}, log.metadata)
         q = q_all[part]
         kinematics = cable_kinematics_batch(model, q, with_wrap_angles=with_geometry)
-        out["joint_torque"][part] = torque_error(
-            model, sub, spec.target, source, kinematics.jacobian
-        )
+        delivered, needed = torque_balance(model, sub, spec.target, source, kinematics.jacobian)
+        out["joint_torque"][part] = delivered - needed
         window, order = spec.target.window, spec.target.polyorder
         q_f = savgol_filter(q, window, order, axis=0)
         qd = savgol_filter(q, window, order, deriv=1, delta=dt, axis=0)
@@ -321,6 +328,10 @@ def residuals_from_log(
             out["cable_length"][part] = estimate - lengths
             out["motor_speed"][part] = savgol_filter(
                 motor, window, order, deriv=1, delta=dt, axis=0
+            )
+        if reference_all is not None:
+            out["qdd_ref"][part] = savgol_filter(
+                reference_all[part], window, order, deriv=2, delta=dt, axis=0
             )
         if command_all is not None:
             command = command_all[part]
@@ -350,6 +361,7 @@ def residuals_from_log(
         tension=tension_all,
         tension_cmd=out["tension_cmd"],
         motor_speed=out["motor_speed"],
+        qdd_ref=out["qdd_ref"],
         lengths=out["lengths"],
         jacobian=out["jacobian"],
         wrap=out["wrap"],

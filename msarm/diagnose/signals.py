@@ -39,6 +39,7 @@ _SHAPES: dict[str, tuple[str, ...]] = {
 _OPTIONAL_SHAPES: dict[str, tuple[str, ...]] = {
     "tension_cmd": ("T", "m"),
     "motor_speed": ("T", "m"),
+    "qdd_ref": ("T", "n"),
 }
 
 
@@ -64,6 +65,11 @@ class Signals:
             produce (the command of the previous sample) [N], shape ``(T, m)``; optional.
         motor_speed: Motor (drum) speeds, filtered derivative of ``motor_angle`` [rad/s],
             shape ``(T, m)``; optional.
+        qdd_ref: Accelerations of the logged reference, filtered as ``qdd`` [rad/s^2], shape
+            ``(T, n)``; optional. ``qdd`` carries the encoders' noise, which is in the
+            joint-torque residual too (through the inverse dynamics), so a term whose
+            regressor holds ``qdd`` can "predict" that noise on held-out runs; the
+            reference's accelerations carry none.
 
     Raises:
         InputError: A field has the wrong shape or type, a non-finite value, or ``dt <= 0``;
@@ -84,6 +90,7 @@ class Signals:
     run: NDArray[np.int64] | None = None
     tension_cmd: FloatArray | None = None
     motor_speed: FloatArray | None = None
+    qdd_ref: FloatArray | None = None
 
     def __post_init__(self) -> None:
         sizes: dict[str, int] = {}
