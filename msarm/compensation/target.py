@@ -25,8 +25,9 @@ The integration follows the load cells' timing (``TargetSpec.tension_timing``): 
 drives hold each command over a control period, so a load-cell sample is the tension of the
 period that ends at its time stamp (``"period"``); a load cell read at its instant gives a
 tension taken as linear between samples (``"instant"``). On the diagnosis benchmark's plants
-with sensor noise alone, whose ``T_f`` should be zero, its RMS is 0.056 N m without parallel
-filtering and 0.016 N m with it; from the sidecar's noise-free signals, 0.042 and 0.002 N m.
+with sensor noise alone, whose ``T_f`` should be zero, its held-out RMS is 0.057 N m without
+parallel filtering and 0.017 N m with it; from one run's noise-free signals (the sidecar's),
+0.042 and 0.002 N m.
 
 The feedforward compensation is ``dtau = T_f_hat``: asking the muscles for ``tau + T_f``
 makes the joints receive ``tau``.

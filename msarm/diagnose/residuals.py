@@ -6,8 +6,9 @@ Three residuals say, sample by sample, how far the logged robot is from the nomi
   (:func:`msarm.compensation.target.torque_error`): the torque the motor-side load cells
   would deliver through ideal cables minus what the nominal inverse dynamics needs for the
   logged motion (Savitzky-Golay derivatives of the joint encoders). The delivered torque is
-  taken at the encoders' instant and smoothed by the same filter (parallel filtering), so
-  that the two sides of the balance have one bandwidth.
+  filtered as the joint angles are (integrated twice, at the load cells' timing, then
+  differentiated twice by the same filter: parallel filtering), so that the two sides of the
+  balance have one bandwidth and one timing.
 - ``cable_length`` [m], shape ``(T, m)``: ``l_hat - l(q)``, the cable length the motor
   encoders say (``l_hat = l(q_0) - r (theta - theta_0)``, drum radius ``r``, from the first
   sample of each contiguous segment) minus the path length of the logged posture. Zero for
