@@ -121,6 +121,8 @@ def test_too_few_runs_and_bad_input_are_refused(arm, noise_logs, tmp_path):
         split_runs(noise_logs[:1], None)
     with pytest.raises(InputError, match="too few runs to hold any out"):
         diagnose_command(noise_logs[:1], None, False, None)
+    with pytest.raises(InputError, match=r"--tension-timing: expected one of period, instant"):
+        diagnose_command(noise_logs[:2], noise_logs[2:3], False, None, tension_timing="late")
     train, held = split_runs(list(noise_logs), None)
     assert held == noise_logs[-1:] and train == noise_logs[:-1]
     with pytest.raises(InputError, match="holdout_paths"):
@@ -329,3 +331,16 @@ def test_fits_thin_the_training_samples_and_scores_keep_the_held_out_ones(arm):
             select.select_effects(data, max_score_samples=bad)
         with pytest.raises(InputError, match="max_samples: expected an integer >= 100"):
             select.select_effects(data, max_samples=bad)
+
+
+def test_the_load_cells_timing_reaches_the_residual(arm, noise_logs, capsys):
+    """``--tension-timing`` sets how the joint residual reads the load cells (and only that)."""
+    answers = {}
+    for timing in ("period", "instant"):
+        diagnose_command(noise_logs[:2], noise_logs[2:3], True, None, boot=0, tension_timing=timing)
+        answers[timing] = json.loads(capsys.readouterr().out)
+    period, instant = (answers[k]["gap"] for k in ("period", "instant"))
+    assert period["drive"] == instant["drive"]
+    joint = [period["joint"]["channels"][j]["before"] for j in arm.joint_names]
+    other = [instant["joint"]["channels"][j]["before"] for j in arm.joint_names]
+    assert joint != other

@@ -24,10 +24,13 @@ cells' noise and the tension's fast part (the controller's answer to the encoder
 The integration follows the load cells' timing (``TargetSpec.tension_timing``): msarm's
 drives hold each command over a control period, so a load-cell sample is the tension of the
 period that ends at its time stamp (``"period"``); a load cell read at its instant gives a
-tension taken as linear between samples (``"instant"``). On the diagnosis benchmark's plants
-with sensor noise alone, whose ``T_f`` should be zero, its held-out RMS is 0.057 N m without
-parallel filtering and 0.017 N m with it; from one run's noise-free signals (the sidecar's),
-0.042 and 0.002 N m.
+tension taken as linear between samples (``"instant"``). On msarm's rigid-cable plants the
+first fits (noise-free, 0.0019 N m RMS left against 0.0039 N m); on its elastic plants,
+whose logged tension is one plant step (a quarter period) late, the two come out alike
+(0.0025 and 0.0019 N m), both far below the sensor noise's share. On the diagnosis
+benchmark's plants with sensor noise alone, whose ``T_f`` should be zero, its held-out RMS is
+0.057 N m without parallel filtering and 0.017 N m with it; from one run's noise-free signals
+(the sidecar's), 0.042 and 0.002 N m.
 
 The feedforward compensation is ``dtau = T_f_hat``: asking the muscles for ``tau + T_f``
 makes the joints receive ``tau``.
