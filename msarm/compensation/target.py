@@ -54,7 +54,6 @@ __all__ = [
     "TENSION_TIMINGS",
     "TargetSpec",
     "delivered_torque",
-    "torque_balance",
     "torque_error",
 ]
 
@@ -116,25 +115,6 @@ def torque_error(
     Raises:
         InputError: Too few samples for the filter, or a needed channel is missing.
     """
-    delivered, needed = torque_balance(model, log, spec, source, jacobians)
-    return delivered - needed
-
-
-def torque_balance(
-    model: RobotModel,
-    log: RunLog,
-    spec: TargetSpec | None = None,
-    source: str = "log",
-    jacobians: FloatArray | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """The two sides of ``T_f``: the delivered torque and the inverse dynamics [N m].
-
-    Arguments and errors as :func:`torque_error`, which is their difference.
-
-    Returns:
-        ``(delivered, needed)``, each ``(T, n)``: ``-J_c^T F`` filtered as ``spec`` says
-        (:func:`delivered_torque`), and Pinocchio's RNEA of the filtered motion.
-    """
     spec = spec or TargetSpec()
     joints, cables = list(model.joint_names), list(model.cable_names)
     for quantity, names in (("q", joints), ("tension_motor", cables)):
@@ -166,7 +146,7 @@ def torque_balance(
         needed[k] = pinocchio.rnea(
             model.pin_model, data.pin, q[k][index], qd[k][index], qdd[k][index]
         )[inverse]
-    return delivered_torque(jacobians, tension, spec, dt), needed
+    return delivered_torque(jacobians, tension, spec, dt) - needed
 
 
 def delivered_torque(

@@ -42,7 +42,7 @@ import pinocchio
 from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
-from msarm.compensation.target import TargetSpec, torque_balance
+from msarm.compensation.target import TargetSpec, torque_error
 from msarm.errors import LogError
 from msarm.io.logs import TIME, RunLog, read_log
 from msarm.model import RobotModel
@@ -310,8 +310,9 @@ def residuals_from_log(
         sub = RunLog({k: v[part] for k, v in log.columns.items()}, log.metadata)
         q = q_all[part]
         kinematics = cable_kinematics_batch(model, q, with_wrap_angles=with_geometry)
-        delivered, needed = torque_balance(model, sub, spec.target, source, kinematics.jacobian)
-        out["joint_torque"][part] = delivered - needed
+        out["joint_torque"][part] = torque_error(
+            model, sub, spec.target, source, kinematics.jacobian
+        )
         window, order = spec.target.window, spec.target.polyorder
         q_f = savgol_filter(q, window, order, axis=0)
         qd = savgol_filter(q, window, order, deriv=1, delta=dt, axis=0)
