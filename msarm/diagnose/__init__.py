@@ -11,7 +11,8 @@ Modules:
 - ``signals``, ``effects``, ``cable_effects``, ``fitting``: the library of candidate effects
   (joint friction: Coulomb, viscous, Stribeck, Dahl; capstan sheath friction; mass error
   through Pinocchio's regressor; load-cell bias and scale; winch friction, motor cogging and
-  command delay on the drive; cable elasticity, backlash and slack), each a parametric term
+  command delay on the drive; cable elasticity, sheath stretch, backlash, slack and encoder
+  skew on the cable lengths), each a parametric term
   fitted by least squares or IPOPT (casadi), with bootstrap over runs.
 - ``builder``: the signals and the residuals of several logs, by channel group, with run
   labels.

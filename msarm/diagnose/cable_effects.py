@@ -38,6 +38,7 @@ __all__ = [
     "CableSlack",
     "CommandDelay",
     "DriveCogging",
+    "EncoderSkew",
     "WinchFriction",
 ]
 
@@ -266,6 +267,45 @@ class CableElasticity(CandidateEffect):
         self._check_cables(signals, self.n_cables)
         tension = signals.tension
         return _per_cable_or_shared([-(tension - signals.run_mean(tension))], self.shared)
+
+
+@register
+class EncoderSkew(CandidateEffect):
+    """The joint encoders and the motor encoders read at different instants.
+
+    Joint encoders that read ``delta`` [s] after the motor encoders (before, for
+    ``delta < 0``) see the posture the cables reach ``delta`` later, so the path length the
+    residual takes from them is ``l(q(t + delta)) = l(q(t)) + delta ldot`` to first order,
+    with the cable speed ``ldot = J_c(q) qd`` [m/s] of the logged motion: ``e_l = -delta
+    (ldot - mean_run ldot)``, demeaned per run like the length residual. Linear in
+    ``delta``, shared by all cables (the two sensor sets are read by one clock each).
+    Sensors on different buses, or a simulation that reads its cables' state one step
+    before its joints', show it; a cable length error in phase with the cables' speed, not
+    with their tension, is its mark.
+    """
+
+    name = "encoder_skew"
+    description = (
+        "e_l = -delta (ldot - mean_run ldot): the joint encoders read delta [s] after the "
+        "motor encoders, ldot = J_c(q) qd the cables' speed"
+    )
+    linear = True
+    groups = ("length",)
+
+    def __init__(self, n_cables: int = 9) -> None:
+        """Build the term.
+
+        Args:
+            n_cables: Number of cables ``m``.
+        """
+        self.n_cables = int(n_cables)
+        self.channels = tuple(range(self.n_cables))
+        self.parameter_names = ("skew",)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        self._check_cables(signals, self.n_cables)
+        speed = signals.cable_velocity
+        return -(speed - signals.run_mean(speed))[:, :, None]
 
 
 class _DrumDirectionTerm(CandidateEffect):

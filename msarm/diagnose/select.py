@@ -61,6 +61,7 @@ from msarm.diagnose.cable_effects import (
     CableSlack,
     CommandDelay,
     DriveCogging,
+    EncoderSkew,
     WinchFriction,
 )
 from msarm.diagnose.effects import (
@@ -146,6 +147,7 @@ DEFAULT_CANDIDATES = (
     "sheath_stretch",
     "backlash",
     "slack",
+    "encoder_skew",
 )
 
 
@@ -164,7 +166,8 @@ def available_candidates(
     scale shared by all cables). Drive terms: ``winch_friction``, ``motor_cogging``
     (:data:`DEFAULT_COGGING_PERIODS` periods per revolution) and ``command_delay``. Cable
     length: ``elasticity``, ``sheath_stretch`` (an elastic cable in a sheath with friction
-    stretches less while pulled in), ``backlash`` and ``slack`` (a dead zone). Drive terms use
+    stretches less while pulled in), ``backlash``, ``slack`` (a dead zone) and
+    ``encoder_skew`` (joint and motor encoders read at different instants). Drive terms use
     ``spec.drum_radius`` and ``spec.drive_gain``.
 
     Args:
@@ -189,6 +192,7 @@ def available_candidates(
         CableSheathStretch(spec.drum_radius, n_cables=m),
         CableBacklash(spec.drum_radius, n_cables=m),
         CableSlack(n_cables=m),
+        EncoderSkew(n_cables=m),
         MotorCogging(DEFAULT_COGGING_PERIODS, spec.drum_radius, n_cables=m, n_joints=n),
         TensionDelay(n_cables=m, n_joints=n),
     ]
