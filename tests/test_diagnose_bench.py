@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import shutil
+from dataclasses import replace
 
 import pytest
 
@@ -139,6 +141,25 @@ def test_bad_settings_are_refused(arm, tmp_path):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(effects=("gremlins",)))
     with pytest.raises(InputError, match="draws"):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(draws=0))
+    with pytest.raises(InputError, match="sindy_threshold"):
+        run_diagnosis_benchmark(arm, tmp_path, BenchSettings(sindy_threshold=float("nan")))
+
+
+def test_the_baseline_s_threshold_reaches_it(arm, report, monkeypatch, tmp_path):
+    out, first = report
+    shutil.copytree(out / "logs", tmp_path / "logs")  # the same logs, scored anew
+    seen = []
+
+    def spy(data, threshold):
+        seen.append(threshold)
+        return sindy_baseline(data, threshold=threshold)
+
+    monkeypatch.setattr(bench_module, "sindy_baseline", spy)
+    strict = run_diagnosis_benchmark(arm, tmp_path, replace(TINY, sindy_threshold=1e6))
+    assert len(seen) == len(strict["scenarios"]) and set(seen) == {1e6}
+    # a threshold no coefficient passes: the baseline names nothing, the diagnosis is as before
+    assert all(not row["sindy"]["names"] for row in strict["scenarios"])
+    assert strict["summary"]["msarm"]["top1_accuracy"] == first["summary"]["msarm"]["top1_accuracy"]
 
 
 def test_a_diverged_scenario_is_reported_not_scored(arm, report, monkeypatch, tmp_path):

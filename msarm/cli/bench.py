@@ -133,6 +133,13 @@ def diagnose_bench(
         "repeat the option); default all.",
     ),
     pairs: bool = typer.Option(True, "--pairs/--no-pairs", help="Two-effect scenarios."),
+    sindy_threshold: float = typer.Option(
+        0.05,
+        "--sindy-threshold",
+        min=0.0,
+        help="The PySINDy baseline's STLSQ threshold on unit-norm columns (a change re-scores "
+        "the baseline and the diagnosis from the cached logs).",
+    ),
     rescore: bool = typer.Option(
         False, "--rescore", help="Diagnose again every scenario (cached logs are reused)."
     ),
@@ -164,6 +171,7 @@ def diagnose_bench(
         n_boot=n_boot,
         effects=tuple(effects),
         pairs=pairs,
+        sindy_threshold=sindy_threshold,
     )
     err = Console(stderr=True)
     with err.status("benchmark") as status:

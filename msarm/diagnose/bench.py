@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from msarm.diagnose.baseline import sindy_baseline
+from msarm.diagnose.baseline import DEFAULT_SINDY_THRESHOLD, sindy_baseline
 from msarm.diagnose.residuals import DiagnosisWarning
 from msarm.diagnose.scenarios import (
     Scenario,
@@ -107,6 +107,7 @@ class BenchSettings:
         n_boot: Bootstrap draws of the diagnosis (confidence and std).
         effects: Effect classes to cover (all of :data:`EFFECT_CANDIDATES` when empty).
         pairs: Include the two-effect scenarios.
+        sindy_threshold: The PySINDy baseline's STLSQ threshold (on unit-norm columns).
     """
 
     seed: int = 0
@@ -119,6 +120,7 @@ class BenchSettings:
     n_boot: int = 10
     effects: tuple[str, ...] = ()
     pairs: bool = True
+    sindy_threshold: float = DEFAULT_SINDY_THRESHOLD
 
 
 def _check(settings: BenchSettings) -> None:
@@ -134,6 +136,10 @@ def _check(settings: BenchSettings) -> None:
         raise InputError(f"n_null: expected an integer >= 0, got {settings.n_null}")
     if not settings.duration > 0:
         raise InputError(f"duration: expected > 0 s, got {settings.duration}")
+    if not (np.isfinite(settings.sindy_threshold) and settings.sindy_threshold >= 0):
+        raise InputError(
+            f"sindy_threshold: expected a finite value >= 0, got {settings.sindy_threshold}"
+        )
 
 
 def _scenarios(settings: BenchSettings) -> list[Scenario]:
@@ -208,7 +214,7 @@ def _diagnose_scenario(
     chosen_at = next(
         (t for t, text in marks if text.startswith(("bootstrap", "replaying"))), selected
     )
-    baseline = sindy_baseline(data)
+    baseline = sindy_baseline(data, threshold=settings.sindy_threshold)
     done = time.perf_counter()
     return {
         "msarm": {
