@@ -15,6 +15,7 @@ from msarm.compensation.target import (
     TENSION_TIMINGS,
     TargetSpec,
     delivered_torque,
+    filtered_motion,
     torque_error,
 )
 from msarm.control import ArmControllerConfig
@@ -151,6 +152,12 @@ def test_target_is_zero_on_the_ideal_plant_and_not_on_the_default_plant(arm, tmp
     # the caller's Jacobians of the logged postures give the same target; wrong ones: refused
     jacobians = cable_kinematics_batch(arm, log.matrix("q")).jacobian
     np.testing.assert_array_equal(torque_error(arm, log, TargetSpec(), jacobians=jacobians), tf)
+    # and so does the caller's filtered motion (the diagnosis computes it once for both)
+    q_raw = log.matrix("q", list(arm.joint_names))
+    motion = filtered_motion(q_raw, TargetSpec(), 1.0 / log.metadata.sample_rate_hz)
+    np.testing.assert_array_equal(torque_error(arm, log, TargetSpec(), motion=motion), tf)
+    with pytest.raises(InputError, match="motion"):
+        torque_error(arm, log, TargetSpec(), motion=tuple(m[1:] for m in motion))
     with pytest.raises(InputError, match="jacobians must have shape"):
         torque_error(arm, log, TargetSpec(), jacobians=jacobians[1:])
 

@@ -54,6 +54,7 @@ __all__ = [
     "TENSION_TIMINGS",
     "TargetSpec",
     "delivered_torque",
+    "filtered_motion",
     "torque_error",
 ]
 
@@ -94,12 +95,34 @@ class TargetSpec:
             )
 
 
+def filtered_motion(
+    q_raw: FloatArray, spec: TargetSpec, dt: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The logged joint angles through the target's Savitzky-Golay filter.
+
+    Args:
+        q_raw: Joint angles as logged [rad], ``(T, n)``, ``T >= spec.window``.
+        spec: The filter.
+        dt: Sample period [s].
+
+    Returns:
+        Smoothed angles [rad], velocities [rad/s] and accelerations [rad/s^2], each ``(T, n)``.
+    """
+    window, order = spec.window, spec.polyorder
+    return (
+        savgol_filter(q_raw, window, order, axis=0),
+        savgol_filter(q_raw, window, order, deriv=1, delta=dt, axis=0),
+        savgol_filter(q_raw, window, order, deriv=2, delta=dt, axis=0),
+    )
+
+
 def torque_error(
     model: RobotModel,
     log: RunLog,
     spec: TargetSpec | None = None,
     source: str = "log",
     jacobians: FloatArray | None = None,
+    motion: tuple[FloatArray, FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
     """``T_f`` of every sample of a log [N m], shape ``(T, n)``.
 
@@ -111,6 +134,8 @@ def torque_error(
         jacobians: The muscle Jacobians at the logged postures, ``(T, m, n)``, if the caller
             has them already (:func:`msarm.muscle.batch_kinematics.cable_kinematics_batch`);
             computed here otherwise.
+        motion: :func:`filtered_motion` of the log's joint angles with ``spec``, if the caller
+            has it already; computed here otherwise.
 
     Raises:
         InputError: Too few samples for the filter, or a needed channel is missing.
@@ -125,9 +150,11 @@ def torque_error(
     if len(q_raw) < spec.window:
         raise InputError(f"{source}: {len(q_raw)} samples, fewer than the filter's {spec.window}")
     dt = 1.0 / log.metadata.sample_rate_hz
-    q = savgol_filter(q_raw, spec.window, spec.polyorder, axis=0)
-    qd = savgol_filter(q_raw, spec.window, spec.polyorder, deriv=1, delta=dt, axis=0)
-    qdd = savgol_filter(q_raw, spec.window, spec.polyorder, deriv=2, delta=dt, axis=0)
+    if motion is None:
+        motion = filtered_motion(q_raw, spec, dt)
+    elif any(np.shape(part) != q_raw.shape for part in motion):
+        raise InputError(f"{source}: motion must be three arrays of shape {q_raw.shape}")
+    q, qd, qdd = motion
     tension = log.matrix("tension_motor", cables)
     if all(f"tension_ff.{c}" in log.columns for c in cables):
         tension = tension - log.matrix("tension_ff", cables)

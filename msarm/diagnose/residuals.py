@@ -42,7 +42,7 @@ import pinocchio
 from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
-from msarm.compensation.target import TargetSpec, torque_error
+from msarm.compensation.target import TargetSpec, filtered_motion, torque_error
 from msarm.errors import LogError
 from msarm.io.logs import TIME, RunLog, read_log
 from msarm.model import RobotModel
@@ -310,14 +310,14 @@ def residuals_from_log(
         sub = RunLog({k: v[part] for k, v in log.columns.items()}, log.metadata)
         q = q_all[part]
         kinematics = cable_kinematics_batch(model, q, with_wrap_angles=with_geometry)
+        motion = filtered_motion(q, spec.target, dt)
         out["joint_torque"][part] = torque_error(
-            model, sub, spec.target, source, kinematics.jacobian
+            model, sub, spec.target, source, kinematics.jacobian, motion
         )
+        q_f, qd, qdd = motion
         window, order = spec.target.window, spec.target.polyorder
-        q_f = savgol_filter(q, window, order, axis=0)
-        qd = savgol_filter(q, window, order, deriv=1, delta=dt, axis=0)
         out["qd"][part] = qd
-        out["qdd"][part] = savgol_filter(q, window, order, deriv=2, delta=dt, axis=0)
+        out["qdd"][part] = qdd
         lengths = kinematics.lengths
         out["cable_velocity"][part] = np.matmul(kinematics.jacobian, qd[:, :, None])[:, :, 0]
         if with_geometry:
