@@ -138,7 +138,8 @@ def torque_error(
             has it already; computed here otherwise.
 
     Raises:
-        InputError: Too few samples for the filter, or a needed channel is missing.
+        InputError: Too few samples for the filter, a needed channel is missing, or
+            ``jacobians`` or ``motion`` of the wrong shape.
     """
     spec = spec or TargetSpec()
     joints, cables = list(model.joint_names), list(model.cable_names)
