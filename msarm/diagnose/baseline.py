@@ -26,7 +26,7 @@ from msarm.diagnose.effects import CableCapstanFriction, CableCapstanHysteresis,
 from msarm.diagnose.stack import DiagnosisData, Embedded, pooled_rmse
 from msarm.errors import InputError
 
-__all__ = ["DEFAULT_SINDY_THRESHOLD", "BaselineResult", "sindy_baseline"]
+__all__ = ["DEFAULT_SINDY_THRESHOLD", "BaselineResult", "check_setting", "sindy_baseline"]
 
 FloatArray = NDArray[np.float64]
 
@@ -73,6 +73,12 @@ class BaselineResult:
         }
 
 
+def check_setting(name: str, value: float) -> None:
+    """Refuse a threshold or ridge weight that is not finite and >= 0 (InputError naming it)."""
+    if not np.isfinite(value) or value < 0:
+        raise InputError(f"{name}: expected a finite value >= 0, got {value}")
+
+
 def _linear_form(term: CandidateEffect) -> CandidateEffect | None:
     if term.linear:
         return term
@@ -116,8 +122,7 @@ def sindy_baseline(
     import pysindy
 
     for name, value in (("threshold", threshold), ("alpha", alpha)):
-        if not np.isfinite(value) or value < 0:
-            raise InputError(f"{name}: expected a finite value >= 0, got {value}")
+        check_setting(name, value)
     library: list[Embedded] = []
     excluded: dict[str, str] = {}
     for candidate in data.candidates:

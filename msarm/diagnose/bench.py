@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from msarm.diagnose.baseline import DEFAULT_SINDY_THRESHOLD, sindy_baseline
+from msarm.diagnose.baseline import DEFAULT_SINDY_THRESHOLD, check_setting, sindy_baseline
 from msarm.diagnose.residuals import DiagnosisWarning
 from msarm.diagnose.scenarios import (
     Scenario,
@@ -136,10 +136,7 @@ def _check(settings: BenchSettings) -> None:
         raise InputError(f"n_null: expected an integer >= 0, got {settings.n_null}")
     if not settings.duration > 0:
         raise InputError(f"duration: expected > 0 s, got {settings.duration}")
-    if not (np.isfinite(settings.sindy_threshold) and settings.sindy_threshold >= 0):
-        raise InputError(
-            f"sindy_threshold: expected a finite value >= 0, got {settings.sindy_threshold}"
-        )
+    check_setting("sindy_threshold", settings.sindy_threshold)  # before any simulation
 
 
 def _scenarios(settings: BenchSettings) -> list[Scenario]:
