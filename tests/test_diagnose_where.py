@@ -251,6 +251,28 @@ def test_time_gaps_split_the_log_and_warn(arm, logs, residuals, tmp_path):
     assert breakdown.samples == int(result.valid.sum())
 
 
+def test_a_time_gap_does_not_restart_the_cable_length_estimate(arm, logs, tmp_path):
+    """The motor angles are absolute: after a dropout the length error goes on where it was."""
+    log = read_log(logs["ideal"])
+    columns = dict(log.columns)
+    for name in arm.cable_names:  # a drum slip that grows with time: 1 mrad/s on each motor
+        columns[f"motor_angle.{name}"] = columns[f"motor_angle.{name}"] + 1e-3 * log.t
+    whole = RunLog(columns, log.metadata)
+    keep = np.ones(len(log), dtype=bool)
+    keep[400:500] = False  # a 0.4 s dropout
+    full_path = write_log(tmp_path / "whole.parquet", whole)
+    gap_path = write_log(
+        tmp_path / "dropout.parquet", RunLog({k: v[keep] for k, v in columns.items()}, log.metadata)
+    )
+    full = residuals_from_log(arm, full_path)
+    with pytest.warns(DiagnosisWarning, match="gap"):
+        dropped = residuals_from_log(arm, gap_path)
+    assert dropped.valid.all()
+    np.testing.assert_allclose(dropped.cable_length, full.cable_length[keep], rtol=0, atol=1e-12)
+    # the slip is there to be seen after the gap: r * 1 mrad/s * 0.4 s more than before it
+    assert np.abs(full.cable_length[500] - full.cable_length[399]).max() > 1e-6
+
+
 def test_the_diagnosis_never_opens_the_sidecar(arm, logs, tmp_path):
     log = read_log(logs["joint_friction"])
     path = write_log(tmp_path / "log.parquet", log)

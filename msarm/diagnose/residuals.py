@@ -10,9 +10,10 @@ Three residuals say, sample by sample, how far the logged robot is from the nomi
   differentiated twice by the same filter: parallel filtering), so that the two sides of the
   balance have one bandwidth and one timing.
 - ``cable_length`` [m], shape ``(T, m)``: ``l_hat - l(q)``, the cable length the motor
-  encoders say (``l_hat = l(q_0) - r (theta - theta_0)``, drum radius ``r``, from the first
-  sample of each contiguous segment) minus the path length of the logged posture. Zero for
-  rigid cables; stretch, slack and drum slip make it differ.
+  encoders say (``l_hat = l(q_0) - r (theta - theta_0)``, drum radius ``r``, from the log's
+  first diagnosed sample: the motor angles are absolute, so a time gap does not restart the
+  estimate) minus the path length of the logged posture. Zero for rigid cables; stretch, slack
+  and drum slip make it differ.
 - ``drive`` [N], shape ``(T, m)``: ``F - F_cmd``, the load-cell tension minus the tension the
   controller commanded one sample earlier (the nominal drive renders each command exactly by
   the next sample: on the ideal plant this residual is zero). Winch friction, cogging, a drive
@@ -305,6 +306,7 @@ def residuals_from_log(
     reference_all = log.matrix("q_ref", joints) if has_reference else None
     dt = 1.0 / log.metadata.sample_rate_hz
     work = _Work(model)
+    anchor: tuple[FloatArray, FloatArray] | None = None
     for start, stop in segments:
         part = slice(start, stop)
         sub = RunLog({k: v[part] for k, v in log.columns.items()}, log.metadata)
@@ -326,7 +328,9 @@ def residuals_from_log(
             out["wrap"][part] = kinematics.wrap_angles
         if motor_all is not None:
             motor = motor_all[part]
-            estimate = lengths[0] - spec.drum_radius * (motor - motor[0])
+            if anchor is None:  # the run's first diagnosed sample: motor angles are absolute,
+                anchor = (lengths[0], motor[0])  # so one anchor carries across time gaps
+            estimate = anchor[0] - spec.drum_radius * (motor - anchor[1])
             out["cable_length"][part] = estimate - lengths
             out["motor_speed"][part] = savgol_filter(
                 motor, window, order, deriv=1, delta=dt, axis=0
@@ -393,7 +397,8 @@ def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
         row = int(gaps[0])
         warnings.warn(
             f"{source}: column '{TIME}' has {len(gaps)} gap(s) longer than {_GAP_FACTOR:g} "
-            f"sample periods, the first at row {row} (t = {t[row - 1]!r} -> {t[row]!r} s); "
+            f"sample periods, the first at row {row} "
+            f"(t = {float(t[row - 1]):.6g} -> {float(t[row]):.6g} s); "
             "the log is diagnosed as separate segments",
             DiagnosisWarning,
             stacklevel=3,
