@@ -28,7 +28,7 @@ so once ``pulley_loss`` is named, ``inertia`` is not tried with it.
 The script simulates 4 short runs (a hold-then-move task each, 4 s) on the ideal plant with
 sensor noise and ``PulleyLoss(loss)`` added, holds the last one out, and diagnoses them with
 the default candidates plus this one (``extra_candidates``); it prints the named effects and
-the fitted loss (0.1503 for 0.15, 0.0504 for 0.05).
+the fitted loss (0.1501 for 0.15, 0.0501 for 0.05).
 
     python examples/diagnose_custom_candidate.py [--loss 0.15] [--out DIR]
 """
@@ -181,6 +181,8 @@ def main() -> None:
     parser.add_argument("--loss", type=float, default=0.15, help="share of tension lost")
     parser.add_argument("--out", type=Path, default=None, help="folder for the report")
     args = parser.parse_args()
+    if not 0 <= args.loss < 1:
+        parser.error(f"--loss: expected a share of the tension in [0, 1), got {args.loss:g}")
     started = time.perf_counter()
     result, files = run_example(args.loss, args.out)
     print(f"named effects, in order: {', '.join(result.names) or 'none'}")

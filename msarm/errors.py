@@ -19,3 +19,10 @@ class ConfigError(MsarmError, ValueError):
 
 class LogError(MsarmError, ValueError):
     """A run log or its sidecar is missing or breaks the log schema (file and column named)."""
+
+
+class MsarmWarning(UserWarning):
+    """Base class of every warning msarm gives on purpose (the CLI prints it as one line).
+
+    The message says what limits a result and what is still done.
+    """

@@ -41,3 +41,25 @@ def test_help_keeps_bracketed_units(path, command):
     for param in command.params:
         for piece in _BRACKETED.findall(_plain(getattr(param, "help", None) or "")):
             assert piece in shown, f"{' '.join(path)} {param.opts}: {piece!r} lost in --help"
+
+
+def test_the_console_script_prints_msarm_warnings_as_one_line(monkeypatch, capsys):
+    import sys
+    import warnings
+
+    from msarm.cli import main
+    from msarm.diagnose.residuals import DiagnosisWarning
+
+    passed_on = []  # what the console script hands to the warnings' previous printer
+    monkeypatch.setattr(warnings, "showwarning", lambda *args, **kw: passed_on.append(args))
+    monkeypatch.setattr(sys, "argv", ["msarm", "--help"])
+    with pytest.raises(SystemExit):
+        main()
+    capsys.readouterr()
+    message = "log.parquet: column 't' has 1 gap(s)"
+    warnings.showwarning(DiagnosisWarning(message), DiagnosisWarning, "residuals.py", 398)
+    assert capsys.readouterr().err == f"msarm: warning: {message}\n"
+    assert passed_on == []
+    # anything else keeps where it came from (it may be a bug): the usual printer
+    warnings.showwarning(RuntimeWarning("overflow"), RuntimeWarning, "x.py", 7)
+    assert len(passed_on) == 1 and passed_on[0][2:4] == ("x.py", 7)

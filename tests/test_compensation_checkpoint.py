@@ -123,6 +123,12 @@ def test_load_refuses_missing_corrupt_and_foreign_files(compensator, tmp_path):
     corrupt.write_bytes(np.random.default_rng(0).bytes(4000))
     with pytest.raises(CheckpointError, match="not a readable compensator file"):
         Compensator.load(corrupt)
+    # another kind of file: told what to give instead, not torch's advice on weights_only
+    table = tmp_path / "log.parquet"
+    table.write_bytes(b"PAR1" + bytes(100) + b"PAR1")
+    with pytest.raises(CheckpointError, match="runs/compensator/compensator.pt") as caught:
+        Compensator.load(table)
+    assert "weights_only" not in str(caught.value)
 
     other = tmp_path / "other.pt"
     torch.save({"weights": torch.zeros(3)}, other)

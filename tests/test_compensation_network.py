@@ -15,7 +15,7 @@ from msarm.compensation import (
     check_finite,
     train_network,
 )
-from msarm.errors import ConfigError, InputError
+from msarm.errors import ConfigError, InputError, MsarmWarning
 from msarm.io.config import load_config
 
 D, N_OUT = 6, 4
@@ -240,3 +240,15 @@ def test_normalizer_and_network_shape():
     assert [type(m).__name__ for m in net] == ["Linear", "Tanh", "Linear"]
     assert net[0].weight.shape == (150, 43) and net[0].weight.dtype == torch.float64
     assert net(torch.zeros(7, 43, dtype=torch.float64)).shape == (7, 4)
+
+
+def test_a_training_that_keeps_the_untrained_weights_says_so():
+    # validation targets unrelated to the inputs: no epoch can beat the untrained network by
+    # much, and a huge step makes every epoch worse
+    x, y = _synthetic(400, seed=3)
+    xv, _ = _synthetic(200, seed=4)
+    yv = np.random.default_rng(5).normal(size=(200, N_OUT)) * 100.0
+    config = NetworkConfig(batch_size=64, max_epochs=2, patience=5, learning_rate=1.0)
+    with pytest.warns(MsarmWarning, match="keeps the\\s+initial .random. weights"):
+        result = train_network(x, y, xv, yv, config)
+    assert result.best_epoch == 0

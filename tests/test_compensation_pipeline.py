@@ -17,11 +17,12 @@ from msarm.compensation.feedforward import (
     load_feedforward,
     trained_controller,
 )
-from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
+from msarm.compensation.pipeline import TUNED_CONTROLLER, CompensatorRecipe, train_compensator
 from msarm.control import ArmControllerConfig
 from msarm.io.config import load_config, write_config
 from msarm.model import load_arm
 from msarm.plant import DEFAULT_PLANT
+from msarm.tasks.evaluate import SLACK_THRESHOLD
 
 RECIPE = Path(__file__).resolve().parents[1] / "training" / "compensator.yaml"
 
@@ -54,7 +55,8 @@ def test_training_writes_a_checkpoint_for_this_model(trained):
     # the gains it was trained with travel with it (compare and track --ff run them)
     assert trained_controller(compensator) == recipe.controller != ArmControllerConfig()
     del compensator.metadata["recipe"]
-    assert trained_controller(compensator) == ArmControllerConfig()
+    with pytest.raises(CheckpointError, match="records no controller gains"):
+        trained_controller(compensator)
     assert all(r2 > 0 for r2 in report.test_r2)  # explains some held-out T_f variance
     # the sheath stage was identified from the runs and travels with the network
     mu = DEFAULT_PLANT.effects.sheath_friction.mu
@@ -90,6 +92,11 @@ def test_feedforward_improves_tracking_and_final_error_on_the_held_out_tasks(tra
             measured = comparison.metrics[task][label].final_error_mm
             assert abs(comparison.true_final_error_mm[task][label] - measured) < 0.15
     assert comparison.as_dict()["true_final_error_ratio_held_out"] > 1
+    # the stage asks the motors for less than the 5 N floor while a cable pays out; the
+    # cables stay taut at their insertions all the same (ground truth, above the slack level)
+    for task in comparison.tasks:
+        for label in comparison.labels:
+            assert comparison.true_min_insertion_tension[task][label] > SLACK_THRESHOLD
     assert (folder / "compare" / "error_statistics.png").is_file()
 
 
@@ -143,3 +150,39 @@ def test_compare_refuses_extra_tasks_that_were_trained_on(tmp_path, trained):
     result = CliRunner().invoke(app, ["compare", "--ff", str(path), "--extra", "2"])
     assert result.exit_code != 0
     assert "random-[5001]" in result.output and "were trained on" in result.output
+
+
+def test_the_shipped_recipe_is_the_default():
+    """msarm train outside the repository (no training/compensator.yaml) trains the same."""
+    assert load_config(RECIPE, CompensatorRecipe) == CompensatorRecipe()
+    assert CompensatorRecipe().controller == TUNED_CONTROLLER != ArmControllerConfig()
+
+
+def test_a_checkpoint_whose_parts_do_not_fit_is_refused_with_its_file(trained, tmp_path):
+    arm, recipe, _, _ = trained
+
+    def edited(name, change):
+        compensator = Compensator.load(recipe.checkpoint)
+        change(compensator.metadata)
+        return compensator.save(tmp_path / f"{name}.pt")
+
+    cases = {
+        "no_recipe": (lambda m: m.pop("recipe"), "records no controller gains"),
+        "bad_mu": (
+            lambda m: m["sheath"]["parameters"].update(mu=-1.0),
+            "invalid sheath stage: sheath mu must be",
+        ),
+        "other_features": (
+            lambda m: m["feature_spec"].update(groups=["q", "qdot"]),
+            "its feature spec gives 8 inputs, its network takes 25",
+        ),
+    }
+    for name, (change, message) in cases.items():
+        path = edited(name, change)
+        with pytest.raises(CheckpointError, match=message) as caught:
+            load_feedforward(path, arm)
+        assert str(path) in str(caught.value)
+    path = edited("no_split", lambda m: m["split"].pop("test"))
+    result = CliRunner().invoke(app, ["compare", "--ff", str(path)])
+    assert isinstance(result.exception, CheckpointError)
+    assert "records no run split" in str(result.exception)

@@ -10,7 +10,12 @@ import pytest
 
 import msarm.diagnose.bench as bench_module
 from msarm.diagnose.baseline import sindy_baseline
-from msarm.diagnose.bench import BenchSettings, run_diagnosis_benchmark, summarise
+from msarm.diagnose.bench import (
+    EFFECT_CANDIDATES,
+    BenchSettings,
+    run_diagnosis_benchmark,
+    summarise,
+)
 from msarm.errors import InputError
 
 TINY = BenchSettings(
@@ -143,6 +148,9 @@ def test_bad_settings_are_refused(arm, tmp_path):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(draws=0))
     with pytest.raises(InputError, match="sindy_threshold"):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(sindy_threshold=float("nan")))
+    with pytest.raises(InputError, match=r"threshold: expected a value in \[0, 1\)"):
+        run_diagnosis_benchmark(arm, tmp_path, BenchSettings(threshold=1.0))
+    assert not any(tmp_path.iterdir())  # refused before anything was simulated
 
 
 def test_the_baseline_s_threshold_reaches_it(arm, report, monkeypatch, tmp_path):
@@ -178,3 +186,9 @@ def test_a_diverged_scenario_is_reported_not_scored(arm, report, monkeypatch, tm
     assert [f["scenario"] for f in result["failed"]] == ["winch_friction-0"]
     assert "winch_friction-0" not in [r["scenario"] for r in result["scenarios"]]
     assert result["summary"]["msarm"]["single_scenarios"] == 1
+
+
+def test_the_cli_lists_every_effect_class_of_the_benchmark():
+    from msarm.cli.bench import BENCH_EFFECTS
+
+    assert BENCH_EFFECTS == tuple(EFFECT_CANDIDATES)

@@ -134,6 +134,45 @@ def test_too_few_runs_and_bad_input_are_refused(arm, noise_logs, tmp_path):
     missing = tmp_path / "missing.parquet"
     with pytest.raises(InputError, match="missing.parquet"):
         signals_from_logs(arm, [missing])
+    with pytest.raises(InputError, match="given more than once"):
+        diagnose(arm, [noise_logs[0], noise_logs[0]], noise_logs[1:2])
+    for threshold in (1.0, 5.0, -0.1, float("nan")):
+        with pytest.raises(InputError, match=r"threshold: expected a value in \[0, 1\)"):
+            diagnose(arm, noise_logs[:2], noise_logs[2:3], threshold=threshold)
+
+
+def test_the_console_script_refuses_a_negative_seed_before_any_work(noise_logs, capsys):
+    from typer.testing import CliRunner
+
+    from msarm.cli import app
+
+    args = ["diagnose", *(str(p) for p in noise_logs), "--seed", "-3"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and result.exception is not None
+    assert "--seed" in result.output and "greater than or equal to 0" in result.output
+
+
+def test_held_out_logs_without_a_channel_skip_the_terms_that_need_it(arm, noise_logs, tmp_path):
+    from msarm.diagnose.residuals import DiagnosisWarning
+    from msarm.diagnose.select import load_data
+    from msarm.io.logs import RunLog, read_log, write_log
+
+    log = read_log(noise_logs[-1])
+    columns = {k: v for k, v in log.columns.items() if not k.startswith("tension_cmd.")}
+    held = write_log(tmp_path / "no_commands.parquet", RunLog(columns, log.metadata))
+    # the default library: the terms that read the commands are skipped, the held-out logs
+    # named as the ones that lack them
+    with pytest.warns(DiagnosisWarning) as caught:
+        data = load_data(arm, noise_logs[:2], [held])
+    text = " ".join(str(w.message) for w in caught)
+    assert "no_commands.parquet: column 'tension_cmd." in text
+    reason = data.skipped["capstan_hysteresis"]
+    assert reason.startswith("in the held-out logs") and "tension_cmd" in reason
+    assert "coulomb" not in data.skipped
+    # a term the user asked for: an error that says so
+    with pytest.raises(InputError, match="capstan_hysteresis cannot be fitted.*held-out logs"):
+        with pytest.warns(DiagnosisWarning):
+            load_data(arm, noise_logs[:2], [held], candidates=["coulomb", "capstan_hysteresis"])
 
 
 def test_cli_writes_the_report(arm, noise_logs, tmp_path, capsys):

@@ -86,13 +86,22 @@ def main() -> None:
     naming the problem, with exit code 2; anything else keeps its traceback (a bug).
     """
     import sys
+    import warnings
 
-    from msarm.errors import MsarmError
+    from msarm.errors import MsarmError, MsarmWarning
 
+    default_show = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        # msarm's own warnings name their file and column: one line, no source location
+        if issubclass(category, MsarmWarning):
+            print(f"msarm: warning: {message}", file=sys.stderr if file is None else file)
+        else:
+            default_show(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
     try:
         app(args=spread_multi_value_options(sys.argv[1:]))
     except MsarmError as exc:
-        import sys
-
         print(f"msarm: error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None

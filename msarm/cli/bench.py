@@ -13,7 +13,7 @@ bench_app = typer.Typer(
 @bench_app.command("allocation")
 def allocation(
     n_problems: int = typer.Option(1000, "--n-problems", min=1, help="Problems per robot."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the problem generator."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of the problem generator."),
     json_output: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
     """Allocation solvers on the arm (9 x 4) and an 8-cable CDPR (8 x 6), against cvxpy."""
@@ -115,7 +115,32 @@ def sim(
     out.print(f"target: closed loop >= {TARGET_REAL_TIME_FACTOR:.0f}x real time: {met}")
 
 
-@bench_app.command("diagnose")
+#: Effect classes of ``msarm bench diagnose --effect`` (those of
+#: :data:`msarm.diagnose.bench.EFFECT_CANDIDATES`, named here so that ``--help`` stays light).
+BENCH_EFFECTS = (
+    "sheath_friction",
+    "winch_friction",
+    "elasticity",
+    "joint_friction",
+    "cogging",
+    "sensor_bias",
+    "delay",
+)
+_EFFECT_HELP = (
+    f"Effect classes to cover, of {', '.join(BENCH_EFFECTS)}: every name after --effect up "
+    "to the next option (or repeat the option); default all."
+)
+_BENCH_DIAGNOSE_HELP = (
+    "Withheld-effect benchmark: name the effect each simulated plant was given (vs PySINDy)."
+    "\n\n"
+    "Each scenario is the arm plant with one effect (three seeded parameter draws per class), "
+    "two effects, or only sensor noise. Its logs (training and held-out tasks differ) go to "
+    "the diagnosis and to a PySINDy sparse-regression baseline on the same data. Logs and "
+    "results are cached under --out: a rerun resumes."
+)
+
+
+@bench_app.command("diagnose", help=_BENCH_DIAGNOSE_HELP)
 def diagnose_bench(
     out: str = typer.Option("runs/bench-diagnose", "--out", help="Folder of logs and results."),
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of scenarios and tasks."),
@@ -129,8 +154,7 @@ def diagnose_bench(
         [],
         "--effect",
         metavar="NAME",
-        help="Effect classes to cover: every name after --effect up to the next option (or "
-        "repeat the option); default all.",
+        help=_EFFECT_HELP,
     ),
     pairs: bool = typer.Option(True, "--pairs/--no-pairs", help="Two-effect scenarios."),
     sindy_threshold: float = typer.Option(
@@ -145,13 +169,7 @@ def diagnose_bench(
     ),
     json_output: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
-    """Withheld-effect benchmark: name the effect each simulated plant was given (vs PySINDy).
-
-    Each scenario is the arm plant with one effect (three seeded parameter draws per class),
-    two effects, or only sensor noise. Its logs (training and held-out tasks differ) go to
-    the diagnosis and to a PySINDy sparse-regression baseline on the same data. Logs and
-    results are cached under --out: a rerun resumes.
-    """
+    """Withheld-effect benchmark (the help text is ``_BENCH_DIAGNOSE_HELP``)."""
     import json
     from pathlib import Path
 

@@ -68,7 +68,7 @@ def run_command(
         str, typer.Option(help="triangle-12, circle-12, triangle-34, circle-34, rectangle-switch.")
     ] = "triangle-12",
     plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
-    seed: Annotated[int, typer.Option(help="Seed of the sensor noise.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the sensor noise.")] = 0,
     out: Annotated[
         Path | None,
         typer.Option(help="Output folder (default runs/cdpr-<controller>-<trajectory>)."),

@@ -144,13 +144,14 @@ def compare_command(
     ] = DEFAULT_CHECKPOINT,
     plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/compare"),
-    seed: Annotated[int, typer.Option(help="Noise seed of the Table I runs.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Noise seed of the Table I runs.")] = 0,
     extra: Annotated[
         int,
         typer.Option(
             min=0,
             help=f"More held-out random tasks, random-{EXTRA_FIRST_SEED} on (never trained on): "
-            "a steadier mean than the two test runs alone.",
+            "a steadier mean than the two test runs alone. They are in the table, the means and "
+            "error_statistics.png; trajectory plots are drawn for Table I and the two test runs.",
         ),
     ] = 0,
     parts: Annotated[
@@ -169,6 +170,7 @@ def compare_command(
     # of a tenth of a millimetre
     from rich.progress import Progress
 
+    from msarm.compensation.checkpoint import CheckpointError
     from msarm.compensation.compare import SHEATH_ONLY, compare_feedforward
     from msarm.compensation.feedforward import (
         LearnedFeedforward,
@@ -178,7 +180,7 @@ def compare_command(
     from msarm.model import load_arm
 
     if not ff.is_file():
-        raise typer.BadParameter(f"no checkpoint at {ff}: run `msarm train` first, or give --ff")
+        raise CheckpointError(f"--ff: no checkpoint at {ff}; run `msarm train` first, or give --ff")
     arm = load_arm()
     feedforward = load_feedforward(ff, arm)
     variants = {}
@@ -189,9 +191,17 @@ def compare_command(
                 "sheath.enabled: false); nothing to run apart"
             )
         variants[SHEATH_ONLY] = LearnedFeedforward(arm, None, feedforward.sheath)
-    meta = feedforward.compensator.metadata
-    held_out = list(meta["split"]["test"])
-    seen = set(meta["split"]["train"]) | set(meta["split"]["validation"])
+    split = feedforward.compensator.metadata.get("split")
+    if not isinstance(split, dict) or not all(
+        isinstance(split.get(k), list) for k in ("train", "validation", "test")
+    ):
+        raise CheckpointError(
+            f"{ff}: records no run split (metadata 'split' with train, validation and test "
+            "seeds), so its held-out tasks are unknown; expected a compensator written by "
+            "msarm train"
+        )
+    held_out = list(split["test"])
+    seen = set(split["train"]) | set(split["validation"])
     more = [EXTRA_FIRST_SEED + k for k in range(extra)]
     if seen & set(more):
         raise typer.BadParameter(
@@ -245,6 +255,12 @@ def summary_lines(result, group: str, tasks: list[str]) -> list[str]:
     def final(label: str, true: bool = False) -> float:
         return result.mean_final_error(tasks, label, true)
 
+    def outside(label: str) -> float:
+        return float(np.mean([sum(result.metrics[t][label].time_outside_bounds) for t in tasks]))
+
+    def lowest(label: str) -> float:
+        return min(result.true_min_insertion_tension[t][label] for t in tasks)
+
     lines = []
     for label in result.labels[1:]:
         name = "feedforward" if label == WITH else label
@@ -256,7 +272,10 @@ def summary_lines(result, group: str, tasks: list[str]) -> list[str]:
             f"{result.ratio(tasks, label, true=True):.2f}); mean joint RMSE "
             f"{1000 * mean(WITHOUT, 'joint_rmse'):.1f} -> {1000 * mean(label, 'joint_rmse'):.1f} "
             f"mrad; mean error {SETTLE_DELAY:g} s after the move "
-            f"{mean(WITHOUT, 'settle_error_mm'):.2f} -> {mean(label, 'settle_error_mm'):.2f} mm"
+            f"{mean(WITHOUT, 'settle_error_mm'):.2f} -> {mean(label, 'settle_error_mm'):.2f} mm; "
+            f"time outside the tension bounds (load cells, all cables) "
+            f"{outside(WITHOUT):.1f} -> {outside(label):.1f} s a task; lowest tension at an "
+            f"insertion (simulation) {lowest(WITHOUT):.2f} -> {lowest(label):.2f} N"
         )
     return lines
 
@@ -275,6 +294,7 @@ def comparison_table(result, joint_names) -> Table:
         "joint RMSE [mrad] (mean)",
         "cable length error [% travel]",
         "slack events",
+        "time outside tension bounds [s]",
     ):
         table.add_column(escape(column), justify="left" if column == "task" else "right")
     for task in result.tasks:
@@ -289,5 +309,6 @@ def comparison_table(result, joint_names) -> Table:
             f"{min(a.cable_length_error_percent):.2f}-{max(a.cable_length_error_percent):.2f} / "
             f"{min(b.cable_length_error_percent):.2f}-{max(b.cable_length_error_percent):.2f}",
             f"{sum(a.slack_events)} / {sum(b.slack_events)}",
+            f"{sum(a.time_outside_bounds):.1f} / {sum(b.time_outside_bounds):.1f}",
         )
     return table

@@ -215,7 +215,7 @@ def diagnose_command(
             help="Bootstrap refits over training runs for the std and confidence (< 2: none).",
         ),
     ] = 20,
-    seed: Annotated[int, typer.Option(help="Seed of the bootstrap draws.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the bootstrap draws.")] = 0,
     shortlist: Annotated[
         int,
         typer.Option(

@@ -87,7 +87,7 @@ def track_command(
         str, typer.Option(help="Task name: table1-1 ... table1-4, random-<seed>.")
     ] = "table1-1",
     plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
-    seed: Annotated[int, typer.Option(help="Seed of the plant's sensor noise.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the plant's sensor noise.")] = 0,
     controller: Annotated[
         Path | None,
         typer.Option(
@@ -99,7 +99,11 @@ def track_command(
         Path | None, typer.Option("--ff", help="Feedforward compensator checkpoint.")
     ] = None,
     out: Annotated[
-        Path | None, typer.Option(help="Output folder (default runs/track-<task>-<plant>).")
+        Path | None,
+        typer.Option(
+            help="Output folder (default runs/track-<task>-<plant>, with --ff "
+            "runs/track-<task>-<plant>-ff)."
+        ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
     list_: ListOption = False,
@@ -128,7 +132,8 @@ def track_command(
         gains = gains or trained_controller(feedforward.compensator)
     gains = gains or ArmControllerConfig()
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
-    out_dir = out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}"
+    suffix = "-ff" if feedforward is not None else ""  # never over a run without it
+    out_dir = out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}{suffix}"
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task(f"{task_obj.name} on {plant_config.name}", total=1.0)
         result = track(

@@ -19,6 +19,7 @@ hashes shown) or another feature spec (the differing keys shown).
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -246,10 +247,18 @@ class Compensator:
         path = Path(path)
         if not path.is_file():
             raise CheckpointError(f"{path}: compensator file not found")
+        if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
+            raise CheckpointError(
+                f"{path}: not a readable compensator file (not the zip archive that "
+                "Compensator.save writes: corrupt, truncated, or another kind of file); "
+                "expected the checkpoint of msarm train, by default "
+                "runs/compensator/compensator.pt"
+            )
         try:
             saved = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:  # any failure to unpickle means an unusable file
-            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            text = str(exc).strip()
+            reason = text.split(". ")[0] if text else type(exc).__name__
             raise CheckpointError(
                 f"{path}: not a readable compensator file (corrupt, truncated, or not written "
                 f"by Compensator.save): {reason}"
@@ -277,8 +286,9 @@ class Compensator:
         fmt = saved.get("format")
         if fmt == TRAINING_CHECKPOINT_FORMAT:
             raise CheckpointError(
-                f"{source}: this is a training checkpoint (what train_network resumes from), "
-                "not a compensator; save TrainingResult.compensator with Compensator.save"
+                f"{source}: this is a training checkpoint (what an interrupted training "
+                "resumes from), not a compensator; give the compensator that msarm train "
+                "wrote (the recipe's checkpoint, by default runs/compensator/compensator.pt)"
             )
         if fmt != COMPENSATOR_FORMAT:
             raise CheckpointError(

@@ -60,6 +60,11 @@ class Comparison:
         true_final_error_mm: ``[task][label]``: the final error of the plant's true joint
             angles [mm] (simulation ground truth; the metrics' is the encoders').
         files: Files written (plots, JSON).
+        true_min_insertion_tension: ``[task][label]``: the lowest tension any cable had at
+            its insertion over the run [N] (simulation ground truth). The metrics' tension
+            bounds are read from the load cells at the motors; a sheath stage asks a motor
+            for less than the allocation's floor while its cable pays out, because the
+            sheath then delivers more at the insertion.
     """
 
     tasks: tuple[str, ...]
@@ -67,6 +72,7 @@ class Comparison:
     metrics: dict[str, dict[str, TrackingMetrics]]
     true_final_error_mm: dict[str, dict[str, float]]
     files: dict[str, Path]
+    true_min_insertion_tension: dict[str, dict[str, float]]
 
     @property
     def labels(self) -> tuple[str, ...]:
@@ -102,6 +108,7 @@ class Comparison:
                 for task, runs in self.metrics.items()
             },
             "true_final_error_mm": self.true_final_error_mm,
+            "true_min_insertion_tension_N": self.true_min_insertion_tension,
             "final_error_ratio_held_out": self.ratio(self.held_out) if self.held_out else None,
             "final_error_ratio_table1": self.ratio(table1),
             "true_final_error_ratio_held_out": (
@@ -152,11 +159,12 @@ def compare_feedforward(
         variants.append((label, part, label.replace(" ", "_")))
     metrics: dict[str, dict[str, TrackingMetrics]] = {}
     true_final: dict[str, dict[str, float]] = {}
+    lowest: dict[str, dict[str, float]] = {}
     columns: dict[str, dict[str, dict]] = {}
     for name in tasks:
         task = get_task(name, model)
         run_seed = int(name.split("-")[1]) if name.startswith("random-") else seed
-        metrics[name], columns[name], true_final[name] = {}, {}, {}
+        metrics[name], columns[name], true_final[name], lowest[name] = {}, {}, {}, {}
         target = hand_position(model, task.target)[0]
         for label, ff, folder_name in variants:
             if progress is not None:
@@ -170,6 +178,9 @@ def compare_feedforward(
             true_final[name][label] = 1000.0 * float(
                 np.linalg.norm(hand_position(model, q_true)[0] - target)
             )
+            lowest[name][label] = float(
+                min(np.min(result.run.truth[f"tension_insertion.{c}"]) for c in model.cable_names)
+            )
     files: dict[str, Path] = {}
     for name in tasks[:4] + list(held_out[:2]):
         files[f"trajectories_{name}"] = plots.plot_joint_tracking(
@@ -182,7 +193,7 @@ def compare_feedforward(
     files["error_statistics"] = _plot_error_statistics(
         metrics, tasks, model.cable_names, out_dir / "error_statistics.png"
     )
-    comparison = Comparison(tuple(tasks), held_out, metrics, true_final, files)
+    comparison = Comparison(tuple(tasks), held_out, metrics, true_final, files, lowest)
     files["json"] = out_dir / "comparison.json"
     write_json_atomic(files["json"], comparison.as_dict())
     return comparison

@@ -8,16 +8,18 @@ the checkpoint) also turns the wanted tensions into the drives' command.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.compensation.checkpoint import Compensator
+from msarm.compensation.checkpoint import CheckpointError, Compensator
 from msarm.compensation.fast import FastCompensator
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.control import ArmControllerConfig
+from msarm.errors import ConfigError, InputError
 from msarm.io.config import load_config
 from msarm.model import RobotModel
 
@@ -32,35 +34,69 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-def feature_spec_of(compensator: Compensator) -> FeatureSpec:
-    """The feature spec stored in a compensator's metadata."""
-    raw = dict(compensator.metadata["feature_spec"])
-    raw["groups"] = tuple(raw["groups"])
-    if "stiction_mus" in raw:
-        raw["stiction_mus"] = tuple(raw["stiction_mus"])
-    return FeatureSpec(**raw)
+def feature_spec_of(compensator: Compensator, source: str = "compensator") -> FeatureSpec:
+    """The feature spec stored in a compensator's metadata.
+
+    Raises:
+        CheckpointError: The metadata has no feature spec, or not a valid one (``source``
+            named).
+    """
+    raw = compensator.metadata.get("feature_spec")
+    if not isinstance(raw, Mapping):
+        raise CheckpointError(f"{source}: records no feature spec (metadata has no 'feature_spec')")
+    raw = dict(raw)
+    try:
+        raw["groups"] = tuple(raw["groups"])
+        if "stiction_mus" in raw:
+            raw["stiction_mus"] = tuple(raw["stiction_mus"])
+        return FeatureSpec(**raw)
+    except (InputError, KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{source}: invalid feature_spec: {exc}") from None
 
 
-def trained_controller(compensator: Compensator) -> ArmControllerConfig:
-    """The controller gains a compensator was trained with (its recipe's), else the defaults.
+def trained_controller(
+    compensator: Compensator, source: str = "compensator"
+) -> ArmControllerConfig:
+    """The controller gains a compensator was trained with (its recipe's ``controller``).
 
     The feedforward learned the torque error that this controller leaves, so it is run, and
     compared, with the same gains.
+
+    Raises:
+        CheckpointError: The metadata records no gains, or invalid ones (``source`` named).
     """
-    recipe = compensator.metadata.get("recipe", {})
-    if "controller" not in recipe:
-        return ArmControllerConfig()
-    return load_config(recipe["controller"], ArmControllerConfig)
+    recipe = compensator.metadata.get("recipe")
+    if not isinstance(recipe, Mapping) or "controller" not in recipe:
+        raise CheckpointError(
+            f"{source}: records no controller gains (metadata has no 'recipe.controller'); "
+            "the feedforward must run with the gains it was trained with: retrain it with "
+            "msarm train, or give msarm track --controller"
+        )
+    try:
+        return load_config(recipe["controller"], ArmControllerConfig)
+    except ConfigError as exc:
+        raise CheckpointError(f"{source}: invalid recipe.controller: {exc}") from None
 
 
-def sheath_stage_of(model: RobotModel, compensator: Compensator) -> SheathInverse | None:
-    """The sheath stage a compensator was trained with, or None (a network alone)."""
+def sheath_stage_of(
+    model: RobotModel, compensator: Compensator, source: str = "compensator"
+) -> SheathInverse | None:
+    """The sheath stage a compensator was trained with, or None (a network alone).
+
+    Raises:
+        CheckpointError: The stage's settings or parameters are missing or invalid (``source``
+            named).
+    """
     saved = compensator.metadata.get("sheath")
     if not saved:
         return None
-    spec = SheathSpec(**saved["spec"])
-    parameters = SheathParameters.from_dict(saved["parameters"])
-    return SheathInverse(model, spec, parameters, 1.0 / trained_controller(compensator).rate_hz)
+    try:
+        spec = SheathSpec(**saved["spec"])
+        parameters = SheathParameters.from_dict(saved["parameters"])
+    except (InputError, KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{source}: invalid sheath stage: {exc}") from None
+    period = 1.0 / trained_controller(compensator, source).rate_hz
+    return SheathInverse(model, spec, parameters, period)
 
 
 class LearnedFeedforward:
@@ -119,7 +155,25 @@ class LearnedFeedforward:
 def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:
     """Load a checkpoint for ``model`` (with its sheath stage, if it was trained with one).
 
-    Refuses a checkpoint made for another model (reason given).
+    Raises:
+        CheckpointError: The file is not a compensator for ``model`` (another model, a
+            corrupt file), or what it records does not fit together: no controller gains, a
+            feature spec whose inputs are not the network's, an invalid sheath stage. The
+            message names the file and the reason.
     """
+    source = str(path)
     compensator = Compensator.load(path, expected_model_sha256=model.sha256)
-    return LearnedFeedforward(model, compensator, sheath_stage_of(model, compensator))
+    spec = feature_spec_of(compensator, source)
+    inputs = FeatureExtractor(model, spec).size
+    if inputs != compensator.input_dim:
+        raise CheckpointError(
+            f"{source}: its feature spec gives {inputs} inputs, its network takes "
+            f"{compensator.input_dim}; the file was edited or mixed from two trainings"
+        )
+    if compensator.output_dim != model.n_joints:
+        raise CheckpointError(
+            f"{source}: its network gives {compensator.output_dim} torques, the arm has "
+            f"{model.n_joints} joints"
+        )
+    trained_controller(compensator, source)  # the gains it must run with are recorded
+    return LearnedFeedforward(model, compensator, sheath_stage_of(model, compensator, source))

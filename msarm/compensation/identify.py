@@ -32,7 +32,7 @@ from msarm.diagnose.cable_effects import CableElasticity
 from msarm.diagnose.effects import CableCapstanFriction
 from msarm.diagnose.fitting import fit
 from msarm.diagnose.stack import Layout, group_scores
-from msarm.errors import InputError
+from msarm.errors import InputError, MsarmWarning
 from msarm.model import RobotModel
 
 __all__ = ["identify_sheath"]
@@ -76,6 +76,7 @@ def identify_sheath(
             warnings.warn(
                 f"identify_sheath: the elasticity fit gives a negative compliance "
                 f"({compliance:.3g} m/N); the sheath stage takes the cables as rigid (0)",
+                MsarmWarning,
                 stacklevel=2,
             )
             compliance = 0.0

@@ -34,6 +34,7 @@ import dataclasses
 import hashlib
 import math
 import time
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +44,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
-from msarm.errors import InputError
+from msarm.errors import InputError, MsarmWarning
 from msarm.io.atomic import atomic_path
 from msarm.io.config import config_to_dict
 
@@ -498,6 +499,15 @@ def train_network(
             if progress is not None:
                 progress(state.epoch, config.max_epochs, train_loss, val_loss)
 
+    if state.best_epoch == 0 and state.epoch > 0:
+        warnings.warn(
+            f"train_network: no epoch of {state.epoch} lowered the validation loss below the "
+            f"untrained network's ({state.initial_val_loss:.4g}); the compensator keeps the "
+            "initial (random) weights, so its output is not learned. Expected more data, "
+            "more epochs or a smaller learning rate",
+            MsarmWarning,
+            stacklevel=2,
+        )
     compensator = Compensator(state.best_state, in_norm, out_norm, config, metadata=meta)
     return TrainingResult(
         compensator=compensator,

@@ -136,6 +136,8 @@ def _check(settings: BenchSettings) -> None:
         raise InputError(f"n_null: expected an integer >= 0, got {settings.n_null}")
     if not settings.duration > 0:
         raise InputError(f"duration: expected > 0 s, got {settings.duration}")
+    if not (0 <= settings.threshold < 1):  # select_effects' own check, before any simulation
+        raise InputError(f"threshold: expected a value in [0, 1), got {settings.threshold}")
     check_setting("sindy_threshold", settings.sindy_threshold)  # before any simulation
 
 

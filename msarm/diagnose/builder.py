@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.residuals import ResidualSpec, residuals_from_log
+from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, residuals_from_log
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError, LogError
 from msarm.io.logs import read_log
@@ -42,6 +42,11 @@ def _one_run(
 ) -> tuple[dict[str, FloatArray], dict[str, FloatArray], float]:
     """Signal arrays and group residuals (valid samples only) and sample period of one log."""
     source = str(path)
+    if path.is_dir():
+        inside = (
+            " (it holds log.parquet: give that file)" if (path / "log.parquet").is_file() else ""
+        )
+        raise InputError(f"{source}: a folder, expected a log file (Parquet){inside}")
     if not path.is_file():
         raise InputError(f"{source}: no such log file")
     log = read_log(path)
@@ -55,6 +60,7 @@ def _one_run(
         warnings.warn(
             f"{source}: column 'motor_angle.{missing[0]}' is missing; motor angles are taken as "
             "zero (the cogging candidate cannot explain anything in this run)",
+            DiagnosisWarning,
             stacklevel=3,
         )
         motor = np.zeros((len(log), len(cables)))

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
 from msarm.compensation.target import TargetSpec, filtered_motion, torque_error
-from msarm.errors import LogError
+from msarm.errors import LogError, MsarmWarning
 from msarm.io.logs import TIME, RunLog, read_log
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
@@ -72,7 +72,7 @@ _RATE_TOLERANCE = 0.05
 _REPLAY_LIMIT = np.pi
 
 
-class DiagnosisWarning(UserWarning):
+class DiagnosisWarning(MsarmWarning):
     """Something in a log limits the diagnosis (a time gap, a dropped segment)."""
 
 
@@ -249,8 +249,10 @@ def residuals_from_log(
         raise LogError(
             f"{source}: the log is of another robot model: its model_sha256 is "
             f"{log.metadata.model_sha256!r} (model {log.metadata.robot_model!r}), the nominal "
-            f"model {model.path} has {model.sha256!r}; diagnose it against the model it was "
-            "recorded with"
+            f"model {model.path} has {model.sha256!r}; diagnose it against the arm model it "
+            "was recorded with (--model). The diagnosis reads logs of cable-driven arms "
+            "(joint angles and cables, as msarm track writes); a cable-driven parallel robot's "
+            "logs are not diagnosed yet"
         )
     joints, cables = list(model.joint_names), list(model.cable_names)
     for quantity, names in (("q", joints), ("tension_motor", cables)):

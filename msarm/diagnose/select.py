@@ -350,11 +350,14 @@ def _usable(
     signals: Signals,
     required: set[str],
     absent: set[str],
+    held_signals: Signals | None = None,
 ) -> tuple[list[CandidateEffect], dict[str, str]]:
     """Drop candidates whose groups or signals the logs lack (an error if the user named them).
 
-    A warning names those dropped for want of channels (``absent`` groups); those whose group
-    is below its resolution are only listed in the result.
+    The signals are checked on the training logs and on the held-out logs
+    (``held_signals``): a term is fitted on the first and scored on the second. A warning names
+    those dropped for want of channels (``absent`` groups); those whose group is below its
+    resolution are only listed in the result.
     """
     usable, skipped = [], {}
     warn: list[str] = []
@@ -366,18 +369,29 @@ def _usable(
                 term, missing = smaller, []
         reason = ""
         if missing:
+            lacking = [g for g in missing if g in absent]
+            columns = {"drive": "tension_cmd.<cable>", "length": "motor_angle.<cable>"}
             reason = (
-                f"needs the {', '.join(missing)} residual, which the logs lack (drive: "
-                "tension_cmd.<cable> columns; length: motor_angle.<cable>) or which is zero or "
-                "below its resolution (ResidualSpec.length_resolution)"
+                f"needs the {', '.join(missing)} residual, which the logs lack (no "
+                f"{', '.join(columns.get(g, g) for g in lacking)} columns in the training or "
+                "held-out logs)"
+                if lacking
+                else f"needs the {', '.join(missing)} residual, which is zero or below its "
+                "resolution in these logs (the length's: ResidualSpec.length_resolution, as "
+                "with rigid cables)"
             )
         else:
-            try:
-                term.check(signals)
-                if term.linear:
-                    term.design(signals.take(np.arange(min(signals.n_samples, 8))))
-            except InputError as exc:
-                reason = str(exc)
+            checks = [("training", signals)]
+            if held_signals is not None:
+                checks.append(("held-out", held_signals))
+            for which, these in checks:
+                try:
+                    term.check(these)
+                    if term.linear:
+                        term.design(these.take(np.arange(min(these.n_samples, 8))))
+                except InputError as exc:
+                    reason = f"in the {which} logs: {exc}"
+                    break
         if not reason:
             usable.append(term)
         elif term.name in required:
@@ -506,6 +520,14 @@ def load_data(
         raise InputError("train_paths: no training logs; the terms need runs to be fitted on")
     if not holdout_paths:
         raise InputError("holdout_paths: no held-out logs; the terms need runs to be scored on")
+    for name, paths in (("train_paths", train_paths), ("holdout_paths", holdout_paths)):
+        resolved = [str(Path(p).resolve()) for p in paths]
+        twice = sorted({p for p in resolved if resolved.count(p) > 1})
+        if twice:
+            raise InputError(
+                f"{name}: the log(s) {twice} are given more than once; expected each run once "
+                "(a repeated run would weigh twice in the fits and the bootstrap)"
+            )
     both = {str(Path(p).resolve()) for p in train_paths} & {
         str(Path(p).resolve()) for p in holdout_paths
     }
@@ -548,7 +570,7 @@ def load_data(
         raise InputError(f"extra_candidates: names must be unique, got {names}")
     required = {c.name for c in pool} if named else set()
     required |= {c.name for c in extras}
-    usable, skipped = _usable([*pool, *extras], layout, train, required, absent)
+    usable, skipped = _usable([*pool, *extras], layout, train, required, absent, hold)
     names = {"joint": tuple(model.joint_names)}
     names.update({g: tuple(model.cable_names) for g in ("drive", "length")})
     return DiagnosisData(
@@ -612,8 +634,11 @@ def select_effects(
     if shortlist is not None and (int(shortlist) != shortlist or shortlist < 1):
         raise InputError(f"shortlist: expected None or an integer >= 1, got {shortlist}")
     threshold = float(threshold)
-    if not np.isfinite(threshold) or threshold < 0:
-        raise InputError(f"threshold: expected a finite value >= 0, got {threshold}")
+    if not (0 <= threshold < 1):  # a gain in explained share is at most 1
+        raise InputError(
+            f"threshold: expected a value in [0, 1) (a rise of the held-out explained share; "
+            f"a gain never reaches 1), got {threshold}"
+        )
     hold, layout = data.hold, data.layout
     r_hold = data.r_hold
     sampled = Sampled(data, int(max_samples), max_hold=int(max_score_samples))
