@@ -63,15 +63,21 @@ def _step_labels(diagnosis: Diagnosis) -> list[str]:
     return labels
 
 
+def _short(value: float) -> str:
+    """A bar's value in at most about eight characters (``0.000165`` as ``1.65e-04``)."""
+    return f"{value:.3g}" if value == 0 or 1e-2 <= abs(value) < 1e4 else f"{value:.2e}"
+
+
 def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
     """Pooled held-out RMSE of each group after each selection step, as a waterfall.
 
     One panel per group of ``diagnosis.groups``. Bar ``k`` is the group's pooled held-out RMSE
     [its unit, :data:`~msarm.diagnose.builder.GROUP_UNITS`] after the first ``k`` selected
     effects (bar 0: the nominal model); the drop from the previous step is shaded (green, red
-    for a rise) and labelled with its size in % of the nominal RMSE. The panel title gives the
-    group's total shrink ``1 - RMSE_after / RMSE_nominal``. With nothing selected, each panel
-    has the nominal bar only.
+    for a rise) and labelled with the RMSE and the drop's size in % of the nominal RMSE (a
+    grey bar, an effect on other groups that leaves this one unchanged, is not labelled). The
+    panel title gives the group's total shrink ``1 - RMSE_after / RMSE_nominal``. With nothing
+    selected, each panel has the nominal bar only.
 
     Args:
         diagnosis: The diagnosis.
@@ -118,9 +124,11 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
             )
             ax.plot([x[k - 1] + 0.3, x[k] - 0.3], [values[k - 1]] * 2, color="0.4", lw=0.8)
             share = 100.0 * drop / nominal if nominal > 0 else 0.0
+            if not acts[k] and abs(share) < 0.05:
+                continue  # an effect on other groups: the bar says it all, no label to crowd
             change = f"{-share:+.1f} %" if abs(share) >= 0.05 else "0.0 %"
             ax.annotate(
-                f"{values[k]:.3g} ({change})",
+                f"{_short(values[k])}\n{change}",
                 (x[k], max(values[k], values[k - 1])),
                 xytext=(0, 3),
                 textcoords="offset points",
@@ -129,7 +137,7 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
                 fontsize=8,
             )
         ax.annotate(
-            f"{nominal:.3g}",
+            _short(nominal),
             (x[0], nominal),
             xytext=(0, 3),
             textcoords="offset points",
@@ -141,7 +149,7 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
             ax.axhline(values[-1], color="k", lw=0.8, ls="--", zorder=1)
         ax.set_xticks(x, labels, rotation=25, ha="right")
         ax.set_ylabel(f"pooled held-out RMSE [{unit}]")
-        ax.set_ylim(0.0, 1.15 * max(float(values.max()), 1e-300))
+        ax.set_ylim(0.0, 1.22 * max(float(values.max()), 1e-300))  # room for two-line labels
         shrink = 1.0 - values[-1] / nominal if nominal > 0 else 0.0
         ax.set_title(f"{g}: shrink {100 * shrink:.1f} %")
         ax.set_xlim(-0.6 if len(x) > 1 else -1.5, x[-1] + (0.6 if len(x) > 1 else 1.5))
