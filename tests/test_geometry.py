@@ -148,3 +148,14 @@ def test_positive_spanning_margin_on_known_cases():
     assert positive_spanning_margin(np.array([[1.0], [-1.0]])) == pytest.approx(0.5)
     assert positive_spanning_margin(np.array([[1.0], [2.0]])) == -np.inf
     assert positive_spanning_margin(np.array([[1.0, 0.0], [0.0, 1.0]])) == -np.inf
+
+
+def test_joint_torque_refuses_forces_of_the_wrong_size_or_not_finite(arm):
+    geometry = arm.geometry(np.zeros(4))
+    with pytest.raises(InputError, match=r"forces must have shape \(9,\), got \(8,\)"):
+        geometry.joint_torque(np.full(8, 50.0))
+    with pytest.raises(InputError, match="forces must be finite"):
+        geometry.joint_torque(np.full(9, np.nan))
+    np.testing.assert_array_equal(
+        geometry.joint_torque(np.full(9, 50.0)), -geometry.jacobian.T @ np.full(9, 50.0)
+    )

@@ -211,3 +211,74 @@ def test_atomic_writes_get_ordinary_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
+
+
+@pytest.mark.parametrize(
+    ("text", "key", "message"),
+    [
+        ("effects: {sheath_friction: {mu: .nan}}", "effects.sheath_friction", "mu must be"),
+        ("winch: {drum_radius: 0}", "winch", "drum_radius must be a finite value > 0"),
+        ("winch: {drum_radius: .inf}", "winch", "drum_radius must be a finite value > 0"),
+        ("effects: {elasticity: {stiffness: -5}}", "effects.elasticity", "stiffness must be"),
+        ("effects: {sensor_noise: {tension_noise: -0.3}}", "effects.sensor_noise", ">= 0"),
+        ("effects: {delay: {sensing_periods: -1}}", "effects.delay", "an integer >= 0"),
+        ("effects: {winch_friction: {smoothing_speed: 0}}", "effects.winch_friction", "> 0"),
+        ("effects: {cogging: {periods_per_revolution: 0}}", "effects.cogging", "integer >= 1"),
+        ("name: ''", "top level", "name must be a non-empty string"),
+    ],
+)
+def test_a_plant_value_that_would_make_the_run_wrong_is_refused(tmp_path, text, key, message):
+    from msarm.plant import PlantConfig
+
+    path = tmp_path / "plant.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message) as caught:
+        load_config(path, PlantConfig)
+    assert f"{path}: " in str(caught.value) and key in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("rate_hz: 0", "rate_hz must be a finite value > 0"),
+        ("velocity_cutoff_hz: -1", "velocity_cutoff_hz must be a finite value > 0"),
+        ("kp: [.nan, 60, 30, 30]", "kp must be a list of finite gains >= 0"),
+        ("ki: [1, 1, -1, 1]", "ki must be a list of finite gains >= 0"),
+        ("integral_limit: -3", "integral_limit must be a finite value >= 0"),
+    ],
+)
+def test_a_bad_controller_value_is_refused(tmp_path, text, message):
+    from msarm.control import ArmControllerConfig
+
+    path = tmp_path / "controller.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_config(path, ArmControllerConfig)
+
+
+def test_a_plant_file_without_a_name_is_named_after_it(tmp_path):
+    from msarm.cli.common import resolve_plant
+    from msarm.errors import InputError
+
+    path = tmp_path / "cogging_on.yaml"
+    path.write_text("effects: {cogging: {enabled: true}}")
+    assert resolve_plant(str(path)).name == "cogging_on"  # not "default": not its folder
+    path.write_text("name: mine\neffects: {cogging: {enabled: true}}")
+    assert resolve_plant(str(path)).name == "mine"
+    with pytest.raises(InputError, match="plant file not found"):
+        resolve_plant(str(tmp_path / "missing.yaml"))
+    with pytest.raises(InputError, match="unknown plant 'nope'"):
+        resolve_plant("nope")
+
+
+def test_an_output_folder_that_is_a_file_is_refused_up_front(tmp_path):
+    from msarm.cli.common import output_folder
+    from msarm.errors import InputError
+
+    taken = tmp_path / "taken"
+    taken.write_text("")
+    with pytest.raises(InputError, match="is a file; expected a folder"):
+        output_folder(taken)
+    with pytest.raises(InputError, match="cannot create the folder"):
+        output_folder(taken / "inside")
+    assert output_folder(tmp_path / "a" / "b").is_dir()

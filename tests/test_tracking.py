@@ -129,3 +129,20 @@ def test_list_shows_tasks_plants_and_effects():
     assert result.exit_code == 0
     for word in ("table1-1", "random-<seed>", "ideal", "sheath_friction", "cogging"):
         assert word in result.output
+
+
+def test_metrics_that_do_not_apply_are_null_in_json():
+    import json
+    from dataclasses import fields
+
+    from msarm.tasks.cdpr_runner import CdprMetrics
+    from msarm.tasks.evaluate import TrackingMetrics
+
+    values = {"final_error_mm": 1.0, "final_error_percent": 0.1, "settle_error_mm": float("nan")}
+    values |= {"joint_rmse": (0.1,), "cable_length_error_percent": (0.2,), "slack_events": (0,)}
+    values |= {"time_outside_bounds": (0.0,), "completed": True}
+    tracking = TrackingMetrics(**values).as_dict()
+    assert tracking["settle_error_mm"] is None and tracking["final_error_mm"] == 1.0
+    cdpr = CdprMetrics(**{f.name: 1.0 for f in fields(CdprMetrics)} | {"force_rms_error": np.nan})
+    for payload in (tracking, cdpr.as_dict()):  # strict JSON: no NaN
+        json.loads(json.dumps(payload, allow_nan=False))

@@ -107,6 +107,7 @@ def arm_command(
     ] = None,
 ) -> None:
     """Print the arm's joints and cable muscles (moment arms, Hill parameters) and plot them."""
+    from msarm.cli.common import output_folder
     from msarm.model import load_arm
 
-    show_arm(load_arm(model), out)
+    show_arm(load_arm(model), None if out is None else output_folder(out))

@@ -176,6 +176,7 @@ def diagnose_bench(
     from rich.console import Console
     from rich.table import Table
 
+    from msarm.cli.common import output_folder
     from msarm.diagnose.bench import BenchSettings, run_diagnosis_benchmark
     from msarm.model import load_arm
 
@@ -195,7 +196,7 @@ def diagnose_bench(
     with err.status("benchmark") as status:
         report = run_diagnosis_benchmark(
             load_arm(),
-            Path(out),
+            output_folder(Path(out)),
             settings,
             progress=None if json_output else status.update,
             rescore=rescore,

@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, resolve_config
+from msarm.cli.common import console, output_folder, resolve_config
 
 cdpr_app = typer.Typer(
     help="The IPAnema 3 Mini cable robot: hybrid position-force controllers (paper 000).",
@@ -71,7 +71,10 @@ def run_command(
     seed: Annotated[int, typer.Option(min=0, help="Seed of the sensor noise.")] = 0,
     out: Annotated[
         Path | None,
-        typer.Option(help="Output folder (default runs/cdpr-<controller>-<trajectory>)."),
+        typer.Option(
+            help="Output folder (default runs/cdpr-<controller>-<trajectory>, with "
+            "-<plant> after it for a plant other than the default)."
+        ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
 ) -> None:
@@ -88,6 +91,8 @@ def run_command(
     model = load_cable_robot()
     path = get_cdpr_trajectory(trajectory)
     plant_config = _plant(plant)
+    on = "" if plant_config.name == "default" else f"-{plant_config.name}"
+    folder = output_folder(out or Path("runs") / f"cdpr-{controller}-{trajectory}{on}")
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task(f"{controller} on {trajectory}", total=1.0)
         run = run_cdpr(
@@ -98,15 +103,13 @@ def run_command(
             seed,
             progress=lambda done: bar.update(job, completed=done),
         )
-    folder = out or Path("runs") / f"cdpr-{controller}-{trajectory}"
-    folder.mkdir(parents=True, exist_ok=True)
     metadata = LogMetadata(
         robot_model=model.name,
         model_sha256=model.sha256,
         sample_rate_hz=1000.0,
         units=CDPR_UNITS,
         controller_config={"name": controller},
-        extra={"trajectory": trajectory, "seed": seed},
+        extra={"trajectory": trajectory, "seed": seed, "plant": plant_config.name},
     )
     files = {"log": write_log(folder / "log.parquet", RunLog(run.columns, metadata))}
     files["sidecar"] = write_sidecar(
@@ -159,7 +162,7 @@ def compare_command(
         result = compare_cdpr(
             model,
             _plant(plant),
-            out,
+            output_folder(out),
             repeats=repeats,
             progress=lambda label: bar.update(job, advance=1, description=label),
         )

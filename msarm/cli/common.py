@@ -25,6 +25,9 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
         cls: The config's dataclass (how the YAML file is read).
         what: What the config is, for the error message (e.g. ``"plant"``).
 
+    A file without a ``name`` key is named after the file (its stem), so that its runs are
+    not labelled, nor stored, as a preset's.
+
     Raises:
         InputError: ``spec`` is neither a preset nor an existing file.
     """
@@ -32,12 +35,42 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
         return presets[spec]
     path = Path(spec)
     if not path.is_file():
+        looks_like_a_file = path.suffix in (".yaml", ".yml") or len(path.parts) > 1
         raise InputError(
-            f"unknown {what} {spec!r}: expected one of {', '.join(presets)} or a YAML file"
+            f"{what} file not found: {spec} (expected one of {', '.join(presets)} or a YAML file)"
+            if looks_like_a_file
+            else f"unknown {what} {spec!r}: expected one of {', '.join(presets)} or a YAML file"
         )
+    import dataclasses
+
+    import yaml
+
     from msarm.io.config import load_config
 
-    return load_config(path, cls)
+    config = load_config(path, cls)
+    names = {f.name for f in dataclasses.fields(config)} if dataclasses.is_dataclass(config) else ()
+    if "name" in names:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        if not (isinstance(raw, dict) and "name" in raw):  # not the preset's name: the file's
+            config = dataclasses.replace(config, name=path.stem)
+    return config
+
+
+def output_folder(path: Path, option: str = "--out") -> Path:
+    """Create the output folder ``path`` up front, before any long run writes into it.
+
+    Raises:
+        InputError: ``path`` is an existing file, or the folder cannot be created (the reason
+            given).
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{option}: {path} is a file; expected a folder (created if missing)")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{option}: cannot create the folder {path}: {exc.strerror}") from None
+    return path
 
 
 def resolve_plant(spec: str) -> PlantConfig:

@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, resolve_plant
+from msarm.cli.common import console, output_folder, resolve_plant
 
 DEFAULT_RECIPE = Path("training/compensator.yaml")
 DEFAULT_CHECKPOINT = Path("runs/compensator/compensator.pt")
@@ -223,7 +223,7 @@ def compare_command(
             resolve_plant(plant),
             gains,
             held_out,
-            out,
+            output_folder(out),
             seed=seed,
             progress=step,
             parts=variants,

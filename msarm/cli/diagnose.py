@@ -24,7 +24,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console
+from msarm.cli.common import console, output_folder
 from msarm.errors import InputError
 
 if TYPE_CHECKING:
@@ -258,6 +258,8 @@ def diagnose_command(
             f"--tension-timing: expected one of {', '.join(TENSION_TIMINGS)}, "
             f"got {tension_timing!r}"
         )
+    if out is not None:
+        output_folder(out)  # before the diagnosis, not after it
     spec = ResidualSpec(target=TargetSpec(tension_timing=tension_timing))
     options: dict = {
         "n_boot": int(boot),

@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import PLANTS, console, resolve_plant
+from msarm.cli.common import PLANTS, console, output_folder, resolve_plant
 
 ListOption = Annotated[
     bool, typer.Option("--list", help="List the tasks, plants and effects, and exit.")
@@ -133,7 +133,9 @@ def track_command(
     gains = gains or ArmControllerConfig()
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
     suffix = "-ff" if feedforward is not None else ""  # never over a run without it
-    out_dir = out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}{suffix}"
+    out_dir = output_folder(
+        out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}{suffix}"
+    )
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task(f"{task_obj.name} on {plant_config.name}", total=1.0)
         result = track(

@@ -91,6 +91,23 @@ class ArmControllerConfig:
     activation_dynamics: bool = False
     solver: str = "newton"
 
+    def __post_init__(self) -> None:
+        # a config file's loader names the key; the controller checks the gain count
+        for name in ("rate_hz", "velocity_cutoff_hz"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite value > 0 [Hz], got {value}")
+        for name in ("integral_limit", "min_tension"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite value >= 0 [N m or N], got {value}")
+        for name in ("kp", "ki", "kd"):
+            gains = np.asarray(getattr(self, name), dtype=float)
+            if gains.ndim != 1 or not np.all(np.isfinite(gains) & (gains >= 0)):
+                raise ValueError(
+                    f"{name} must be a list of finite gains >= 0, got {list(getattr(self, name))}"
+                )
+
 
 @dataclass(frozen=True)
 class ControlOutput:

@@ -496,7 +496,7 @@ def _checked_columns(columns: Mapping[str, ArrayLike], source: str) -> dict[str,
         row = int(np.argmax(steps <= 0)) + 1
         raise LogError(
             f"{source}: column '{TIME}' is not strictly increasing at row {row} "
-            f"(t[{row - 1}] = {t[row - 1]!r}, t[{row}] = {t[row]!r})"
+            f"(t[{row - 1}] = {float(t[row - 1]):.6g}, t[{row}] = {float(t[row]):.6g})"
         )
     return out
 

@@ -71,8 +71,12 @@ class CableGeometry:
         return -self.jacobian
 
     def joint_torque(self, forces: ArrayLike) -> NDArray[np.float64]:
-        """Joint torque ``tau = -J_c^T f`` [N m] of cable forces ``f`` [N], shape ``(m,)``."""
-        return -self.jacobian.T @ np.asarray(forces, dtype=float)
+        """Joint torque ``tau = -J_c^T f`` [N m] of cable forces ``f`` [N], shape ``(m,)``.
+
+        Raises:
+            InputError: ``forces`` is not a finite ``(m,)`` array.
+        """
+        return -self.jacobian.T @ _checked_vector(forces, self.jacobian.shape[0], "forces")
 
 
 def _checked_vector(value: ArrayLike | None, size: int, name: str) -> NDArray[np.float64]:

@@ -26,6 +26,8 @@ Sources of the default values (plausible values for a robot of this size, not me
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field, replace
 
 __all__ = [
@@ -45,6 +47,38 @@ __all__ = [
 ]
 
 
+def _check(
+    config: object,
+    positive: tuple[str, ...] = (),
+    non_negative: tuple[str, ...] = (),
+    finite: tuple[str, ...] = (),
+) -> None:
+    """Refuse a value that would make the plant silently wrong (named, with what is expected).
+
+    Raises:
+        ValueError: A field of ``positive`` not finite and > 0, of ``non_negative`` not finite
+            and >= 0, or of ``finite`` not finite. (A config file's loader names the key.)
+    """
+    for names, ok, expected in (
+        (positive, lambda v: v > 0, "a finite value > 0"),
+        (non_negative, lambda v: v >= 0, "a finite value >= 0"),
+        (finite, lambda v: True, "a finite value"),
+    ):
+        for name in names:
+            value = getattr(config, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise ValueError(f"{name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and ok(value)):
+                raise ValueError(f"{name} must be {expected}, got {value}")
+
+
+def _check_count(config: object, name: str, least: int) -> None:
+    """Refuse a count that is not an integer >= ``least`` (``ValueError``, named)."""
+    value = getattr(config, name)
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
+        raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
+
+
 @dataclass(frozen=True)
 class WinchConfig:
     """The winch of every cable and its drive (the motor's own tension loop).
@@ -61,6 +95,10 @@ class WinchConfig:
     rotor_inertia: float = 3e-5
     torque_limit_factor: float = 1.0
     drive_gain: float = 4.0
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("drum_radius", "rotor_inertia", "torque_limit_factor"))
+        _check(self, non_negative=("drive_gain",))
 
 
 @dataclass(frozen=True)
@@ -80,6 +118,9 @@ class ElasticityConfig:
     stiffness: float = 2.0e4
     damping: float = 40.0
 
+    def __post_init__(self) -> None:
+        _check(self, positive=("stiffness",), non_negative=("damping",))
+
 
 @dataclass(frozen=True)
 class SheathFrictionConfig:
@@ -94,6 +135,9 @@ class SheathFrictionConfig:
     enabled: bool = True
     mu: float = 0.12
     smoothing_velocity: float = 0.002
+
+    def __post_init__(self) -> None:
+        _check(self, positive=("smoothing_velocity",), non_negative=("mu",))
 
 
 @dataclass(frozen=True)
@@ -112,6 +156,9 @@ class WinchFrictionConfig:
     viscous: float = 2e-4
     smoothing_speed: float = 0.5
 
+    def __post_init__(self) -> None:
+        _check(self, positive=("smoothing_speed",), non_negative=("coulomb", "viscous"))
+
 
 @dataclass(frozen=True)
 class JointFrictionConfig:
@@ -126,6 +173,9 @@ class JointFrictionConfig:
     enabled: bool = True
     coulomb: float = 0.15
     viscous: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check(self, non_negative=("coulomb", "viscous"))
 
 
 @dataclass(frozen=True)
@@ -143,6 +193,10 @@ class CoggingConfig:
     amplitude: float = 0.01
     periods_per_revolution: int = 24
     phase: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(self, finite=("amplitude", "phase"))
+        _check_count(self, "periods_per_revolution", 1)
 
 
 @dataclass(frozen=True)
@@ -165,6 +219,13 @@ class SensorNoiseConfig:
     tension_bias: float = 0.0
     torque_noise: float = 0.005
 
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            non_negative=("joint_noise", "motor_angle_noise", "tension_noise", "torque_noise"),
+            finite=("tension_bias",),
+        )
+
 
 @dataclass(frozen=True)
 class DelayConfig:
@@ -179,6 +240,10 @@ class DelayConfig:
     enabled: bool = False
     sensing_periods: int = 1
     actuation_periods: int = 0
+
+    def __post_init__(self) -> None:
+        _check_count(self, "sensing_periods", 0)
+        _check_count(self, "actuation_periods", 0)
 
 
 @dataclass(frozen=True)
@@ -227,6 +292,8 @@ class PlantConfig:
     effects: EffectsConfig = field(default_factory=EffectsConfig)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"name must be a non-empty string, got {self.name!r}")
         if not 0 < self.timestep <= 0.001:
             raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
 

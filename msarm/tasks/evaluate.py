@@ -71,8 +71,11 @@ class TrackingMetrics:
     completed: bool
 
     def as_dict(self) -> dict:
-        """A JSON-ready dict."""
-        return asdict(self)
+        """A JSON-ready dict (strict JSON: a NaN, a metric that does not apply, is None)."""
+        return {
+            key: None if isinstance(value, float) and value != value else value
+            for key, value in asdict(self).items()
+        }
 
 
 def hand_position(model: RobotModel, q: FloatArray) -> FloatArray:
