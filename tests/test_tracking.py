@@ -146,3 +146,17 @@ def test_metrics_that_do_not_apply_are_null_in_json():
     cdpr = CdprMetrics(**{f.name: 1.0 for f in fields(CdprMetrics)} | {"force_rms_error": np.nan})
     for payload in (tracking, cdpr.as_dict()):  # strict JSON: no NaN
         json.loads(json.dumps(payload, allow_nan=False))
+
+
+def test_a_task_too_short_or_out_of_range_is_refused_before_it_runs(arm):
+    plant = ArmPlant(arm, IDEAL_PLANT, seed=0)
+    controller = MuscleSpaceController(arm, ArmControllerConfig())
+    home = np.array([0.0, 0.0, 0.0, -0.2])
+    short = hold_then_move("x", home, [0.1, 0.1, 0.0, -0.5], 0.0, 0.001, 0.002)
+    with pytest.raises(InputError, match="at least two control periods"):
+        run_tracking(plant, controller, short)
+    far = hold_then_move("far", home, [3.0, 0.0, 0.0, -0.5], 0.5, 1.0, 2.0)
+    with pytest.raises(InputError, match="'shoulder_abduction' at 3.0 rad, outside"):
+        run_tracking(plant, controller, far)
+    with pytest.raises(InputError, match="without leading zeros, random-7"):
+        get_task("random-007", arm)

@@ -144,7 +144,12 @@ def run_command(
 def compare_command(
     plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
     repeats: Annotated[
-        int, typer.Option(min=0, help="Runs per repeatability test (paper: 15).")
+        int,
+        typer.Option(
+            min=0,
+            help="Runs per repeatability test (paper: 15); 0 or 1: no Table 5 (a spread "
+            "needs two runs or more).",
+        ),
     ] = 15,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/cdpr-compare"),
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,

@@ -310,7 +310,8 @@ class Delay(Effect):
 EFFECT_DESCRIPTIONS = {
     "sheath_friction": "T_insertion = T_motor exp(-mu Theta(q) sgn(v)); sticks in between",
     "winch_friction": "tau_f = -tau_c tanh(omega/omega_s) - b omega on each winch",
-    "elasticity": "T = k max(l(q) - L, 0): elastic cables that go slack",
+    "elasticity": "T = max(k s + c ds/dt, 0), s = stretch (0 when slack): elastic, damped "
+    "cables that go slack",
     "joint_friction": "tau_f = -tau_c sgn(qdot) - b qdot at each joint (MuJoCo dry friction)",
     "cogging": "tau_cog = A sin(N theta + phi) on each motor",
     "sensor_noise": "reading = truth + bias + N(0, sigma^2) on every sensor",

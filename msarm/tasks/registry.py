@@ -26,6 +26,7 @@ __all__ = [
     "TABLE1_MOVE_TIME",
     "TABLE1_TARGETS",
     "TABLE1_WAIT",
+    "check_task_against",
     "get_task",
     "list_tasks",
     "table1_task",
@@ -117,6 +118,11 @@ def get_task(name: str, model: _HasJointLimits | None = None) -> Task:
     random = _RANDOM_RE.match(name) if isinstance(name, str) else None
     if table1 and 1 <= int(table1.group(1)) <= len(TABLE1_TARGETS):
         task = table1_task(int(table1.group(1)))
+    elif random and random.group(1) != str(int(random.group(1))):
+        raise InputError(
+            f"task {name!r}: write the seed without leading zeros, random-{int(random.group(1))}"
+            " (one seed, one name: runs are stored by task name)"
+        )
     elif random:
         if model is None:
             raise InputError(f"task {name!r} needs the robot model (its joint limits)")
@@ -126,11 +132,17 @@ def get_task(name: str, model: _HasJointLimits | None = None) -> Task:
     else:
         raise InputError(f"unknown task {name!r}; valid tasks: {', '.join(list_tasks())}")
     if model is not None:
-        _check_against(task, model)
+        check_task_against(task, model)
     return task
 
 
-def _check_against(task: Task, model: _HasJointLimits) -> None:
+def check_task_against(task: Task, model: _HasJointLimits) -> None:
+    """Refuse a task of another joint count or whose postures leave the model's joint range.
+
+    Raises:
+        InputError: The joint counts differ, or a posture (home, a move's target) puts a
+            joint outside ``[joint_lower, joint_upper]`` (task, posture, joint and value named).
+    """
     lower = np.asarray(model.joint_lower, dtype=float)
     upper = np.asarray(model.joint_upper, dtype=float)
     if task.n_joints != lower.shape[0]:

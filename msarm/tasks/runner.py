@@ -25,6 +25,7 @@ from msarm.io.logs import columns_from_quantities
 from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.effects import SensorReadings
 from msarm.tasks.compiled_loop import compiled_loop_supported, run_compiled
+from msarm.tasks.registry import check_task_against
 
 __all__ = ["LOG_UNITS", "TRUTH_UNITS", "Feedforward", "TrackingRun", "run_tracking"]
 
@@ -151,8 +152,9 @@ def run_tracking(
         The run, with ``error`` set if the simulation diverged (the log then ends there).
 
     Raises:
-        InputError: The control period is not a whole number of plant steps, or ``compiled``
-            is True for a run the compiled loop cannot do.
+        InputError: The control period is not a whole number of plant steps, ``compiled``
+            is True for a run the compiled loop cannot do, the task is shorter than two
+            control periods, or its postures leave the joint range.
     """
     model = plant.model
     period = controller.period
@@ -171,6 +173,12 @@ def run_tracking(
             "'newton' solver and no activation dynamics): pass compiled=None or False"
         )
     n_ticks = int(round(task.duration / period))
+    if n_ticks < 2:
+        raise InputError(
+            f"task {task.name!r} lasts {task.duration} s: expected at least two control periods "
+            f"({2 * period} s) to have a start and an end to measure"
+        )
+    check_task_against(task, model)  # a target outside the joint range: refused, not run
     home = np.asarray(task.home, dtype=float)
     zeros = np.zeros(model.n_joints)
 
