@@ -63,3 +63,17 @@ def test_the_console_script_prints_msarm_warnings_as_one_line(monkeypatch, capsy
     # anything else keeps where it came from (it may be a bug): the usual printer
     warnings.showwarning(RuntimeWarning("overflow"), RuntimeWarning, "x.py", 7)
     assert len(passed_on) == 1 and passed_on[0][2:4] == ("x.py", 7)
+
+
+def test_progress_is_printed_line_by_line_where_no_bar_shows(capsys):
+    from msarm.cli.common import progress_lines
+
+    step = progress_lines("compare", 2)  # stderr is captured: not a terminal
+    step("table1-1, without feedforward")
+    step("table1-1, with feedforward")
+    assert capsys.readouterr().err.splitlines() == [
+        "compare [1/2]: table1-1, without feedforward",
+        "compare [2/2]: table1-1, with feedforward",
+    ]
+    progress_lines("compare", 2, enabled=False)("quiet")  # --json: nothing
+    assert capsys.readouterr().err == ""

@@ -176,7 +176,7 @@ def diagnose_bench(
     from rich.console import Console
     from rich.table import Table
 
-    from msarm.cli.common import output_folder
+    from msarm.cli.common import output_folder, progress_lines
     from msarm.diagnose.bench import BenchSettings, run_diagnosis_benchmark
     from msarm.model import load_arm
 
@@ -193,12 +193,18 @@ def diagnose_bench(
         sindy_threshold=sindy_threshold,
     )
     err = Console(stderr=True)
+    line = progress_lines("bench diagnose", enabled=not json_output)
     with err.status("benchmark") as status:
+
+        def step(text: str) -> None:
+            status.update(text)
+            line(text)
+
         report = run_diagnosis_benchmark(
             load_arm(),
             output_folder(Path(out)),
             settings,
-            progress=None if json_output else status.update,
+            progress=None if json_output else step,
             rescore=rescore,
         )
     if json_output:

@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, output_folder, resolve_config
+from msarm.cli.common import console, output_folder, progress_lines, resolve_config
 
 cdpr_app = typer.Typer(
     help="The IPAnema 3 Mini cable robot: hybrid position-force controllers (paper 000).",
@@ -162,14 +162,16 @@ def compare_command(
 
     model = load_cable_robot()
     total = len(_grid()) + (4 * (repeats - 1) if repeats >= 2 else 0)
+    line = progress_lines("cdpr compare", total, enabled=not json_output)
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task("cdpr compare", total=total)
+
+        def step(label: str) -> None:
+            bar.update(job, advance=1, description=label)
+            line(label)
+
         result = compare_cdpr(
-            model,
-            _plant(plant),
-            output_folder(out),
-            repeats=repeats,
-            progress=lambda label: bar.update(job, advance=1, description=label),
+            model, _plant(plant), output_folder(out), repeats=repeats, progress=step
         )
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))

@@ -56,6 +56,30 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
     return config
 
 
+def progress_lines(what: str, total: int | None = None, enabled: bool = True):
+    """A progress callback that prints one line a step to stderr when it is not a terminal.
+
+    A live progress bar shows nothing in a log file or a CI job; there, each step is a line
+    (``what [k/total]: label``). On a terminal (the bar is shown) or when ``enabled`` is false
+    (``--json``) the callback does nothing.
+
+    Returns:
+        A function of the step's label.
+    """
+    import sys
+
+    if not enabled or Console(stderr=True).is_terminal:
+        return lambda label: None
+    done = [0]
+
+    def line(label: str) -> None:
+        done[0] += 1
+        count = f"{done[0]}/{total}" if total else f"{done[0]}"
+        print(f"{what} [{count}]: {label}", file=sys.stderr, flush=True)
+
+    return line
+
+
 def output_folder(path: Path, option: str = "--out") -> Path:
     """Create the output folder ``path`` up front, before any long run writes into it.
 

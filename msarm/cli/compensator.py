@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, output_folder, resolve_plant
+from msarm.cli.common import console, output_folder, progress_lines, resolve_plant
 
 DEFAULT_RECIPE = Path("training/compensator.yaml")
 DEFAULT_CHECKPOINT = Path("runs/compensator/compensator.pt")
@@ -54,10 +54,15 @@ def train_command(
         runs = bar.add_task("collect runs", total=recipe.data.n_runs, info="")
         epochs = bar.add_task("train", total=recipe.network.max_epochs, info="", visible=False)
 
+        line = progress_lines("train", enabled=not json_output)
+
         def on_run(done: int, total: int, reused: bool) -> None:
             bar.update(runs, completed=done, info=f"{done}/{total}{' (reused)' if reused else ''}")
+            line(f"run {done}/{total} collected{' (reused)' if reused else ''}")
 
         def on_epoch(epoch: int, total: int, train_loss: float, val_loss: float) -> None:
+            if epoch % 10 == 0:
+                line(f"epoch {epoch}: train {train_loss:.4f}, validation {val_loss:.4f}")
             bar.update(
                 epochs,
                 visible=True,
@@ -69,11 +74,13 @@ def train_command(
 
         def on_round(round_: int, rounds: int) -> None:
             label = f"round {round_}/{rounds}"
+            line(label)
             if round_ > 0:  # round 0 trains on the runs already collected
                 bar.update(runs, completed=0, total=rerun, description=f"collect runs, {label}")
             bar.update(epochs, completed=0, description=f"train, {label}")
 
         def on_sheath(parameters, total: int) -> None:
+            line(f"sheath stage identified (mu {parameters.mu:.4f}); collecting with it")
             bar.update(
                 runs,
                 completed=0,
@@ -211,11 +218,13 @@ def compare_command(
     held_out += [s for s in more if s not in held_out]
     gains = trained_controller(feedforward.compensator)
     n_runs = (2 + len(variants)) * (4 + len(held_out))
+    line = progress_lines("compare", n_runs, enabled=not json_output)
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task("compare", total=n_runs)
 
         def step(label: str) -> None:
             bar.update(job, advance=1, description=label)
+            line(label)
 
         result = compare_feedforward(
             arm,
