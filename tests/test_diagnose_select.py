@@ -383,3 +383,13 @@ def test_the_load_cells_timing_reaches_the_residual(arm, noise_logs, capsys):
     joint = [period["joint"]["channels"][j]["before"] for j in arm.joint_names]
     other = [instant["joint"]["channels"][j]["before"] for j in arm.joint_names]
     assert joint != other
+
+
+def test_the_diagnosis_does_not_import_torch():
+    """torch (1.5 s to import) is for the compensator's network only, not for a diagnosis."""
+    import subprocess
+    import sys
+
+    code = "import sys, msarm.diagnose.select, msarm.cli.diagnose; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
