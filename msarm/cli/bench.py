@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import typer
 
+from msarm.diagnose.effect_classes import EFFECT_CLASSES
+
 bench_app = typer.Typer(
     help="Benchmarks: each times a fast path and its reference in the same run.",
     no_args_is_help=True,
@@ -115,17 +117,8 @@ def sim(
     out.print(f"target: closed loop >= {TARGET_REAL_TIME_FACTOR:.0f}x real time: {met}")
 
 
-#: Effect classes of ``msarm bench diagnose --effect`` (those of
-#: :data:`msarm.diagnose.bench.EFFECT_CANDIDATES`, named here so that ``--help`` stays light).
-BENCH_EFFECTS = (
-    "sheath_friction",
-    "winch_friction",
-    "elasticity",
-    "joint_friction",
-    "cogging",
-    "sensor_bias",
-    "delay",
-)
+#: Effect classes of ``msarm bench diagnose --effect``.
+BENCH_EFFECTS = EFFECT_CLASSES
 _EFFECT_HELP = (
     f"Effect classes to cover, of {', '.join(BENCH_EFFECTS)}: every name after --effect up "
     "to the next option (or repeat the option); default all."

@@ -68,6 +68,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.control import ArmControllerConfig
+from msarm.diagnose.effect_classes import EFFECT_CLASSES
 from msarm.errors import InputError, MsarmError
 from msarm.io.atomic import write_json_atomic
 from msarm.io.config import config_to_dict, dump_config
@@ -101,16 +102,6 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-#: The plant effect classes the benchmark covers, in a fixed order (part of the seeding).
-EFFECT_CLASSES: tuple[str, ...] = (
-    "sheath_friction",
-    "winch_friction",
-    "elasticity",
-    "joint_friction",
-    "cogging",
-    "sensor_bias",
-    "delay",
-)
 
 #: The pairs of effect classes of the default benchmark, one scenario each: two frictions at
 #: different places (joints, winches), a transmission loss with a motor-periodic torque, the
