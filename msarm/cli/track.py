@@ -130,6 +130,16 @@ def track_command(
 
         feedforward = load_feedforward(ff, arm)
         gains = gains or trained_controller(feedforward.compensator)
+    if controller is not None:
+        gains_from = f"gains from {controller}"
+    elif feedforward is not None:
+        gains_from = "the gains the compensator was trained with"
+    else:
+        gains_from = (
+            "ArmControllerConfig's default gains, tuned for the ideal plant (the default "
+            "plant's tuned gains: the controller: block of training/compensator.yaml, saved "
+            "as a file, to --controller)"
+        )
     gains = gains or ArmControllerConfig()
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
     suffix = "-ff" if feedforward is not None else ""  # never over a run without it
@@ -162,6 +172,7 @@ def track_command(
                 arm.cable_names,
             )
         )
+        out_console.print(f"controller: {gains_from}")
         for kind, path in result.files.items():
             out_console.print(f"{kind}: {path}")
         if result.run.error is not None:
