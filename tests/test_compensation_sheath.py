@@ -45,6 +45,20 @@ def test_the_memory_is_a_stop_operator_of_the_tension_and_the_command_its_capsta
     np.testing.assert_array_equal(stage(np.full(9, 30.0), POSTURE), np.full(9, 30.0))
 
 
+def test_a_floor_bounds_the_command_of_a_cable_that_pays_out(arm):
+    wrap = arm.geometry(POSTURE).wrap_angles
+    free, floored = (
+        _stage(arm, width=1e-4, compliance_share=0.5),
+        _stage(arm, width=1e-4, compliance_share=0.5, floor=5.0),
+    )
+    for force in (20.0, 5.5, 5.0):  # the wanted tension falls: every memory turns to -1
+        below, bounded = free(np.full(9, force), POSTURE), floored(np.full(9, force), POSTURE)
+    np.testing.assert_allclose(free.side, -1.0)
+    np.testing.assert_allclose(below, 5.0 * np.exp(-0.1 * wrap), rtol=1e-12)
+    assert below.min() < 5.0  # the stage alone asks a motor for less than the floor
+    np.testing.assert_array_equal(bounded, np.maximum(below, 5.0))
+
+
 def test_the_wanted_tension_reaches_the_memory_through_a_low_pass(arm):
     stage = _stage(arm, width=1.0, compliance_share=1.0, filter_time=0.012)  # alpha = 0.25
     stage(np.full(9, 10.0), POSTURE)
@@ -105,7 +119,13 @@ def test_bad_inputs_and_settings_are_refused(arm):
         stage(np.full(9, np.nan), POSTURE)
     with pytest.raises(InputError, match=">= 0"):
         stage(np.full(9, -1.0), POSTURE)
-    for bad in ({"width": 0.0}, {"gain": 1.5}, {"filter_time": -1.0}, {"compliance_share": 2.0}):
+    for bad in (
+        {"width": 0.0},
+        {"gain": 1.5},
+        {"filter_time": -1.0},
+        {"compliance_share": 2.0},
+        {"floor": float("nan")},
+    ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             SheathSpec(**bad)
     with pytest.raises(ValueError, match="mu"):

@@ -79,6 +79,11 @@ class SheathSpec:
             sheath, ``c_s = compliance_share * c`` [-], in [0, 1]: the sheath's friction
             sits between the motor and the insertion, and only the stretch beyond it moves
             the cable through the sheath.
+        floor: Lowest tension command the stage sends [N] (>= 0; 0: no bound). While a cable
+            pays out, the stage asks its motor for ``F exp(-g mu Theta)``, less than the
+            allocation's floor, because the sheath then delivers more at the insertion. A
+            robot whose drives must stay above a tension at the motor sets it here (README:
+            measured, it gives back a little of the final error).
     """
 
     enabled: bool = True
@@ -86,6 +91,7 @@ class SheathSpec:
     gain: float = 0.9
     filter_time: float = 0.02
     compliance_share: float = 0.5
+    floor: float = 0.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.width) and self.width > 0):
@@ -98,6 +104,8 @@ class SheathSpec:
             raise ValueError(
                 f"sheath compliance_share must be in [0, 1], got {self.compliance_share}"
             )
+        if not (np.isfinite(self.floor) and self.floor >= 0):
+            raise ValueError(f"sheath floor must be a finite tension >= 0 [N], got {self.floor}")
 
 
 @dataclass(frozen=True)
@@ -207,4 +215,5 @@ class SheathInverse:
         if self._state is not None:
             side = np.clip(side + (pulled - previous) / self.spec.width, -1.0, 1.0)
         self._state = (filtered, pulled, side)
-        return force * np.exp(self.spec.gain * self.parameters.mu * wrap * side)
+        command = force * np.exp(self.spec.gain * self.parameters.mu * wrap * side)
+        return np.maximum(command, self.spec.floor) if self.spec.floor > 0 else command
