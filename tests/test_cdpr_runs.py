@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 from typer.testing import CliRunner
 
 from msarm.cdpr.robot_model import load_cable_robot
@@ -81,6 +82,14 @@ def test_cdpr_run_command(tmp_path):
     payload = json.loads(result.output)
     assert payload["time_in_bounds_percent"] > 90.0
     assert (tmp_path / "log.parquet").is_file() and (tmp_path / "forces.png").is_file()
+    from msarm.io.config import load_config
+    from msarm.io.logs import read_log
+    from msarm.plant.cdpr_config import CdprPlantConfig
+
+    config = yaml.safe_load((tmp_path / "config.yaml").read_text())  # the resolved config
+    assert (config["controller"], config["trajectory"], config["seed"]) == ("nc", "circle-34", 0)
+    assert load_config(config["plant"], CdprPlantConfig) == DEFAULT_CDPR_PLANT
+    assert read_log(tmp_path / "log.parquet").metadata.extra["plant"] == "default"
     bad = CliRunner().invoke(app, ["cdpr", "run", "--trajectory", "star"])
     assert bad.exit_code != 0 and "triangle-12" in str(bad.exception)
     assert np.isfinite(payload["mean_position_error_mm"])

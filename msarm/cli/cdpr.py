@@ -83,6 +83,7 @@ def run_command(
 
     from msarm.cdpr.robot_model import load_cable_robot
     from msarm.io.atomic import write_json_atomic
+    from msarm.io.config import config_to_dict, write_config
     from msarm.io.logs import LogMetadata, RunLog, write_log, write_sidecar
     from msarm.tasks.cdpr_compare import plot_forces
     from msarm.tasks.cdpr_runner import run_cdpr
@@ -119,6 +120,15 @@ def run_command(
     if run.error is not None:
         payload["diverged"] = str(run.error)
     files["metrics"] = write_json_atomic(folder / "metrics.json", payload)
+    files["config"] = write_config(
+        {
+            "controller": controller,
+            "trajectory": trajectory,
+            "seed": seed,
+            "plant": config_to_dict(plant_config),
+        },
+        folder / "config.yaml",
+    )
     files["forces_plot"] = plot_forces(
         run, model, folder / "forces.png", title=f"{controller}, {trajectory}"
     )
