@@ -39,6 +39,7 @@ from msarm.control.kernels import (
     muscle_speed,
 )
 from msarm.errors import InputError
+from msarm.io.config import check_numbers
 from msarm.model import RobotModel
 from msarm.muscle.activation import step_activation
 from msarm.muscle.fast import FastHill
@@ -93,14 +94,11 @@ class ArmControllerConfig:
 
     def __post_init__(self) -> None:
         # a config file's loader names the key; the controller checks the gain count
-        for name in ("rate_hz", "velocity_cutoff_hz"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite value > 0 [Hz], got {value}")
-        for name in ("integral_limit", "min_tension"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite value >= 0 [N m or N], got {value}")
+        check_numbers(
+            self,
+            positive=("rate_hz", "velocity_cutoff_hz"),
+            non_negative=("integral_limit", "min_tension"),
+        )
         for name in ("kp", "ki", "kd"):
             gains = np.asarray(getattr(self, name), dtype=float)
             if gains.ndim != 1 or not np.all(np.isfinite(gains) & (gains >= 0)):

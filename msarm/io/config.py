@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
+import numbers
 import re
 import types
 import typing
@@ -38,12 +40,43 @@ import yaml
 from msarm.errors import ConfigError
 from msarm.io.atomic import write_bytes_atomic
 
-__all__ = ["config_to_dict", "dump_config", "load_config", "write_config"]
+__all__ = ["check_numbers", "config_to_dict", "dump_config", "load_config", "write_config"]
 
 T = TypeVar("T")
 
 #: Label of a config given as a mapping rather than a file.
 _MAPPING_SOURCE = "<mapping>"
+
+
+def check_numbers(
+    config: object,
+    positive: tuple[str, ...] = (),
+    non_negative: tuple[str, ...] = (),
+    finite: tuple[str, ...] = (),
+) -> None:
+    """Refuse a config field that would make a run silently wrong, for a ``__post_init__``.
+
+    Args:
+        config: The config dataclass instance.
+        positive: Fields that must be finite and > 0.
+        non_negative: Fields that must be finite and >= 0.
+        finite: Fields that must be finite.
+
+    Raises:
+        ValueError: The first offending field, named with what was expected (a config file's
+            loader adds the file and the key).
+    """
+    for names, ok, expected in (
+        (positive, lambda v: v > 0, "a finite value > 0"),
+        (non_negative, lambda v: v >= 0, "a finite value >= 0"),
+        (finite, lambda v: True, "a finite value"),
+    ):
+        for name in names:
+            value = getattr(config, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise ValueError(f"{name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and ok(value)):
+                raise ValueError(f"{name} must be {expected}, got {value}")
 
 
 class _Loader(yaml.SafeLoader):

@@ -26,9 +26,10 @@ Sources of the default values (plausible values for a robot of this size, not me
 
 from __future__ import annotations
 
-import math
 import numbers
 from dataclasses import dataclass, field, replace
+
+from msarm.io.config import check_numbers
 
 __all__ = [
     "DEFAULT_PLANT",
@@ -45,31 +46,6 @@ __all__ = [
     "WinchFrictionConfig",
     "ideal_config",
 ]
-
-
-def _check(
-    config: object,
-    positive: tuple[str, ...] = (),
-    non_negative: tuple[str, ...] = (),
-    finite: tuple[str, ...] = (),
-) -> None:
-    """Refuse a value that would make the plant silently wrong (named, with what is expected).
-
-    Raises:
-        ValueError: A field of ``positive`` not finite and > 0, of ``non_negative`` not finite
-            and >= 0, or of ``finite`` not finite. (A config file's loader names the key.)
-    """
-    for names, ok, expected in (
-        (positive, lambda v: v > 0, "a finite value > 0"),
-        (non_negative, lambda v: v >= 0, "a finite value >= 0"),
-        (finite, lambda v: True, "a finite value"),
-    ):
-        for name in names:
-            value = getattr(config, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise ValueError(f"{name} must be a number, got {value!r}")
-            if not (math.isfinite(value) and ok(value)):
-                raise ValueError(f"{name} must be {expected}, got {value}")
 
 
 def _check_count(config: object, name: str, least: int) -> None:
@@ -97,8 +73,8 @@ class WinchConfig:
     drive_gain: float = 4.0
 
     def __post_init__(self) -> None:
-        _check(self, positive=("drum_radius", "rotor_inertia", "torque_limit_factor"))
-        _check(self, non_negative=("drive_gain",))
+        check_numbers(self, positive=("drum_radius", "rotor_inertia", "torque_limit_factor"))
+        check_numbers(self, non_negative=("drive_gain",))
 
 
 @dataclass(frozen=True)
@@ -119,7 +95,7 @@ class ElasticityConfig:
     damping: float = 40.0
 
     def __post_init__(self) -> None:
-        _check(self, positive=("stiffness",), non_negative=("damping",))
+        check_numbers(self, positive=("stiffness",), non_negative=("damping",))
 
 
 @dataclass(frozen=True)
@@ -137,7 +113,7 @@ class SheathFrictionConfig:
     smoothing_velocity: float = 0.002
 
     def __post_init__(self) -> None:
-        _check(self, positive=("smoothing_velocity",), non_negative=("mu",))
+        check_numbers(self, positive=("smoothing_velocity",), non_negative=("mu",))
 
 
 @dataclass(frozen=True)
@@ -157,7 +133,7 @@ class WinchFrictionConfig:
     smoothing_speed: float = 0.5
 
     def __post_init__(self) -> None:
-        _check(self, positive=("smoothing_speed",), non_negative=("coulomb", "viscous"))
+        check_numbers(self, positive=("smoothing_speed",), non_negative=("coulomb", "viscous"))
 
 
 @dataclass(frozen=True)
@@ -175,7 +151,7 @@ class JointFrictionConfig:
     viscous: float = 0.05
 
     def __post_init__(self) -> None:
-        _check(self, non_negative=("coulomb", "viscous"))
+        check_numbers(self, non_negative=("coulomb", "viscous"))
 
 
 @dataclass(frozen=True)
@@ -195,7 +171,7 @@ class CoggingConfig:
     phase: float = 0.0
 
     def __post_init__(self) -> None:
-        _check(self, finite=("amplitude", "phase"))
+        check_numbers(self, finite=("amplitude", "phase"))
         _check_count(self, "periods_per_revolution", 1)
 
 
@@ -220,7 +196,7 @@ class SensorNoiseConfig:
     torque_noise: float = 0.005
 
     def __post_init__(self) -> None:
-        _check(
+        check_numbers(
             self,
             non_negative=("joint_noise", "motor_angle_noise", "tension_noise", "torque_noise"),
             finite=("tension_bias",),
