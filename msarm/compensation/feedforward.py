@@ -163,17 +163,19 @@ def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:
     """
     source = str(path)
     compensator = Compensator.load(path, expected_model_sha256=model.sha256)
-    spec = feature_spec_of(compensator, source)
-    inputs = FeatureExtractor(model, spec).size
-    if inputs != compensator.input_dim:
-        raise CheckpointError(
-            f"{source}: its feature spec gives {inputs} inputs, its network takes "
-            f"{compensator.input_dim}; the file was edited or mixed from two trainings"
-        )
+    feature_spec_of(compensator, source)  # an invalid spec: refused with the file named
     if compensator.output_dim != model.n_joints:
         raise CheckpointError(
             f"{source}: its network gives {compensator.output_dim} torques, the arm has "
             f"{model.n_joints} joints"
         )
     trained_controller(compensator, source)  # the gains it must run with are recorded
-    return LearnedFeedforward(model, compensator, sheath_stage_of(model, compensator, source))
+    stage = sheath_stage_of(model, compensator, source)
+    feedforward = LearnedFeedforward(model, compensator, stage)
+    inputs = feedforward.extractor.size  # the extractor the loop will run
+    if inputs != compensator.input_dim:
+        raise CheckpointError(
+            f"{source}: its feature spec gives {inputs} inputs, its network takes "
+            f"{compensator.input_dim}; the file was edited or mixed from two trainings"
+        )
+    return feedforward
