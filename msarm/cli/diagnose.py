@@ -137,6 +137,9 @@ def _print_diagnosis(
             confidence,
         )
     screen.print(table)
+    for effect in result.selected:
+        for note in effect.notes:
+            screen.print(f"note on {escape(effect.name)}: {escape(note)}", highlight=False)
     if not result.selected:
         screen.print(
             f"no candidate raises the held-out explained variance by more than "
@@ -233,6 +236,22 @@ def diagnose_command(
             "the tension at its time stamp (instant).",
         ),
     ] = "period",
+    drum_radius: Annotated[
+        float,
+        typer.Option(
+            metavar="METRES",
+            help=r"Radius of the winch drums \[m]: a motor angle theta (drum angle, reel-in "
+            "positive) moves the cable by -r theta. Used for the cable-length residual.",
+        ),
+    ] = 0.003,
+    filter_window: Annotated[
+        int,
+        typer.Option(
+            metavar="SAMPLES",
+            help=r"Savitzky-Golay window of the joint-angle derivatives \[samples], odd, >= 5 "
+            "(25 = 0.1 s at 250 Hz; scale it with the sample rate).",
+        ),
+    ] = 25,
     model_path: Annotated[
         Path | None,
         typer.Option(
@@ -258,9 +277,18 @@ def diagnose_command(
             f"--tension-timing: expected one of {', '.join(TENSION_TIMINGS)}, "
             f"got {tension_timing!r}"
         )
+    if not (0 < drum_radius < float("inf")):
+        raise InputError(f"--drum-radius: expected a radius > 0 in metres, got {drum_radius}")
+    if filter_window < 5 or filter_window % 2 == 0:
+        raise InputError(
+            f"--filter-window: expected an odd number of samples >= 5, got {filter_window}"
+        )
     if out is not None:
         output_folder(out)  # before the diagnosis, not after it
-    spec = ResidualSpec(target=TargetSpec(tension_timing=tension_timing))
+    spec = ResidualSpec(
+        target=TargetSpec(window=filter_window, tension_timing=tension_timing),
+        drum_radius=drum_radius,
+    )
     options: dict = {
         "n_boot": int(boot),
         "seed": int(seed),

@@ -23,7 +23,7 @@ from msarm.compensation.target import TargetSpec, torque_error
 from msarm.control import ArmControllerConfig
 from msarm.errors import InputError, MsarmError
 from msarm.io.config import load_config
-from msarm.io.logs import read_log
+from msarm.io.logs import STANDARD_UNITS, check_standard_units, read_log
 from msarm.model import RobotModel
 from msarm.plant import PlantConfig
 from msarm.tasks.registry import get_task
@@ -175,11 +175,12 @@ def build_arrays(
     xs, ys = [], []
     for path in log_paths:
         log = read_log(path)  # refuses NaN, naming the file, column and row
-        if log.metadata.model_sha256 != model.sha256:
+        if log.metadata.model_sha256.lower() != model.sha256.lower():
             raise InputError(
                 f"{path}: the log was recorded with model {log.metadata.model_sha256[:12]}…, "
                 f"not {model.name} ({model.sha256[:12]}…)"
             )
+        check_standard_units(log, tuple(STANDARD_UNITS), str(path))
         xs.append(extractor.from_log(log, source=str(path)))
         ys.append(torque_error(model, log, target, source=str(path)))
     return np.concatenate(xs), np.concatenate(ys)

@@ -27,12 +27,15 @@ from msarm.errors import InputError, LogError
 from msarm.io.logs import read_log
 from msarm.model import RobotModel
 
-__all__ = ["GROUPS", "GROUP_UNITS", "channels_from_logs", "signals_from_logs"]
+__all__ = ["GROUPS", "GROUP_UNITS", "MIN_TRAVEL", "channels_from_logs", "signals_from_logs"]
 
 FloatArray = NDArray[np.float64]
 
 #: The channel groups of the diagnosis, in the order they are stacked.
 GROUPS = ("joint", "drive", "length")
+#: Least joint travel [rad] (the largest joint's range over a log) below which a log is
+#: said to hold too little motion to diagnose (10 mrad, 0.57 degrees).
+MIN_TRAVEL = 0.01
 #: Unit of each group's residual.
 GROUP_UNITS = {"joint": "N m", "drive": "N", "length": "m"}
 
@@ -56,17 +59,20 @@ def _one_run(
         raise LogError(f"{source}: no valid sample to diagnose")
     cables = list(model.cable_names)
     missing = [c for c in cables if f"motor_angle.{c}" not in log.columns]
-    if missing:
-        warnings.warn(
-            f"{source}: column 'motor_angle.{missing[0]}' is missing; motor angles are taken as "
-            "zero (the cogging candidate cannot explain anything in this run)",
-            DiagnosisWarning,
-            stacklevel=3,
-        )
+    if missing:  # residuals_from_log has warned about it
         motor = np.zeros((len(log), len(cables)))
     else:
         motor = log.matrix("motor_angle", cables)
     q = residuals.q[valid]
+    travel = float(np.max(np.ptp(q, axis=0)))
+    if travel < MIN_TRAVEL:
+        warnings.warn(
+            f"{source}: no joint moves more than {1e3 * travel:.2g} mrad in this log (less than "
+            f"{1e3 * MIN_TRAVEL:g} mrad): the friction and inertia terms cannot be told from "
+            "the noise on it; diagnose logs with motion",
+            DiagnosisWarning,
+            stacklevel=3,
+        )
     arrays = {
         "t": residuals.t[valid],
         "q": q,

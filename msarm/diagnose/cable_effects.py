@@ -22,7 +22,8 @@ angle ``theta`` is positive when the winch reels cable in (as the plant and logs
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -81,6 +82,8 @@ class WinchFriction(CandidateEffect):
     """
 
     name = "winch_friction"
+    parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m", "viscous": "N m s/rad"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb", "viscous"})
     description = (
         "e = -(tau_c tanh(omega/omega_s) + b omega) / (rho (1 + K)): Coulomb + viscous friction "
         "of winch and motor, seen as a tension error of the drive"
@@ -134,6 +137,7 @@ class DriveCogging(CandidateEffect):
     """
 
     name = "motor_cogging"
+    parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
         "e = A sin(N theta + phi) / (rho (1 + K)): motor cogging torque periodic in the motor "
         "angle theta, seen as a tension error of the drive"
@@ -195,6 +199,7 @@ class CommandDelay(CandidateEffect):
     """
 
     name = "command_delay"
+    parameter_units: ClassVar[Mapping[str, str]] = {"w": "-"}
     description = (
         "e = sum_j w_j (F_cmd(t - j dt) - F_cmd(t)): tensions follow their commands late "
         "(delay d = dt sum_j j w_j)"
@@ -245,6 +250,8 @@ class CableElasticity(CandidateEffect):
     """
 
     name = "elasticity"
+    parameter_units: ClassVar[Mapping[str, str]] = {"compliance": "m/N"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"compliance"})
     description = (
         "e_l = -c (F - mean_run F): cable stretch of compliance c = 1/k [m/N] between the "
         "encoder's length and the path length (slack is what is left)"
@@ -285,6 +292,7 @@ class EncoderSkew(CandidateEffect):
     """
 
     name = "encoder_skew"
+    parameter_units: ClassVar[Mapping[str, str]] = {"skew": "s"}
     description = (
         "e_l = -delta (ldot - mean_run ldot): the joint encoders read delta [s] after the "
         "motor encoders, ldot = J_c(q) qd the cables' speed"
@@ -358,6 +366,8 @@ class CableBacklash(_DrumDirectionTerm):
     """
 
     name = "backlash"
+    parameter_units: ClassVar[Mapping[str, str]] = {"play": "m"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"play"})
     description = (
         "e_l = (b/2) (z - mean_run z), dz/dt = (v - |v| z)/w: play b [m] taken up at each "
         "reversal of the drum (travel w to reverse)"
@@ -389,6 +399,8 @@ class CableSheathStretch(_DrumDirectionTerm):
     """
 
     name = "sheath_stretch"
+    parameter_units: ClassVar[Mapping[str, str]] = {"c_mu_half": "m/N"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"c_mu_half"})
     description = (
         "e_l = b (Theta z F - mean_run), b = c mu / 2: an elastic cable stretches less while "
         "pulled in through a sheath with friction (z: the drum's direction, Theta: wrap angle)"
@@ -416,6 +428,8 @@ class CableSlack(CandidateEffect):
     """
 
     name = "slack"
+    parameter_units: ClassVar[Mapping[str, str]] = {"slack": "m"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"slack"})
     description = (
         "e_l = s (g - mean_run g), g = exp(-F/F_0): slack s [m] paid out beyond the path while "
         "the cable is slack, taken up over a tension scale F_0 (a dead zone)"

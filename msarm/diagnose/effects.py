@@ -47,7 +47,7 @@ A nonlinear one sets ``linear = False`` and overrides :meth:`CandidateEffect.tor
 from __future__ import annotations
 
 from abc import ABC
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, TypeVar
 
 import casadi
@@ -196,6 +196,16 @@ class CandidateEffect(ABC):
     groups: tuple[str, ...] = ("joint",)
     parameter_names: tuple[str, ...]
     channels: tuple[int, ...]
+    #: Unit of each kind of parameter (:func:`parameter_kind` of its name), e.g.
+    #: ``{"coulomb": "N m"}``; ``"-"``: dimensionless. A kind not listed has no stated unit.
+    parameter_units: ClassVar[Mapping[str, str]] = {}
+    #: Parameter kinds that no physical effect of this kind has below zero (a friction level,
+    #: a compliance, a play): a fit that lands below zero is flagged in the diagnosis.
+    nonnegative: ClassVar[frozenset[str]] = frozenset()
+
+    def unit_of(self, parameter: str) -> str:
+        """The unit of a parameter, by its kind (``""`` when the term states none)."""
+        return self.parameter_units.get(parameter_kind(parameter), "")
 
     @property
     def n_parameters(self) -> int:
@@ -290,6 +300,12 @@ class CandidateEffect(ABC):
         return f"{type(self).__name__}(p={self.n_parameters}, channels={self.channels})"
 
 
+def parameter_kind(parameter: str) -> str:
+    """A parameter's kind: its name without index or body (``elbow.mcx[1]`` -> ``mcx``)."""
+    base = parameter.split("[", 1)[0]
+    return base.rsplit(".", 1)[-1]
+
+
 #: Registered candidate classes by name.
 CANDIDATES: dict[str, type[CandidateEffect]] = {}
 
@@ -299,13 +315,24 @@ _E = TypeVar("_E", bound=type[CandidateEffect])
 def register(cls: _E) -> _E:
     """Class decorator: add a :class:`CandidateEffect` subclass to :data:`CANDIDATES`.
 
+    A class registered again under its name by the same module and qualified name (a
+    notebook cell run twice) replaces the first.
+
     Raises:
         InputError: The class has no ``name`` or the name is taken by another class.
     """
     if not cls.name:
         raise InputError(f"{cls.__name__}: a candidate needs a non-empty class attribute 'name'")
-    if cls.name in CANDIDATES and CANDIDATES[cls.name] is not cls:
-        raise InputError(f"candidate name {cls.name!r} is already registered")
+    old = CANDIDATES.get(cls.name)
+    same = old is not None and (old.__module__, old.__qualname__) == (
+        cls.__module__,
+        cls.__qualname__,
+    )
+    if old is not None and old is not cls and not same:  # a notebook cell run again: same
+        raise InputError(
+            f"candidate name {cls.name!r} is already registered by "
+            f"{old.__module__}.{old.__qualname__}"
+        )
     CANDIDATES[cls.name] = cls
     return cls
 
@@ -355,6 +382,8 @@ class CoulombFriction(CandidateEffect):
     """
 
     name = "coulomb"
+    parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb"})
     description = "r_j = c_j * tanh(qd_j / eps): Coulomb friction of joint j, smoothed sign"
     linear = True
 
@@ -383,6 +412,8 @@ class ViscousFriction(CandidateEffect):
     """Joint viscous friction: ``r_j = b_j qd_j``, ``b_j`` [N m s/rad] per joint."""
 
     name = "viscous"
+    parameter_units: ClassVar[Mapping[str, str]] = {"viscous": "N m s/rad"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"viscous"})
     description = "r_j = b_j * qd_j: viscous friction of joint j"
     linear = True
 
@@ -415,6 +446,8 @@ class DahlFriction(CandidateEffect):
     """
 
     name = "dahl"
+    parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb"})
     description = (
         "r_j = F_c,j z_j, dz/dt = a (qd_j - |qd_j| z_j): Dahl friction of joint j "
         "(Coulomb level F_c with a pre-sliding hysteresis of angle 1/a)"
@@ -461,6 +494,12 @@ class StribeckFriction(CandidateEffect):
     """
 
     name = "stribeck"
+    parameter_units: ClassVar[Mapping[str, str]] = {
+        "coulomb": "N m",
+        "static": "N m",
+        "stribeck_velocity": "rad/s",
+    }
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb", "static", "stribeck_velocity"})
     description = (
         "r_j = (c_j + (s_j - c_j) exp(-(qd_j/v_j)^2)) tanh(qd_j/eps) [+ b_j qd_j]: "
         "Coulomb level c, static level s, Stribeck velocity v"
@@ -566,6 +605,8 @@ class CableCapstanFriction(CandidateEffect):
     """
 
     name = "capstan"
+    parameter_units: ClassVar[Mapping[str, str]] = {"mu": "1/rad", "eps": "m/s"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"mu", "eps"})
     description = (
         "r = J_c^T (F (exp(-mu Theta s) - 1)), s = tanh(-ldot/eps): sheath friction with "
         "wrap angle Theta(q) reduces the tension of a cable pulled in (mu shared or per cable)"
@@ -702,6 +743,8 @@ class CableCapstanHysteresis(CandidateEffect):
     """
 
     name = "capstan_hysteresis"
+    parameter_units: ClassVar[Mapping[str, str]] = {"a": "-"}
+    nonnegative: ClassVar[frozenset[str]] = frozenset({"a"})
     description = (
         "r = sum_k a_k J_c^T (S_mu_k(F) - F), F the commanded tension: sheath friction with "
         "stiction, stick-slip elements (a play in log tension of half-width mu_k Theta)"
@@ -813,6 +856,7 @@ class MotorCogging(CandidateEffect):
     """
 
     name = "cogging"
+    parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
         "r = -J_c^T dF, dF_c = A_c sin(N theta_c + phi_c) / rho: motor cogging torque "
         "periodic in the motor angle theta_c, through the drum radius rho"
@@ -882,6 +926,7 @@ class SensorBiasScale(CandidateEffect):
     """
 
     name = "sensor"
+    parameter_units: ClassVar[Mapping[str, str]] = {"bias": "N", "scale_minus_1": "-"}
     description = (
         "r = -J_c^T (b + (k - 1) F): load-cell bias b [N] and scale k, per cable or shared"
     )
@@ -955,6 +1000,7 @@ class TensionDelay(CandidateEffect):
     """
 
     name = "delay"
+    parameter_units: ClassVar[Mapping[str, str]] = {"delay": "s"}
     description = "r = d * J_c^T dF/dt: logged tensions late by d [s] (first order in d)"
     linear = True
 
@@ -1006,6 +1052,18 @@ class InertiaError(CandidateEffect):
     """
 
     name = "inertia"
+    parameter_units: ClassVar[Mapping[str, str]] = {
+        "m": "kg",
+        "mcx": "kg m",
+        "mcy": "kg m",
+        "mcz": "kg m",
+        "Ixx": "kg m^2",
+        "Ixy": "kg m^2",
+        "Iyy": "kg m^2",
+        "Ixz": "kg m^2",
+        "Iyz": "kg m^2",
+        "Izz": "kg m^2",
+    }
     description = (
         "r = Y(q, qd, qdd) dpi: inertial parameter error dpi of the links through the "
         "joint-torque regressor (base set of masses and first moments, or of all parameters)"

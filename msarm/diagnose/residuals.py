@@ -45,7 +45,7 @@ from scipy.signal import savgol_filter
 
 from msarm.compensation.target import TargetSpec, filtered_motion, torque_error
 from msarm.errors import LogError, MsarmWarning
-from msarm.io.logs import TIME, RunLog, read_log
+from msarm.io.logs import TIME, RunLog, check_standard_units, read_log
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 
@@ -63,6 +63,8 @@ FloatArray = NDArray[np.float64]
 #: Unit of each residual kind.
 RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "drive": "N", "replay": "rad"}
 
+#: The log quantities the residuals read (their units must be msarm's SI ones).
+_QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
 #: A step of ``t`` longer than this many nominal sample periods is a gap.
 _GAP_FACTOR = 1.5
 #: The median step of ``t`` may differ from the nominal period by this fraction at most.
@@ -237,15 +239,16 @@ def residuals_from_log(
 
     Raises:
         LogError: The log is of another model (file and both hashes named); a needed channel
-            is missing (file and column named); the sample times disagree with the nominal
-            rate; no segment is long enough for the filter.
+            is missing (file and column named); a quantity read is not in msarm's SI unit;
+            the sample times disagree with the nominal rate; no segment is long enough for
+            the filter.
     """
     spec = spec or ResidualSpec()
     if not isinstance(log, RunLog):
         source = source or str(log)
         log = read_log(log)
     source = source or "log"
-    if log.metadata.model_sha256 != model.sha256:
+    if log.metadata.model_sha256.lower() != model.sha256.lower():
         raise LogError(
             f"{source}: the log is of another robot model: its model_sha256 is "
             f"{log.metadata.model_sha256!r} (model {log.metadata.robot_model!r}), the nominal "
@@ -254,6 +257,7 @@ def residuals_from_log(
             "(joint angles and cables, as msarm track writes); a cable-driven parallel robot's "
             "logs are not diagnosed yet"
         )
+    check_standard_units(log, _QUANTITIES_READ, source)
     joints, cables = list(model.joint_names), list(model.cable_names)
     for quantity, names in (("q", joints), ("tension_motor", cables)):
         for name in names:
@@ -266,12 +270,23 @@ def residuals_from_log(
     if not has_motor:
         missing = next(c for c in cables if f"motor_angle.{c}" not in log.columns)
         warnings.warn(
-            f"{source}: column 'motor_angle.{missing}' is missing: no cable-length residual; "
-            "the joint-torque and replay residuals are still computed",
+            f"{source}: column 'motor_angle.{missing}' is missing: no cable-length residual and "
+            "no motor speed, so the length terms, winch friction and encoder skew are left out "
+            "(for every log diagnosed with this one) and the cogging terms take its motor "
+            "angles as zero; the joint-torque and replay residuals are still computed",
             DiagnosisWarning,
             stacklevel=2,
         )
     has_reference = all(f"q_ref.{j}" in log.columns for j in joints)
+    if not has_reference:
+        missing = next(j for j in joints if f"q_ref.{j}" not in log.columns)
+        warnings.warn(
+            f"{source}: column 'q_ref.{missing}' is missing: the mass-error term uses the "
+            "measured accelerations, whose encoder noise is also in the residual (it may be "
+            "named on noise alone; its confidence tells)",
+            DiagnosisWarning,
+            stacklevel=2,
+        )
     has_command = all(f"tension_cmd.{c}" in log.columns for c in cables)
     if not has_command:
         missing = next(c for c in cables if f"tension_cmd.{c}" not in log.columns)
@@ -411,7 +426,8 @@ def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
         raise LogError(
             f"{source}: no contiguous stretch of column '{TIME}' has the filter's {window} "
             "samples; nothing can be diagnosed (record longer stretches or use a shorter "
-            "filter window, ResidualSpec(target=TargetSpec(window=...)))"
+            "filter window: msarm diagnose --filter-window, or "
+            "ResidualSpec(target=TargetSpec(window=...)) in Python)"
         )
     if dropped:
         warnings.warn(

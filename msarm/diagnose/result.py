@@ -32,6 +32,10 @@ class SelectedEffect:
         confidence: Share of (bootstrap draw, held-out run) pairs that need the term (see the
             module docstring) [-]; NaN when not computed.
         message: Solver status of its fit.
+        parameter_units: Unit of each parameter (``"-"``: dimensionless, ``""``: not stated),
+            ``(p,)`` strings; empty when not recorded.
+        notes: What the reader should know about this result: a parameter below zero that no
+            physical effect of the kind has, an effect the logs cannot tell from another.
     """
 
     name: str
@@ -44,14 +48,21 @@ class SelectedEffect:
     gain: float
     confidence: float
     message: str
+    parameter_units: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
     def parameter_texts(self, limit: int = 6, equals: str = " = ") -> list[str]:
-        """``name = value ± std`` of the first ``limit`` parameters, and a count of the rest."""
+        """``name = value ± std unit`` of the first ``limit`` parameters, and how many more."""
+        units = self.parameter_units or ("",) * len(self.parameter_names)
         parts = []
-        for name, value, std in zip(self.parameter_names, self.parameters, self.std, strict=True):
+        for name, value, std, unit in zip(
+            self.parameter_names, self.parameters, self.std, units, strict=True
+        ):
             text = f"{name}{equals}{value:.4g}"
             if np.isfinite(std):
                 text += f" ± {std:.2g}"
+            if unit and unit != "-":
+                text += f" {unit}"
             parts.append(text)
         if len(parts) > limit:
             parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
@@ -72,6 +83,10 @@ class SelectedEffect:
             "gain": self.gain,
             "confidence": None if not np.isfinite(self.confidence) else self.confidence,
             "message": self.message,
+            "units": dict(zip(self.parameter_names, self.parameter_units, strict=True))
+            if self.parameter_units
+            else {},
+            "notes": list(self.notes),
         }
 
 
@@ -218,8 +233,10 @@ class Diagnosis:
         lines.append(
             f"Training runs: {len(self.train_runs)} ({self.n_train} samples); held-out runs: "
             f"{len(self.holdout_runs)} ({self.n_holdout} samples); channel groups: "
-            f"{', '.join(self.groups)}. A term is added when it raises the held-out score "
-            f"(explained variance, mean over groups) by more than {self.threshold:.3g}."
+            f"{', '.join(self.groups)}. A term is added when it raises the held-out explained "
+            "share of the groups it acts on (its gain, the mean over those groups) by more than "
+            f"{self.threshold:.3g}; the held-out score is the explained share averaged over all "
+            "the groups."
         )
         if self.search:
             short = self.search.get("shortlist")
@@ -259,6 +276,9 @@ class Diagnosis:
                     f"| {k} | {s.name} | {', '.join(s.groups)} | {parameters} | "
                     f"{s.explained_variance:.3f} | {s.gain:+.3f} | {confidence} |"
                 )
+            notes = [f"- {s.name}: {note}" for s in self.selected for note in s.notes]
+            if notes:
+                lines += ["", "Notes:", "", *notes]
         lines += ["", "## How far: the held-out gap before and after", ""]
         lines += ["| group | channel | before | after | shrink |", "|---|---|---|---|---|"]
         for g in self.groups:

@@ -65,6 +65,7 @@ from msarm.diagnose.cable_effects import (
     WinchFriction,
 )
 from msarm.diagnose.effects import (
+    CANDIDATES,
     CableCapstanFriction,
     CableCapstanHysteresis,
     CandidateEffect,
@@ -76,6 +77,7 @@ from msarm.diagnose.effects import (
     StribeckFriction,
     TensionDelay,
     ViscousFriction,
+    parameter_kind,
 )
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.result import Diagnosis, SelectedEffect
@@ -329,12 +331,16 @@ def _resolve(
     out: list[CandidateEffect] = []
     for c in candidates:
         if isinstance(c, str):
-            if c not in every:
+            if c not in every and c in CANDIDATES:
+                c = _build_registered(CANDIDATES[c], model)
+            elif c not in every:
+                known = sorted({*every, *CANDIDATES})
                 raise InputError(
-                    f"candidates: unknown name {c!r}; known: {', '.join(every)} "
-                    "(or pass a CandidateEffect instance)"
+                    f"candidates: unknown name {c!r}; known: {', '.join(known)} (in Python, "
+                    "diagnose() also takes CandidateEffect instances)"
                 )
-            c = every[c]
+            else:
+                c = every[c]
         if not isinstance(c, CandidateEffect):
             raise InputError(f"candidates: expected a name or a CandidateEffect, got {c!r}")
         out.append(c)
@@ -342,6 +348,81 @@ def _resolve(
     if len(set(names)) != len(names):
         raise InputError(f"candidates: names must be unique, got {names}")
     return out, True
+
+
+def _notes(
+    term: CandidateEffect, theta: FloatArray, std: FloatArray, groups: Sequence[str]
+) -> tuple[str, ...]:
+    """What a reader should know about a selected term's answer (see ``SelectedEffect.notes``).
+
+    A parameter of a kind that is never negative physically (``term.nonnegative``) fitted
+    below zero (by more than twice its bootstrap std, when there is one); a load-cell error
+    named without the drive residual, where it cannot be told from a loss in the sheaths.
+    """
+    notes = []
+    negative = [
+        f"{name} = {value:.3g}"
+        for name, value, spread in zip(term.parameter_names, theta, std, strict=True)
+        if parameter_kind(name) in term.nonnegative
+        and value < 0
+        and not (np.isfinite(spread) and value > -2.0 * spread)
+    ]
+    if negative:
+        reads_motor = term.groups != ("joint",)
+        notes.append(
+            f"{', '.join(negative)} below zero: no physical {term.name} effect has that; the "
+            "term probably stands in for another effect (or the logs move too little)"
+            + (
+                "; check the motor angles' sign (reel-in positive) and the drum radius "
+                "(--drum-radius)"
+                if reads_motor
+                else ""
+            )
+        )
+    if term.name == "sensor" and "drive" not in groups:
+        notes.append(
+            "the logs have no drive residual (no tension_cmd.<cable> columns): a load-cell "
+            "scale error and a loss in proportion to the tension (sheath friction) act alike "
+            "on the joint residual, so this may be friction in the sheaths"
+        )
+    return tuple(notes)
+
+
+def _check_design(term: CandidateEffect, signals: Signals) -> None:
+    """Refuse a linear term whose design is not ``(T, W, p)`` or not finite (term named)."""
+    design = np.asarray(term.design(signals))
+    expected = (signals.n_samples, term.width(signals), term.n_parameters)
+    if design.shape != expected:
+        raise InputError(
+            f"{term.name}: design() returned shape {design.shape}, expected (T, W, p) = "
+            f"{expected} (samples, the residual columns of its groups, parameters)"
+        )
+    if not np.all(np.isfinite(design)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(design))[0])
+        raise InputError(f"{term.name}: design() has a non-finite value (NaN or inf) at {bad}")
+
+
+def _build_registered(cls: type[CandidateEffect], model: RobotModel) -> CandidateEffect:
+    """A user's registered candidate class built for ``model``.
+
+    The constructor gets ``n_joints``, ``n_cables`` and ``model`` where it takes them, nothing
+    else.
+
+    Raises:
+        InputError: The constructor needs other arguments (pass an instance instead).
+    """
+    import inspect
+
+    offered = {"n_joints": model.n_joints, "n_cables": model.n_cables, "model": model}
+    try:
+        taken = inspect.signature(cls).parameters
+        kwargs = {k: v for k, v in offered.items() if k in taken}
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise InputError(
+            f"candidates: the registered candidate {cls.name!r} ({cls.__qualname__}) cannot be "
+            f"built from n_joints, n_cables and model alone ({exc}); pass an instance instead"
+        ) from exc
 
 
 def _usable(
@@ -372,9 +453,9 @@ def _usable(
             lacking = [g for g in missing if g in absent]
             columns = {"drive": "tension_cmd.<cable>", "length": "motor_angle.<cable>"}
             reason = (
-                f"needs the {', '.join(missing)} residual, which the logs lack (no "
-                f"{', '.join(columns.get(g, g) for g in lacking)} columns in the training or "
-                "held-out logs)"
+                f"needs the {', '.join(missing)} residual, which not every log has (no "
+                f"{', '.join(columns.get(g, g) for g in lacking)} columns in some of the "
+                "training or held-out logs: a warning names each)"
                 if lacking
                 else f"needs the {', '.join(missing)} residual, which is zero or below its "
                 "resolution in these logs (the length's: ResidualSpec.length_resolution, as "
@@ -388,7 +469,7 @@ def _usable(
                 try:
                     term.check(these)
                     if term.linear:
-                        term.design(these.take(np.arange(min(these.n_samples, 8))))
+                        _check_design(term, these.take(np.arange(min(these.n_samples, 8))))
                 except InputError as exc:
                     reason = f"in the {which} logs: {exc}"
                     break
@@ -517,10 +598,18 @@ def load_data(
         LogError: A log that cannot be diagnosed (file named).
     """
     if not train_paths:
-        raise InputError("train_paths: no training logs; the terms need runs to be fitted on")
+        raise InputError(
+            "train_paths (the training logs): none given; the terms need runs to be fitted on"
+        )
     if not holdout_paths:
-        raise InputError("holdout_paths: no held-out logs; the terms need runs to be scored on")
-    for name, paths in (("train_paths", train_paths), ("holdout_paths", holdout_paths)):
+        raise InputError(
+            "holdout_paths (the held-out logs, --holdout): none given; the terms need runs to "
+            "be scored on"
+        )
+    for name, paths in (
+        ("train_paths (the training logs)", train_paths),
+        ("holdout_paths (the held-out logs, --holdout)", holdout_paths),
+    ):
         resolved = [str(Path(p).resolve()) for p in paths]
         twice = sorted({p for p in resolved if resolved.count(p) > 1})
         if twice:
@@ -532,7 +621,10 @@ def load_data(
         str(Path(p).resolve()) for p in holdout_paths
     }
     if both:
-        raise InputError(f"holdout_paths: logs also used for training: {sorted(both)}")
+        raise InputError(
+            f"holdout_paths (the held-out logs, --holdout): logs also used for training: "
+            f"{sorted(both)}"
+        )
     wanted = tuple(GROUPS if groups is None else groups)
     unknown = [g for g in wanted if g not in GROUPS]
     if unknown or not wanted:
@@ -738,6 +830,8 @@ def select_effects(
             gain=gains[k],
             confidence=confidence[k],
             message=message,
+            parameter_units=tuple(term.term.unit_of(p) for p in term.parameter_names),
+            notes=_notes(term.term, theta, std, layout.groups),
         )
         for k, (term, theta, std, message) in enumerate(
             zip(final.terms, final.parameters, stds, final.messages, strict=True)

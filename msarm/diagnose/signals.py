@@ -193,7 +193,7 @@ class Signals:
         if value is None:
             source = {"tension_cmd": "tension_cmd.<cable>", "motor_speed": "motor_angle.<cable>"}
             raise InputError(
-                f"{who}: needs Signals.{name}, which is absent (the logs have no "
+                f"{who}: needs Signals.{name}, which is absent (not every log has the "
                 f"{source.get(name, name)} columns)"
             )
         return value

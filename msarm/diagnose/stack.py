@@ -23,6 +23,7 @@ from msarm.diagnose.builder import GROUPS
 from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect, NumpyOps, Ops
 from msarm.diagnose.fitting import LinearSolver, _NonlinearProblem
 from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
 from msarm.model import RobotModel
 
 __all__ = [
@@ -316,7 +317,14 @@ class Sampled:
             if self.parent is not None:
                 self._designs[key] = self.parent.design(term, split)[self.within[split]]
             else:
-                self._designs[key] = term.design(self.full[split])[self.rows[split]]
+                design = term.design(self.full[split])[self.rows[split]]
+                if not np.all(np.isfinite(design)):
+                    row = int(np.argwhere(~np.isfinite(design))[0][0])
+                    raise InputError(
+                        f"{term.name}: design() has a non-finite value (NaN or inf) on the "
+                        f"{split} samples (sample {row} of those the fits use)"
+                    )
+                self._designs[key] = design
         return self._designs[key]
 
     def joint_design(self, terms: Sequence[CandidateEffect]) -> FloatArray:

@@ -208,7 +208,8 @@ class GapBreakdown:
             f"## Where the gap lies: {self.kind} residual [{self.unit}]",
             "",
             f"{len(self.sources)} log(s), {self.samples} samples; residual RMS "
-            f"{self.rms:.4g} {self.unit}, energy {self.total_energy:.4g} {self.unit}^2.",
+            f"{self.rms:.4g} {self.unit}, energy {self.total_energy:.4g} "
+            f"{f'({self.unit})' if ' ' in self.unit else self.unit}^2.",
             "",
             "Density = share of energy / share of time (> 1: the gap concentrates there). "
             "Each sample is counted in one motion phase and one load phase (first match of "

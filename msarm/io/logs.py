@@ -73,6 +73,7 @@ __all__ = [
     "columns_from_quantities",
     "RunLog",
     "TruthSidecar",
+    "check_standard_units",
     "read_log",
     "read_sidecar",
     "sidecar_path",
@@ -499,6 +500,41 @@ def _checked_columns(columns: Mapping[str, ArrayLike], source: str) -> dict[str,
             f"(t[{row - 1}] = {float(t[row - 1]):.6g}, t[{row}] = {float(t[row]):.6g})"
         )
     return out
+
+
+def _unit_key(unit: str) -> str:
+    """A unit's spelling without spaces, dots, ``*`` and ``^`` (``N m`` is ``N·m``)."""
+    return re.sub(r"[\s·*^]", "", unit)
+
+
+def check_standard_units(log: RunLog, quantities: Sequence[str], source: str) -> None:
+    """Refuse a log whose units of ``quantities`` are not msarm's (:data:`STANDARD_UNITS`).
+
+    A log may declare any unit (the schema asks for one per quantity); what reads it as
+    numbers in SI must refuse another unit rather than misread it (degrees taken as radians,
+    kN as N). Spellings that differ only by spaces, ``·``, ``*`` or ``^`` are the same unit.
+    Quantities the log does not have are not checked.
+
+    Args:
+        log: The log.
+        quantities: The quantities the caller reads, each a key of :data:`STANDARD_UNITS`.
+        source: Name of the log in messages (its file).
+
+    Raises:
+        LogError: A quantity in another unit (file, quantity, its unit and the expected one
+            named).
+    """
+    present = {split_channel(c)[0] for c in log.columns if c != TIME}
+    for quantity in quantities:
+        if quantity not in present:
+            continue
+        unit, expected = log.metadata.units.get(quantity, ""), STANDARD_UNITS[quantity]
+        if _unit_key(unit) != _unit_key(expected):
+            raise LogError(
+                f"{source}: quantity {quantity!r} is in {unit!r}, expected {expected!r} (SI, "
+                f"as msarm.io.logs.STANDARD_UNITS); convert the columns {quantity}.* to "
+                f"{expected} and set the metadata's units to match"
+            )
 
 
 def _check_units(columns: Mapping[str, Any], units: Mapping[str, str], source: str) -> None:

@@ -1,0 +1,187 @@
+"""The diagnosis on logs a user wrote: units, conventions, own candidates, flagged answers."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import short_move_logs
+
+from msarm.diagnose.effects import (
+    CANDIDATES,
+    CandidateEffect,
+    CoulombFriction,
+    SensorBiasScale,
+    parameter_kind,
+    register,
+)
+from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, residuals_from_log
+from msarm.diagnose.result import SelectedEffect
+from msarm.diagnose.select import _notes, diagnose, load_data
+from msarm.errors import InputError, LogError
+from msarm.io.logs import RunLog, check_standard_units, read_log, write_log
+from msarm.plant import IDEAL_PLANT
+from msarm.plant.config import JointFrictionConfig, SensorNoiseConfig
+
+
+@pytest.fixture(scope="module")
+def logs(arm, tmp_path_factory):
+    effects = replace(
+        IDEAL_PLANT.effects,
+        sensor_noise=SensorNoiseConfig(enabled=True),
+        joint_friction=JointFrictionConfig(enabled=True),
+    )
+    plant = replace(IDEAL_PLANT, name="user", effects=effects)
+    return short_move_logs(arm, tmp_path_factory.mktemp("user_logs"), plant, 3, first_seed=40)
+
+
+def _rewrite(path, out, columns=None, **metadata):
+    log = read_log(path)
+    return write_log(
+        out, RunLog(log.columns if columns is None else columns, replace(log.metadata, **metadata))
+    )
+
+
+def test_a_quantity_in_another_unit_is_refused_not_misread(logs, arm, tmp_path):
+    log = read_log(logs[0])
+    columns = {k: (np.degrees(v) if k.startswith("q.") else v) for k, v in log.columns.items()}
+    units = {**log.metadata.units, "q": "deg"}
+    path = _rewrite(logs[0], tmp_path / "deg.parquet", columns, units=units)
+    with pytest.raises(LogError, match=r"deg\.parquet: quantity 'q' is in 'deg', expected 'rad'"):
+        residuals_from_log(arm, path)
+    # the same unit spelt another way is the same unit; a quantity not read is not checked
+    same = RunLog(
+        log.columns, replace(log.metadata, units={**log.metadata.units, "motor_torque": "N·m"})
+    )
+    check_standard_units(same, ["q", "motor_torque"], "log")
+    other = RunLog(
+        log.columns, replace(log.metadata, units={**log.metadata.units, "motor_torque": "kN"})
+    )
+    check_standard_units(other, ["q"], "log")
+    with pytest.raises(LogError, match="'motor_torque' is in 'kN', expected 'N m'"):
+        check_standard_units(other, ["motor_torque"], "log")
+
+
+def test_the_model_hash_is_compared_without_case(logs, arm, tmp_path):
+    upper = read_log(logs[0]).metadata.model_sha256.upper()
+    path = _rewrite(logs[0], tmp_path / "upper.parquet", model_sha256=upper)
+    residuals_from_log(arm, path, spec=ResidualSpec(replay=False))
+
+
+def test_the_drum_radius_scales_the_motor_angles_into_lengths(logs, arm, tmp_path):
+    log = read_log(logs[0])
+    halved = {k: (0.5 * v if k.startswith("motor_angle.") else v) for k, v in log.columns.items()}
+    path = _rewrite(logs[0], tmp_path / "gear.parquet", halved)
+    spec = ResidualSpec(replay=False)
+    plain = residuals_from_log(arm, logs[0], spec=spec).cable_length
+    doubled = residuals_from_log(arm, path, spec=replace(spec, drum_radius=0.006)).cable_length
+    np.testing.assert_allclose(doubled, plain, atol=1e-12)
+
+
+def test_the_console_script_takes_the_drum_radius_and_filter_window(logs, monkeypatch, capsys):
+    import sys
+
+    from msarm.cli import main
+
+    for option, value, expected in (
+        ("--drum-radius", "0", "--drum-radius: expected a radius > 0"),
+        ("--filter-window", "24", "--filter-window: expected an odd number"),
+    ):
+        monkeypatch.setattr(sys, "argv", ["msarm", "diagnose", *map(str, logs), option, value])
+        with pytest.raises(SystemExit) as exit_info:
+            main()
+        assert exit_info.value.code == 2
+        assert expected in capsys.readouterr().err
+
+
+def test_missing_reference_and_little_motion_are_said(logs, arm, tmp_path):
+    log = read_log(logs[0])
+    no_ref = {k: v for k, v in log.columns.items() if not k.startswith("q_ref.")}
+    path = _rewrite(logs[0], tmp_path / "noref.parquet", no_ref)
+    with pytest.warns(DiagnosisWarning, match=r"noref\.parquet: column 'q_ref\..*mass-error"):
+        residuals_from_log(arm, path, spec=ResidualSpec(replay=False))
+    still = {k: v[:100] for k, v in log.columns.items()}  # the first 0.4 s: a hold
+    held = _rewrite(logs[0], tmp_path / "still.parquet", still)
+    with pytest.warns(DiagnosisWarning, match=r"still\.parquet: no joint moves more than"):
+        load_data(arm, [held, logs[1]], [logs[2]], candidates=["coulomb"])
+
+
+def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):
+    coulomb = CoulombFriction(n_joints=4)
+    theta = np.array([0.1, -0.2, 0.05, 0.1])
+    notes = _notes(coulomb, theta, np.full(4, np.nan), ("joint",))
+    assert len(notes) == 1 and "coulomb[1] = -0.2 below zero" in notes[0]
+    # within twice its bootstrap std of zero: not flagged
+    assert _notes(coulomb, theta, np.full(4, 0.15), ("joint",)) == ()
+    sensor = SensorBiasScale(n_cables=9, n_joints=4, shared=True, drive=True)
+    assert "sheath" in _notes(sensor, np.zeros(2), np.zeros(2), ("joint",))[0]
+    assert _notes(sensor, np.zeros(2), np.zeros(2), ("joint", "drive")) == ()
+
+
+def test_parameters_are_printed_with_their_units():
+    assert parameter_kind("elbow.mcx") == "mcx" and parameter_kind("coulomb[2]") == "coulomb"
+    effect = SelectedEffect(
+        name="coulomb",
+        description="",
+        groups=("joint",),
+        parameter_names=("coulomb[0]",),
+        parameters=np.array([0.15]),
+        std=np.array([0.01]),
+        explained_variance=0.5,
+        gain=0.5,
+        confidence=1.0,
+        message="",
+        parameter_units=(CoulombFriction(n_joints=1).unit_of("coulomb[0]"),),
+    )
+    assert effect.parameter_texts() == ["coulomb[0] = 0.15 ± 0.01 N m"]
+    assert effect.as_dict()["units"] == {"coulomb[0]": "N m"}
+
+
+class _Offset(CandidateEffect):
+    name = "test_user_offset"
+    description = "r_j = c_j"
+
+    def __init__(self, n_joints: int = 4) -> None:
+        self.channels = tuple(range(n_joints))
+        self.parameter_names = tuple(f"c[{j}]" for j in self.channels)
+
+    def design(self, signals):
+        T, n = signals.n_samples, signals.n_joints
+        return np.broadcast_to(np.eye(n)[None], (T, n, n)).copy()
+
+
+def test_a_registered_candidate_is_usable_by_name(logs, arm):
+    register(_Offset)
+    try:
+        register(type("_Offset", (_Offset,), {"__module__": __name__, "__qualname__": "_Offset"}))
+        result = diagnose(arm, logs[:2], logs[2:], candidates=["coulomb", "test_user_offset"])
+        assert set(result.names) <= {"coulomb", "test_user_offset"}
+        other = type("Other", (_Offset,), {"__module__": "elsewhere"})
+        with pytest.raises(InputError, match="already registered by"):
+            register(other)
+    finally:
+        CANDIDATES.pop("test_user_offset", None)
+
+
+class _Flat(_Offset):
+    name = "test_flat"
+
+    def design(self, signals):
+        return np.zeros((signals.n_samples, signals.n_joints))
+
+
+class _Nan(_Offset):
+    name = "test_nan"
+
+    def design(self, signals):
+        design = super().design(signals)
+        design[3, 0, 0] = np.nan
+        return design
+
+
+def test_a_user_candidate_with_a_bad_design_is_named(logs, arm):
+    with pytest.raises(InputError, match=r"test_flat: design\(\) returned shape .* expected"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Flat()])
+    with pytest.raises(InputError, match=r"test_nan: design\(\) has a non-finite value"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Nan()])
