@@ -428,3 +428,15 @@ def test_first_infeasible_names_the_right_sample(model):
     assert model.first_infeasible(path, np.eye(3), w) == 3
     with pytest.raises(InputError, match="wrenches"):
         model.first_infeasible(path, None, np.zeros((5, 6)))
+
+
+def test_a_transposed_structure_matrix_is_named(model):
+    from msarm.allocation import is_wrench_feasible
+
+    r, R = model.home_pose
+    At, w = model.robot.structure_matrix(r, R), model.platform_wrench(r, R)
+    assert is_wrench_feasible(At, w, model.f_min, model.f_max)
+    with pytest.raises(InputError, match=r"structure_matrix has shape \(8, 6\).*transposed"):
+        is_wrench_feasible(At.T, w, model.f_min, model.f_max)
+    with pytest.raises(InputError, match=r"f_min has 6 entries .* m = 8 columns"):
+        is_wrench_feasible(At, w, model.f_min[:6], model.f_max)

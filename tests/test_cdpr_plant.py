@@ -325,3 +325,61 @@ def test_a_nan_platform_speed_stops_the_run_though_mujoco_resets_its_state(cdpr)
     assert "at the start of that period" in str(caught.value)
     np.testing.assert_array_equal(caught.value.state["qpos"], before)
     assert np.isnan(caught.value.state["qvel"][2])
+
+
+def test_step_counts_must_be_whole_and_non_negative(cdpr):
+    plant = CdprPlant(cdpr, QUIET)
+    plant.reset(cdpr.home_pose)
+    for bad in (-3, 2.7, True, "2"):
+        with pytest.raises(InputError, match="n_steps must be an integer >= 0"):
+            plant.step(bad)
+    plant.step(np.int64(2))
+    assert plant.time == pytest.approx(2 * QUIET.timestep)
+
+
+@pytest.mark.parametrize(
+    "block,key,value",
+    [
+        ("cable", "chain_length", ".inf"),
+        ("cable", "axial_stiffness", ".inf"),
+        ("cable", "damping_time", ".inf"),
+        ("winch", "drum_radius", ".inf"),
+        ("winch", "inertia", ".inf"),
+        ("winch", "torque_limit", ".nan"),
+        ("drive", "position_gain", ".inf"),
+        ("drive", "integral_time", ".inf"),
+        ("drive", "fe_compliance", "-.inf"),
+        ("load_cell", "bias", ".nan"),
+        ("load_cell", "bias", ".inf"),
+        ("noise", "load_cell", ".inf"),
+        ("noise", "encoder", "-1.0"),
+    ],
+)
+def test_non_finite_plant_numbers_are_refused_naming_the_key(tmp_path, block, key, value):
+    from msarm.errors import ConfigError
+    from msarm.io.config import load_config
+
+    path = tmp_path / "plant.yaml"
+    path.write_text(f"{block}:\n  {key}: {value}\n")
+    with pytest.raises(ConfigError, match=rf"key '{block}'.*{key} must be a finite value"):
+        load_config(path, CdprPlantConfig)
+
+
+def test_a_plant_file_that_is_not_yaml_gives_one_line(tmp_path):
+    from msarm.errors import ConfigError
+    from msarm.io.config import load_config
+
+    path = tmp_path / "plant.yaml"
+    path.write_text("cable:\n  chain_length: [1, 2\nwinch: {drum_radius: 0.02}\n")
+    with pytest.raises(ConfigError) as caught:
+        load_config(path, CdprPlantConfig)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert message.startswith(f"{path}: not valid YAML: line 3, column ")
+
+
+@pytest.mark.parametrize("name", ["a/b", "../../x", "", ".hidden", "-x", "a b"])
+def test_plant_names_must_be_simple_identifiers(name):
+    with pytest.raises(ValueError, match="name must be a simple identifier"):
+        CdprPlantConfig(name=name)
+    assert CdprPlantConfig(name="wire-x_2.b").name == "wire-x_2.b"

@@ -93,6 +93,7 @@ def test_cdpr_run_command(tmp_path):
     bad = CliRunner().invoke(app, ["cdpr", "run", "--trajectory", "star"])
     assert bad.exit_code != 0 and "triangle-12" in str(bad.exception)
     assert np.isfinite(payload["mean_position_error_mm"])
+    assert payload["force_rms_error"] is None  # NC keeps its own mean force, not the distribution
 
 
 def test_sensitivity_map_shows_each_pair_good_on_its_side(robot, tmp_path):
@@ -117,3 +118,143 @@ def test_sensitivity_map_shows_each_pair_good_on_its_side(robot, tmp_path):
     assert low[(0, 1)][1] < 1.5 < low[(0, 1)][0]  # cables 1,2: good where y > 0
     assert low[(2, 3)][0] < 1.5 < low[(2, 3)][1]  # cables 3,4: good where y < 0
     assert plot_sensitivity(robot, tmp_path / "map.png", points=11).is_file()
+
+
+def _head(trajectory, n: int):
+    """The first ``n`` samples of a trajectory (a short run that starts as the full one)."""
+    from dataclasses import replace
+
+    return replace(
+        trajectory,
+        t=trajectory.t[:n],
+        position=trajectory.position[:n],
+        velocity=trajectory.velocity[:n],
+        acceleration=trajectory.acceleration[:n],
+    )
+
+
+def test_a_plant_step_finer_than_the_cycle_keeps_the_timing(robot):
+    """A 0.5 ms plant advances two steps a 1 ms cycle: the platform keeps up with the path."""
+    from dataclasses import replace
+
+    from msarm.plant.cdpr_config import IDEAL_CDPR_PLANT
+
+    fine = replace(IDEAL_CDPR_PLANT, name="fine", timestep=0.0005)
+    path = get_cdpr_trajectory("triangle-12", hold=0.1, speed=0.09)
+    coarse = run_cdpr(robot, IDEAL_CDPR_PLANT, "ikc", path).metrics
+    finer = run_cdpr(robot, fine, "ikc", path).metrics
+    assert finer.completed
+    assert finer.max_position_error_mm < 2 * coarse.max_position_error_mm + 0.1
+    with pytest.raises(InputError, match=r"timestep 0\.0003 s does not divide .* 0\.001 s"):
+        run_cdpr(robot, replace(fine, timestep=0.0003), "ikc", path)
+    slow = get_cdpr_trajectory("triangle-12", dt=0.002)
+    with pytest.raises(InputError, match=r"every 0\.002 s but controller 'ikc' runs every 0\.001"):
+        run_cdpr(robot, IDEAL_CDPR_PLANT, "ikc", slow)
+
+
+def test_feasibility_is_checked_with_the_controllers_force_bounds(robot):
+    """y = 0.37 m is feasible within the file's [5, 35] N, not the controllers' [8, 35] N."""
+    from msarm.tasks.cdpr_runner import check_feasible
+    from msarm.tasks.cdpr_trajectories import PathSegment, sample_path
+
+    edge = sample_path(
+        [PathSegment.line([0.0, 0.30], [0.0, 0.37])], name="edge", hold=0.05, ramp_time=0.2
+    )
+    check_feasible(robot, edge)  # the file's bounds
+    with pytest.raises(InputError, match=r"sample \d+ .*\[8, 35\] N"):
+        run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", edge)
+
+
+@pytest.mark.parametrize("controller", ["hc-e", "hc-tau"])
+def test_the_plant_starts_holding_the_distribution_the_controller_commands(
+    robot, triangle, controller
+):
+    run = run_cdpr(robot, DEFAULT_CDPR_PLANT, controller, _head(triangle, 30))
+    names = robot.cable_names
+    start = np.array([run.truth[f"tension.{n}"][0] for n in names])
+    desired = np.array([run.columns[f"f_desired.{n}"][0] for n in names])
+    np.testing.assert_allclose(start, desired, atol=0.05)
+    assert start.min() >= 8.0 - 0.05  # the controllers' lower bound, not the file's 5 N
+
+
+def test_a_cable_speed_beyond_the_friction_fit_is_refused_before_the_run(robot):
+    fast = get_cdpr_trajectory("triangle-12", speed=0.2)
+    with pytest.raises(InputError, match=r"m/min.*'hc-tau'.*expected a slower trajectory"):
+        run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-tau", fast)
+    # without the friction model the controller never evaluates it: the check does not apply
+    from msarm.tasks.cdpr_runner import check_cdpr_run
+
+    check_cdpr_run(robot, DEFAULT_CDPR_PLANT, "hc-tau", fast, {"friction_model": False})
+
+
+def test_cdpr_run_refuses_bad_input_before_creating_its_folder(tmp_path):
+    folder = tmp_path / "run"
+    bad = CliRunner().invoke(app, ["cdpr", "run", "--controller", "foo", "--out", str(folder)])
+    assert isinstance(bad.exception, InputError) and "hc-e" in str(bad.exception)
+    assert not folder.exists()
+    plant = tmp_path / "coarse.yaml"
+    plant.write_text("timestep: 0.0003\n")
+    bad = CliRunner().invoke(app, ["cdpr", "run", "--plant", str(plant), "--out", str(folder)])
+    assert isinstance(bad.exception, InputError) and "0.0003" in str(bad.exception)
+    assert not folder.exists()
+
+
+@pytest.mark.parametrize(
+    "name,match",
+    [
+        ("a/b", "simple identifier"),
+        ("../../x", "simple identifier"),
+        ("''", "simple identifier"),
+        ("default", "name of a preset"),
+        ("ideal", "name of a preset"),
+    ],
+)
+def test_plant_names_that_would_misplace_the_run_folder_are_refused(tmp_path, name, match):
+    from msarm.errors import MsarmError
+
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(f"name: {name}\n")
+    folder = tmp_path / "run"
+    bad = CliRunner().invoke(app, ["cdpr", "run", "--plant", str(plant), "--out", str(folder)])
+    assert isinstance(bad.exception, MsarmError), bad.output
+    assert match in str(bad.exception) and "name" in str(bad.exception)
+    assert not folder.exists()
+
+
+def test_a_diverged_run_says_why_on_the_console(tmp_path):
+    plant = tmp_path / "stiff.yaml"
+    plant.write_text("cable: {axial_stiffness: 1.0e30}\n")
+    result = CliRunner().invoke(
+        app, ["cdpr", "run", "--plant", str(plant), "--out", str(tmp_path / "run")]
+    )
+    assert result.exit_code == 1
+    assert "msarm: error: CDPR simulation diverged at t = " in result.output
+    assert "DIVERGED at t = " in result.output
+    assert "diverged" in json.loads((tmp_path / "run" / "metrics.json").read_text())
+
+
+def test_cdpr_compare_records_its_plant_in_a_folder_of_its_own(tmp_path, monkeypatch):
+    """Default folder per plant, plant in the JSON, config.yaml, test ids never cut."""
+    import msarm.tasks.cdpr_compare as cdpr_compare
+    from msarm.io.config import load_config
+    from msarm.plant.cdpr_config import IDEAL_CDPR_PLANT, CdprPlantConfig
+
+    long_id = "hc-tau-no-friction/1-with-a-long-id"
+    monkeypatch.setattr(cdpr_compare, "_grid", lambda: [(long_id, "ikc", "circle-34", {})])
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["cdpr", "compare", "--plant", "ideal", "--repeats", "0"])
+    assert result.exit_code == 0, result.output
+    folder = tmp_path / "runs" / "cdpr-compare-ideal"
+    data = json.loads((folder / "cdpr_comparison.json").read_text())
+    assert load_config(data["plant"], CdprPlantConfig) == IDEAL_CDPR_PLANT
+    config = yaml.safe_load((folder / "config.yaml").read_text())
+    assert load_config(config["plant"], CdprPlantConfig) == IDEAL_CDPR_PLANT
+    assert long_id in result.output
+
+
+def test_the_forces_plot_names_controller_and_trajectory_once(robot, triangle):
+    from msarm.tasks.cdpr_compare import forces_title
+
+    run = run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", _head(triangle, 5))
+    assert forces_title(run).startswith("hc-e on triangle-12 (")
+    assert forces_title(run, "test 21").startswith("test 21: hc-e on triangle-12 (")

@@ -77,3 +77,22 @@ def test_progress_is_printed_line_by_line_where_no_bar_shows(capsys):
     ]
     progress_lines("compare", 2, enabled=False)("quiet")  # --json: nothing
     assert capsys.readouterr().err == ""
+
+
+def test_bench_allocation_shows_the_fallback_count(monkeypatch):
+    """A method that handed problems to its fallback says so next to "feasible"."""
+    import msarm.allocation.benchmark as benchmark
+
+    row = {"median_us": 1.0, "speedup_vs_cvxpy": 2.0, "feasible": 5, "statuses": {"fallback": 5}}
+    report = {
+        "robots": {"arm": {"shape": [4, 9], "n_problems": 5, "methods": {"closed_form": row}}},
+        "targets": {"fast_min_speedup": 1, "fast_max_median_us": 1, "batched_min_solves_per_s": 1},
+        "targets_met": {},
+    }
+    report["robots"]["arm"].update(source="random", f_ref=None)
+    monkeypatch.setattr(benchmark, "run_benchmark", lambda **_: report)
+    result = CliRunner().invoke(app, ["bench", "allocation"])
+    assert result.exit_code == 0, result.output
+    assert "fallback" in result.output
+    line = next(x for x in result.output.splitlines() if "closed_form" in x)
+    assert "5/5" in line and line.split("│")[7].strip() == "5"

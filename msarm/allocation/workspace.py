@@ -115,7 +115,21 @@ def is_wrench_feasible(
     At = np.asarray(structure_matrix, dtype=np.float64)
     if At.ndim != 2:
         raise InputError(f"structure_matrix must have shape (n, m), got {At.shape}")
-    w = _wrench_array(wrenches, At.shape[0])
+    n, m = At.shape
+    size = np.shape(wrenches)[-1] if np.ndim(wrenches) else None
+    if size is not None and size != n:
+        hint = " (transposed? expected A^T, not A)" if size == m else ""
+        raise InputError(
+            f"structure_matrix has shape {At.shape}: expected (n, m) with n = {size}, the "
+            f"wrench's size, and m the number of cables{hint}"
+        )
+    for name, bound in (("f_min", f_min), ("f_max", f_max)):
+        if np.size(bound) not in (1, m):
+            raise InputError(
+                f"{name} has {np.size(bound)} entries but structure_matrix {At.shape} has "
+                f"m = {m} columns (cables): expected a scalar or shape ({m},)"
+            )
+    w = _wrench_array(wrenches, n)
     M = np.broadcast_to(At, (w.shape[0], *At.shape))
     return bool(feasibility_batch(M, -w, f_min, f_max, tol=tol).all())
 

@@ -358,6 +358,8 @@ class CableRobotModel:
         wrenches: ArrayLike | None = None,
         *,
         tol: float = 1e-9,
+        f_min: float | ArrayLike | None = None,
+        f_max: float | ArrayLike | None = None,
     ) -> NDArray[np.bool_]:
         """Wrench feasibility of every sample of a trajectory.
 
@@ -369,6 +371,9 @@ class CableRobotModel:
                 (shared) or (N, 6), e.g. :meth:`platform_wrench` with the trajectory's
                 velocities and accelerations; the platform's weight at rest if None.
             tol: Equilibrium tolerance, relative to ``1 + ||w||``.
+            f_min: Lower force bound [N], a number or shape (m,): the model file's if None
+                (e.g. a controller's distribution bound, which may be tighter).
+            f_max: Upper force bound [N], a number or shape (m,): the model file's if None.
 
         Returns:
             Shape (N,) bool.
@@ -392,7 +397,25 @@ class CableRobotModel:
             if not np.isfinite(w).all():
                 raise InputError("wrenches must be finite [N, N m]")
             w = np.broadcast_to(w, (len(r), 6))
-        return feasibility_batch(At, -w, self.f_min, self.f_max, tol=tol)
+        lower, upper = self._bounds(f_min, f_max)
+        return feasibility_batch(At, -w, lower, upper, tol=tol)
+
+    def _bounds(
+        self, f_min: float | ArrayLike | None, f_max: float | ArrayLike | None
+    ) -> tuple[FloatArray, FloatArray]:
+        """The force bounds [N], shape (m,) each: the file's where None."""
+        out = []
+        for name, value, default in (("f_min", f_min, self.f_min), ("f_max", f_max, self.f_max)):
+            if value is None:
+                out.append(np.asarray(default, dtype=np.float64))
+                continue
+            arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_cables,))
+            if not np.isfinite(arr).all() or np.any(arr < 0.0):
+                raise InputError(f"{name} must be finite and >= 0 N, got {value!r}")
+            out.append(arr.astype(np.float64))
+        if np.any(out[0] > out[1]):
+            raise InputError(f"need f_min <= f_max [N], got {f_min!r}, {f_max!r}")
+        return out[0], out[1]
 
     def first_infeasible(
         self,
@@ -401,12 +424,16 @@ class CableRobotModel:
         wrenches: ArrayLike | None = None,
         *,
         tol: float = 1e-9,
+        f_min: float | ArrayLike | None = None,
+        f_max: float | ArrayLike | None = None,
     ) -> int | None:
         """Index of the first wrench-infeasible sample of a trajectory, None if all feasible.
 
         Arguments as :meth:`feasible_poses`.
         """
-        flags = self.feasible_poses(positions, rotations, wrenches, tol=tol)
+        flags = self.feasible_poses(
+            positions, rotations, wrenches, tol=tol, f_min=f_min, f_max=f_max
+        )
         bad = np.flatnonzero(~flags)
         return int(bad[0]) if bad.size else None
 
@@ -417,21 +444,27 @@ class CableRobotModel:
         wrenches: ArrayLike | None = None,
         *,
         tol: float = 1e-9,
+        f_min: float | ArrayLike | None = None,
+        f_max: float | ArrayLike | None = None,
     ) -> None:
         """Refuse a trajectory that leaves the wrench-feasible workspace, before it runs.
 
-        Arguments as :meth:`feasible_poses`.
+        Arguments as :meth:`feasible_poses` (a controller checks with its own force
+        distribution's bounds, e.g. 8-35 N, tighter than the file's 5-35 N).
 
         Raises:
             InputError: Naming the first infeasible sample, its position and the bounds.
         """
-        index = self.first_infeasible(positions, rotations, wrenches, tol=tol)
+        index = self.first_infeasible(
+            positions, rotations, wrenches, tol=tol, f_min=f_min, f_max=f_max
+        )
         if index is not None:
+            lower, upper = self._bounds(f_min, f_max)
             r = np.asarray(positions, dtype=np.float64)[index]
             raise InputError(
                 f"trajectory leaves the wrench-feasible workspace of {self.name} at sample "
                 f"{index} (r = {np.array2string(r, precision=4)} m): no cable forces within "
-                f"[{self.f_min.min():g}, {self.f_max.max():g}] N hold the platform there"
+                f"[{lower.min():g}, {upper.max():g}] N hold the platform there"
             )
 
 

@@ -40,13 +40,15 @@ def allocation(
         ("vs cvxpy", "right"),
         ("solves/s", "right"),
         ("feasible", "right"),
+        ("fallback", "right"),
         ("obj. diff", "right"),
     ):
         table.add_column(name, justify=justify, no_wrap=True)
     table.caption = (
         "median wall time of one solve (validation included); batched: one call for all "
-        "problems, per problem; obj. diff: largest relative difference of the objective "
-        "from cvxpy's (exact methods)"
+        "problems, per problem; fallback: problems the method could not solve itself and "
+        "handed to its fallback (timed with it); obj. diff: largest relative difference of "
+        "the objective from cvxpy's (exact methods)"
     )
     for robot, entry in report["robots"].items():
         n, m = entry["shape"]
@@ -60,13 +62,14 @@ def allocation(
                 f"{row['speedup_vs_cvxpy']:.1f}x",
                 f"{row['solves_per_s']:,.0f}" if "solves_per_s" in row else "",
                 f"{row['feasible']}/{entry['n_problems']}",
+                f"{row.get('statuses', {}).get('fallback', 0)}",
                 "" if diff is None else f"{diff:.1e}",
             )
             label = ""
         table.add_section()
     console = Console()
     if not console.is_terminal:  # piped or captured: no terminal width to fit, use a wide one
-        console = Console(width=110)
+        console = Console(width=120)
     console.print(table)
     targets = report["targets"]
     for robot, checks in report["targets_met"].items():

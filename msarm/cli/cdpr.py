@@ -32,11 +32,37 @@ CDPR_UNITS = {
 
 
 def _plant(name: str):
-    """The cable-robot plant from a preset name (``default``, ``ideal``) or a YAML file."""
+    """The cable-robot plant from a preset name (``default``, ``ideal``) or a YAML file.
+
+    Raises:
+        InputError: Not a preset nor a readable plant file; or the file's plant is named
+            like a preset (its runs would overwrite the preset's), or, without a ``name``
+            key, the file's stem is not a simple identifier.
+    """
+    from msarm.errors import InputError, MsarmError
     from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, IDEAL_CDPR_PLANT, CdprPlantConfig
 
     presets = {"default": DEFAULT_CDPR_PLANT, "ideal": IDEAL_CDPR_PLANT}
-    return resolve_config(name, presets, CdprPlantConfig, "plant")
+    try:
+        config = resolve_config(name, presets, CdprPlantConfig, "plant")
+    except ValueError as exc:  # a file's stem taken as the name, refused by the config
+        if isinstance(exc, MsarmError):
+            raise
+        raise InputError(
+            f"--plant {name}: {exc}; give the file a 'name' key or rename the file"
+        ) from None
+    if name not in presets and config.name in presets:
+        raise InputError(
+            f"--plant {name}: the file's plant is named {config.name!r}, the name of a preset "
+            f"(its runs would overwrite the preset's); expected another name (not "
+            f"{', '.join(presets)})"
+        )
+    return config
+
+
+def _plant_suffix(config) -> str:
+    """``-<plant name>`` for a plant other than the default, else ``""`` (folder names)."""
+    return "" if config.name == "default" else f"-{config.name}"
 
 
 def _metric_cells(m) -> list[str]:
@@ -86,13 +112,14 @@ def run_command(
     from msarm.io.config import config_to_dict, write_config
     from msarm.io.logs import LogMetadata, RunLog, write_log, write_sidecar
     from msarm.tasks.cdpr_compare import plot_forces
-    from msarm.tasks.cdpr_runner import run_cdpr
+    from msarm.tasks.cdpr_runner import check_cdpr_run, run_cdpr
     from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory
 
     model = load_cable_robot()
     path = get_cdpr_trajectory(trajectory)
     plant_config = _plant(plant)
-    on = "" if plant_config.name == "default" else f"-{plant_config.name}"
+    check_cdpr_run(model, plant_config, controller, path)  # before any folder is created
+    on = _plant_suffix(plant_config)
     folder = output_folder(out or Path("runs") / f"cdpr-{controller}-{trajectory}{on}")
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task(f"{controller} on {trajectory}", total=1.0)
@@ -129,16 +156,18 @@ def run_command(
         },
         folder / "config.yaml",
     )
-    files["forces_plot"] = plot_forces(
-        run, model, folder / "forces.png", title=f"{controller}, {trajectory}"
-    )
+    files["forces_plot"] = plot_forces(run, model, folder / "forces.png")
     payload["files"] = {k: str(v) for k, v in files.items()}
     if json_output:
         typer.echo(json.dumps(payload, indent=2))
     else:
-        table = Table(
-            title=f"{controller} on {trajectory} ({plant_config.name} plant, seed {seed})"
-        )
+        title = f"{controller} on {trajectory} ({plant_config.name} plant, seed {seed})"
+        if run.error is not None:
+            title = (
+                f"DIVERGED at t = {run.error.time:.3f} s of {path.duration:.3f} s: "
+                f"{title}, metrics of the partial run"
+            )
+        table = Table(title=escape(title), title_style="bold red" if run.error else None)
         for column in _METRIC_COLUMNS:
             table.add_column(escape(column), justify="right")
         table.add_row(*_metric_cells(run.metrics))
@@ -147,6 +176,7 @@ def run_command(
         for kind, file in files.items():
             out_console.print(f"{kind}: {file}")
     if run.error is not None:
+        typer.echo(f"msarm: error: {run.error}", err=True)
         raise typer.Exit(code=1)
 
 
@@ -161,7 +191,13 @@ def compare_command(
             "needs two runs or more).",
         ),
     ] = 15,
-    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/cdpr-compare"),
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="Output folder (default runs/cdpr-compare, with -<plant> after it for a "
+            "plant other than the default)."
+        ),
+    ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
 ) -> None:
     """Run the Table 3 test grid: Table 4 (accuracy), Table 5 (repeatability), force bounds."""
@@ -169,8 +205,14 @@ def compare_command(
 
     from msarm.cdpr.robot_model import load_cable_robot
     from msarm.tasks.cdpr_compare import _grid, compare_cdpr
+    from msarm.tasks.cdpr_runner import check_cdpr_run
+    from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory
 
     model = load_cable_robot()
+    plant_config = _plant(plant)
+    for _, controller, trajectory, options in _grid():  # before any folder is created
+        check_cdpr_run(model, plant_config, controller, get_cdpr_trajectory(trajectory), options)
+    folder = output_folder(out or Path("runs") / f"cdpr-compare{_plant_suffix(plant_config)}")
     total = len(_grid()) + (4 * (repeats - 1) if repeats >= 2 else 0)
     line = progress_lines("cdpr compare", total, enabled=not json_output)
     with Progress(transient=True, disable=json_output) as bar:
@@ -180,28 +222,26 @@ def compare_command(
             bar.update(job, advance=1, description=label)
             line(label)
 
-        result = compare_cdpr(
-            model, _plant(plant), output_folder(out), repeats=repeats, progress=step
-        )
+        result = compare_cdpr(model, plant_config, folder, repeats=repeats, progress=step)
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))
         return
     out_console = console()
     table = Table(
         title="Table 4: accuracy, forces and force tracking per test (paper 000 Table 3 ids)"
+        f", {plant_config.name} plant"
     )
-    table.add_column("test")
-    table.add_column("controller")
-    table.add_column("trajectory")
+    for column in ("test", "controller", "trajectory"):
+        table.add_column(column, no_wrap=True, min_width=len(column))
     for column in _METRIC_COLUMNS:
-        table.add_column(escape(column), justify="right")
+        table.add_column(escape(column), justify="right", overflow="fold")
     for test, (controller, trajectory, metrics) in result.tests.items():
-        table.add_row(test, controller, trajectory, *_metric_cells(metrics))
+        table.add_row(escape(test), controller, trajectory, *_metric_cells(metrics))
     out_console.print(table)
     if result.repeatability:
         rep = Table(title=f"Table 5: repeatability over {result.repeats} runs [mm]")
         for column in ("test", "rho_max", "rho_mean"):
-            rep.add_column(column, justify="right")
+            rep.add_column(column, justify="right", no_wrap=True)
         for test, (rho_max, rho_mean) in result.repeatability.items():
             rep.add_row(test, f"{rho_max:.3f}", f"{rho_mean:.3f}")
         out_console.print(rep)

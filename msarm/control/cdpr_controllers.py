@@ -480,6 +480,10 @@ class CdprController(ABC):
     """
 
     name: ClassVar[str] = "base"
+    #: Whether the controller's force control tracks the desired forces of the distribution
+    #: (the hybrid controllers: the force-tracking metric applies, and a run starts holding
+    #: them). IKC controls no force; NC keeps forces near its own mean force instead.
+    tracks_distribution: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -870,6 +874,7 @@ class HybridController(CdprController):
     """
 
     name: ClassVar[str] = "hc"
+    tracks_distribution: ClassVar[bool] = True
 
     def __init__(
         self,

@@ -40,7 +40,14 @@ import yaml
 from msarm.errors import ConfigError
 from msarm.io.atomic import write_bytes_atomic
 
-__all__ = ["check_numbers", "config_to_dict", "dump_config", "load_config", "write_config"]
+__all__ = [
+    "check_numbers",
+    "config_to_dict",
+    "dump_config",
+    "load_config",
+    "write_config",
+    "yaml_problem",
+]
 
 T = TypeVar("T")
 
@@ -77,6 +84,28 @@ def check_numbers(
                 raise ValueError(f"{name} must be a number, got {value!r}")
             if not (math.isfinite(value) and ok(value)):
                 raise ValueError(f"{name} must be {expected}, got {value}")
+
+
+def yaml_problem(exc: yaml.YAMLError) -> str:
+    """One line for a PyYAML error: ``line L, column C: problem (context)``.
+
+    PyYAML's own text spans several lines (the context, its mark, a snippet of the file with
+    a caret); line and column here count from 1, as an editor does.
+
+    Args:
+        exc: The error PyYAML raised.
+
+    Returns:
+        The one-line description.
+    """
+    problem = getattr(exc, "problem", None)
+    if not problem:
+        return " ".join(str(exc).split())
+    mark = getattr(exc, "problem_mark", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    context = getattr(exc, "context", None)
+    text = where + " ".join(problem.split())
+    return text + (f" ({' '.join(context.split())})" if context else "")
 
 
 class _Loader(yaml.SafeLoader):
@@ -143,7 +172,7 @@ def load_config(source: str | Path | Mapping[str, Any], cls: type[T]) -> T:
         try:
             data = yaml.load(text, Loader=_Loader)  # a SafeLoader subclass: safe
         except yaml.YAMLError as exc:
-            raise ConfigError(f"{label}: not valid YAML: {exc}") from None
+            raise ConfigError(f"{label}: not valid YAML: {yaml_problem(exc)}") from None
         if data is None:
             data = {}
     else:

@@ -42,6 +42,7 @@ loop in the drive, 1 ms cycle), the friction model (Table 1) and the following-e
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -55,6 +56,7 @@ from msarm.cdpr.winch_friction import (
     V_LOW_M_PER_MIN,
     WinchFrictionModel,
 )
+from msarm.io.config import check_numbers
 
 __all__ = [
     "DEFAULT_CDPR_PLANT",
@@ -68,6 +70,7 @@ __all__ = [
     "DriveConfig",
     "DriveMode",
     "LoadCellConfig",
+    "check_plant_name",
     "ideal_cdpr_config",
 ]
 
@@ -75,17 +78,24 @@ DriveMode = Literal["pi", "p"]
 #: The velocity-loop modes of a drive: PI (default) or pure P (HC-e, paper 000 Sec. 3).
 DRIVE_MODES: tuple[str, ...] = ("pi", "p")
 
-
-def _positive(owner: str, **values: float) -> None:
-    for name, value in values.items():
-        if not value > 0.0:
-            raise ValueError(f"{owner}.{name} must be > 0, got {value}")
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
 
 
-def _non_negative(owner: str, **values: float) -> None:
-    for name, value in values.items():
-        if not value >= 0.0:
-            raise ValueError(f"{owner}.{name} must be >= 0, got {value}")
+def check_plant_name(name: object) -> None:
+    """Refuse a plant name that cannot be one part of an output folder's name.
+
+    Args:
+        name: The plant's name: letters, digits, ``_``, ``-`` and ``.``, not starting with
+            ``.`` or ``-`` (no ``/``, no ``..``, not empty).
+
+    Raises:
+        ValueError: Naming the name and what was expected.
+    """
+    if not (isinstance(name, str) and _NAME.fullmatch(name)):
+        raise ValueError(
+            f"name must be a simple identifier (letters, digits, '_', '-', '.', not starting "
+            f"with '.' or '-'; it names the run folder), got {name!r}"
+        )
 
 
 @dataclass(frozen=True)
@@ -105,13 +115,7 @@ class CdprWinchConfig:
     nominal_torque: float = 0.69
 
     def __post_init__(self) -> None:
-        _positive(
-            "winch",
-            drum_radius=self.drum_radius,
-            inertia=self.inertia,
-            torque_limit=self.torque_limit,
-            nominal_torque=self.nominal_torque,
-        )
+        check_numbers(self, positive=("drum_radius", "inertia", "torque_limit", "nominal_torque"))
 
 
 @dataclass(frozen=True)
@@ -138,13 +142,16 @@ class DriveConfig:
     default_mode: DriveMode = "pi"
 
     def __post_init__(self) -> None:
-        _positive("drive", position_gain=self.position_gain, integral_time=self.integral_time)
+        check_numbers(self, positive=("position_gain", "integral_time"), finite=("fe_compliance",))
         if not self.fe_compliance < 0.0:
             raise ValueError(
-                f"drive.fe_compliance (c_f / K_p) must be < 0 m/(N m), got {self.fe_compliance}"
+                f"fe_compliance (c_f / K_p) must be a finite value < 0 m/(N m), got "
+                f"{self.fe_compliance}"
             )
         if self.default_mode not in DRIVE_MODES:
-            raise ValueError(f"drive.default_mode must be one of {DRIVE_MODES}")
+            raise ValueError(
+                f"default_mode must be one of {DRIVE_MODES}, got {self.default_mode!r}"
+            )
 
     @property
     def velocity_gain(self) -> float:
@@ -171,8 +178,9 @@ class CableConfig:
     damping_time: float = 2.0e-4
 
     def __post_init__(self) -> None:
-        _positive("cable", axial_stiffness=self.axial_stiffness)
-        _non_negative("cable", chain_length=self.chain_length, damping_time=self.damping_time)
+        check_numbers(
+            self, positive=("axial_stiffness",), non_negative=("chain_length", "damping_time")
+        )
 
 
 @dataclass(frozen=True)
@@ -238,6 +246,9 @@ class LoadCellConfig:
 
     bias: float = 0.0
 
+    def __post_init__(self) -> None:
+        check_numbers(self, finite=("bias",))
+
 
 @dataclass(frozen=True)
 class CdprNoiseConfig:
@@ -259,13 +270,7 @@ class CdprNoiseConfig:
     load_cell: float = 0.05
 
     def __post_init__(self) -> None:
-        _non_negative(
-            "noise",
-            encoder=self.encoder,
-            velocity=self.velocity,
-            torque=self.torque,
-            load_cell=self.load_cell,
-        )
+        check_numbers(self, non_negative=("encoder", "velocity", "torque", "load_cell"))
 
 
 @dataclass(frozen=True)
@@ -293,8 +298,10 @@ class CdprPlantConfig:
     noise: CdprNoiseConfig = field(default_factory=CdprNoiseConfig)
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.timestep <= 0.001:
+        check_numbers(self, positive=("timestep",))
+        if not self.timestep <= 0.001:
             raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
+        check_plant_name(self.name)
 
 
 def ideal_cdpr_config(name: str = "ideal") -> CdprPlantConfig:

@@ -66,6 +66,7 @@ read; ground truth (:meth:`CdprPlant.ground_truth`) never goes through them.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -618,10 +619,17 @@ class CdprPlant:
     def step(self, n_steps: int = 1) -> None:
         """Advance the plant by ``n_steps`` time steps with the current command.
 
+        Args:
+            n_steps: Number of plant time steps (``config.timestep`` each), an integer >= 0.
+
         Raises:
-            InputError: If the plant was not reset.
+            InputError: If the plant was not reset, or ``n_steps`` is not an integer >= 0.
             SimulationDivergedError: NaN in the state or a MuJoCo instability warning.
         """
+        if isinstance(n_steps, bool | np.bool_) or not isinstance(n_steps, numbers.Integral):
+            raise InputError(f"n_steps must be an integer >= 0, got {n_steps!r}")
+        if n_steps < 0:
+            raise InputError(f"n_steps must be an integer >= 0, got {n_steps}")
         if not self._is_reset:
             raise InputError("call CdprPlant.reset(pose, tensions) before step()")
         # MuJoCo resets its state (time included) when it finds a bad one: take the time and

@@ -35,6 +35,7 @@ import numpy as np  # noqa: E402
 from msarm import plots  # noqa: E402
 from msarm.cdpr.robot_model import CableRobotModel  # noqa: E402
 from msarm.io.atomic import write_json_atomic  # noqa: E402
+from msarm.io.config import config_to_dict, write_config  # noqa: E402
 from msarm.plant.cdpr_config import CdprPlantConfig  # noqa: E402
 from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun, run_cdpr  # noqa: E402
 from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory  # noqa: E402
@@ -69,17 +70,20 @@ class CdprComparison:
         tests: Test id -> (controller, trajectory, metrics) (Table 4 and the extra runs).
         repeatability: Test id -> (rho_max, rho_mean) [mm] (Table 5).
         repeats: Runs per repeatability test.
-        files: Plots and JSON written.
+        files: Plots, JSON and config written.
+        plant: The plant the grid ran on (None if not recorded).
     """
 
     tests: dict[str, tuple[str, str, CdprMetrics]]
     repeatability: dict[str, tuple[float, float]]
     repeats: int
     files: dict[str, Path]
+    plant: CdprPlantConfig | None = None
 
     def as_dict(self) -> dict:
-        """JSON-ready form."""
+        """JSON-ready form (the plant as its resolved config)."""
         return {
+            "plant": None if self.plant is None else config_to_dict(self.plant),
             "tests": {
                 test: {"controller": c, "trajectory": t, **m.as_dict()}
                 for test, (c, t, m) in self.tests.items()
@@ -120,7 +124,8 @@ def compare_cdpr(
     Args:
         model: The cable robot.
         plant_config: The plant.
-        out_dir: Folder for the plots and ``cdpr_comparison.json``.
+        out_dir: Folder for the plots, ``cdpr_comparison.json`` (results and plant) and
+            ``config.yaml`` (the resolved plant, repeats and tests).
         repeats: Runs per repeatability test (paper 000: 15); 0 skips Table 5.
         tests: Test ids to run (default: all of :func:`_grid`).
         progress: Called with a label before each run.
@@ -178,9 +183,23 @@ def compare_cdpr(
         files["switching"] = plot_switching(switching, out_dir / "switching_delta.png")
     if tests is None:
         files["sensitivity"] = plot_sensitivity(model, out_dir / "sensitivity_map.png")
-    comparison = CdprComparison(results, repeatability, repeats, files)
+    files["config"] = write_config(
+        {
+            "repeats": repeats,
+            "tests": [g[0] for g in grid],
+            "plant": config_to_dict(plant_config),
+        },
+        out_dir / "config.yaml",
+    )
+    comparison = CdprComparison(results, repeatability, repeats, files, plant_config)
     files["json"] = write_json_atomic(out_dir / "cdpr_comparison.json", comparison.as_dict())
     return comparison
+
+
+def forces_title(run: CdprRun, title: str = "") -> str:
+    """The title of :func:`plot_forces`: ``[<title>: ]<controller> on <trajectory> (...)``."""
+    prefix = f"{title}: " if title else ""
+    return f"{prefix}{run.controller} on {run.trajectory} (bounds dotted, force control shaded)"
 
 
 def plot_forces(run: CdprRun, model: CableRobotModel, path: Path, title: str = "") -> Path:
@@ -188,6 +207,16 @@ def plot_forces(run: CdprRun, model: CableRobotModel, path: Path, title: str = "
 
     Solid: platform-side forces; dashed: the force distribution's desired forces; shaded:
     while the cable is force controlled.
+
+    Args:
+        run: The run.
+        model: The cable robot (names and force bounds).
+        path: The PNG file to write.
+        title: What the figure is (e.g. ``"test 21"``), put before the controller and the
+            trajectory, which the title always names.
+
+    Returns:
+        The path written.
     """
     t = run.columns["t"]
     fig, axes = plt.subplots(2, 4, figsize=(15, 6), sharex=True, sharey=True, layout="constrained")
@@ -214,9 +243,7 @@ def plot_forces(run: CdprRun, model: CableRobotModel, path: Path, title: str = "
         ax.set_xlabel("time [s]")
     for ax in axes[:, 0]:
         ax.set_ylabel("N")
-    fig.suptitle(
-        f"{title}: {run.controller} on {run.trajectory} (bounds dotted, force control shaded)"
-    )
+    fig.suptitle(forces_title(run, title))
     return plots.save_figure(fig, path)
 
 

@@ -2,15 +2,23 @@
 
 Every 1 ms cycle (the PLC cycle of paper 000): read the sensors, let the controller compute
 the cable set lengths, feed-forward velocities and drive modes, send them, advance the plant
-one step. Before it runs, a trajectory is checked against the wrench-feasible workspace (the
-platform's weight and inertia with the 5-35 N bounds) and refused with the first infeasible
-sample named.
+one cycle (``round(dt / timestep)`` plant steps: a plant time step that does not divide the
+cycle is refused). Before it runs (:func:`check_cdpr_run`), the trajectory is checked: its
+sample time must be the controller's cycle, it must stay in the wrench-feasible workspace of
+the bounds the controller's force distribution uses (the platform's weight and inertia with
+8-35 N; refused with the first infeasible sample named), and, for a controller with the
+winch friction model, its cable speeds must stay within the range the model was fitted over.
+The plant starts at rest at the trajectory's first pose, its drives in the controller's
+modes and, for a hybrid controller, its cables holding the force distribution the
+controller commands there (what a real robot holds before a motion starts); IKC and NC,
+which track no distribution, start at the plant's default pretension (see :func:`run_cdpr`).
 
 Metrics (paper 000 section 4): the position error of the marker (the laser tracker measures
 the platform position: here the simulated platform position) against the reference,
 maximum and mean over the whole motion (Table 4); the share of time every cable force stays
 within ``[f_min, f_max]`` (platform-side forces, Fig. 11); the RMS force-tracking error of the
-force-controlled cables against the force distribution.
+force-controlled cables against the force distribution (not for IKC, which controls no force,
+nor NC, which keeps forces near its own mean force rather than at the distribution).
 """
 
 from __future__ import annotations
@@ -23,14 +31,15 @@ from numpy.typing import NDArray
 
 from msarm.cdpr.forward_kinematics import platform_wrench
 from msarm.cdpr.robot_model import CableRobotModel
-from msarm.control.cdpr_controllers import make_cdpr_controller
+from msarm.control.cdpr_controllers import CdprController, make_cdpr_controller
+from msarm.errors import InputError
 from msarm.io.logs import columns_from_quantities
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import CdprPlantConfig
 from msarm.plant.cdpr_plant import CdprPlant
 from msarm.tasks.cdpr_trajectories import CdprTrajectory
 
-__all__ = ["CdprMetrics", "CdprRun", "check_feasible", "run_cdpr"]
+__all__ = ["CdprMetrics", "CdprRun", "check_cdpr_run", "check_feasible", "run_cdpr"]
 
 FloatArray = NDArray[np.float64]
 
@@ -47,7 +56,8 @@ class CdprMetrics:
         min_force: Smallest cable force during the run [N].
         max_force: Largest cable force during the run [N].
         force_rms_error: RMS error of the force-controlled cables' forces against the force
-            distribution [N] (NaN for a controller without force control).
+            distribution [N] (NaN for a controller without force control, IKC, or one that
+            does not track the distribution, NC: see ``CdprController.tracks_distribution``).
         completed: Whether the run reached the end of the trajectory.
     """
 
@@ -75,7 +85,8 @@ class CdprRun:
         controller: Controller name.
         trajectory: Trajectory name.
         columns: Log columns at 1 kHz (``t`` and ``<quantity>.<name>``).
-        truth: Ground-truth columns (platform-side forces, position).
+        truth: Ground-truth columns: the platform-side cable forces ``tension.<cable>`` [N]
+            (what only a simulation knows; the marker position is in ``columns``).
         metrics: The run's metrics.
         error: The divergence that stopped it, or None.
     """
@@ -104,15 +115,109 @@ def _wrenches(model: CableRobotModel, trajectory: CdprTrajectory) -> FloatArray:
     )
 
 
-def check_feasible(model: CableRobotModel, trajectory: CdprTrajectory) -> None:
+def check_feasible(
+    model: CableRobotModel,
+    trajectory: CdprTrajectory,
+    f_min: float | None = None,
+    f_max: float | None = None,
+) -> None:
     """Refuse a trajectory outside the wrench-feasible workspace (first bad sample named).
+
+    Args:
+        model: The cable robot.
+        trajectory: The trajectory.
+        f_min: Lower force bound [N] (the model file's if None).
+        f_max: Upper force bound [N] (the model file's if None).
 
     Raises:
         InputError: A sample's weight-and-inertia wrench cannot be balanced within the force
             bounds.
     """
     rotations = np.broadcast_to(trajectory.rotation, (len(trajectory), 3, 3))
-    model.check_trajectory(trajectory.position, rotations, _wrenches(model, trajectory))
+    model.check_trajectory(
+        trajectory.position,
+        rotations,
+        _wrenches(model, trajectory),
+        f_min=f_min,
+        f_max=f_max,
+    )
+
+
+def _substeps(plant_config: CdprPlantConfig, cycle: float) -> int:
+    """Plant steps per control cycle; refuses a time step that does not divide the cycle."""
+    ratio = cycle / plant_config.timestep
+    n = int(round(ratio))
+    if n < 1 or abs(ratio - n) > 1e-9 * max(1.0, ratio):
+        raise InputError(
+            f"plant timestep {plant_config.timestep:g} s does not divide the controller's "
+            f"cycle of {cycle:g} s: expected {cycle:g} s / k for a whole number k "
+            "(e.g. 0.001 or 0.0005)"
+        )
+    return n
+
+
+def _check_cable_speeds(
+    model: CableRobotModel, ctrl: CdprController, name: str, trajectory: CdprTrajectory
+) -> None:
+    """Refuse a trajectory whose cable speeds leave the controller's friction-model range."""
+    friction = ctrl.winch.friction
+    if not getattr(ctrl, "friction_model", False) or friction.extrapolate:
+        return
+    rotations = np.broadcast_to(trajectory.rotation, (len(trajectory), 3, 3))
+    At = model.robot.structure_matrix(trajectory.position, rotations)  # (N, 6, m)
+    # the rotation is constant: dl_i/dt = -u_i . v
+    speeds = np.abs(np.einsum("nji,nj->ni", At[:, :3, :], trajectory.velocity))
+    k, i = np.unravel_index(int(np.argmax(speeds)), speeds.shape)
+    fastest = float(speeds[k, i])
+    limit = friction.v_high * (1.0 + 1e-12)
+    if fastest > limit:
+        raise InputError(
+            f"trajectory {trajectory.name!r} moves {model.cable_names[i]} at "
+            f"{fastest:.4g} m/s ({60.0 * fastest:.3g} m/min, t = {trajectory.t[k]:.3f} s), "
+            f"beyond the {friction.v_high:.4g} m/s ({60.0 * friction.v_high:.3g} m/min) over "
+            f"which the winch friction model of controller {name!r} was fitted (paper 000 "
+            "Table 1): expected a slower trajectory (a lower speed), or a controller without "
+            "the friction model (ikc, or the option friction_model=False)"
+        )
+
+
+def check_cdpr_run(
+    model: CableRobotModel,
+    plant_config: CdprPlantConfig,
+    controller: str,
+    trajectory: CdprTrajectory,
+    controller_options: dict | None = None,
+) -> CdprController:
+    """Check a run before it starts (and before any output is written); build its controller.
+
+    Args:
+        model: The cable robot.
+        plant_config: The plant.
+        controller: Controller name (``msarm.control.cdpr_controllers.CDPR_CONTROLLERS``).
+        trajectory: The trajectory.
+        controller_options: Keyword options of the controller.
+
+    Returns:
+        The controller, reset.
+
+    Raises:
+        InputError: Unknown controller or option; the trajectory's sample time is not the
+            controller's cycle; the plant time step does not divide the cycle; the trajectory
+            leaves the wrench-feasible workspace of the controller's force bounds; or it
+            moves a cable faster than the controller's winch friction model was fitted for.
+    """
+    ctrl = make_cdpr_controller(controller, model, **(controller_options or {}))
+    if abs(trajectory.dt - ctrl.dt) > 1e-12 * ctrl.dt:
+        raise InputError(
+            f"trajectory {trajectory.name!r} is sampled every {trajectory.dt:g} s but controller "
+            f"{controller!r} runs every {ctrl.dt:g} s: expected a trajectory sampled at the "
+            f"controller's cycle (dt={ctrl.dt:g})"
+        )
+    _substeps(plant_config, ctrl.dt)
+    check_feasible(model, trajectory, ctrl.f_min, ctrl.f_max)
+    _check_cable_speeds(model, ctrl, controller, trajectory)
+    ctrl.reset()
+    return ctrl
 
 
 def run_cdpr(
@@ -126,26 +231,45 @@ def run_cdpr(
 ) -> CdprRun:
     """Run ``controller`` along ``trajectory`` on a fresh plant.
 
+    The plant starts at rest at the trajectory's first pose with its drives in the
+    controller's modes and its cables holding, for a hybrid controller, the force
+    distribution it commands there (what the robot holds before a motion starts; the plant's
+    own minimum-norm pretension within the model file's 5-35 N differs from the 8-35 N
+    distribution by 3.2-4.7 N at the start of the paper-000 trajectories), and otherwise
+    (IKC, which controls no force; NC, which keeps its own mean force) the plant's default
+    pretension. Every control cycle advances the plant ``dt / timestep`` steps.
+
     Args:
         model: The cable robot.
         plant_config: The plant.
         controller: Controller name (``msarm.control.cdpr_controllers.CDPR_CONTROLLERS``).
-        trajectory: The trajectory (sampled at the 1 ms cycle).
+        trajectory: The trajectory, sampled at the controller's cycle (1 ms).
         seed: Seed of the plant's sensor noise.
         controller_options: Keyword options of the controller.
         progress: Called with the fraction done, about 50 times.
 
     Returns:
-        The run.
+        The run; a diverged run stops early, with ``error`` set and ``completed`` false.
 
     Raises:
-        InputError: Unknown controller, or the trajectory leaves the feasible workspace.
+        InputError: As :func:`check_cdpr_run` (unknown controller or option, the trajectory's
+            sample time is not the controller's cycle, the plant time step does not divide
+            it, the trajectory leaves the wrench-feasible workspace of the controller's force
+            bounds, or it moves a cable beyond the speed range of the controller's friction
+            model), all before the run starts.
     """
-    check_feasible(model, trajectory)
-    ctrl = make_cdpr_controller(controller, model, **(controller_options or {}))
+    ctrl = check_cdpr_run(model, plant_config, controller, trajectory, controller_options)
+    substeps = _substeps(plant_config, ctrl.dt)
     plant = CdprPlant(model, plant_config, seed=seed)
     start = trajectory.position[0]
-    plant.reset((start, trajectory.rotation))
+    initial = ctrl.nominal(
+        start, trajectory.velocity[0], trajectory.acceleration[0], R=trajectory.rotation
+    )
+    plant.reset(
+        (start, trajectory.rotation),
+        tensions=initial.forces if ctrl.tracks_distribution else None,
+        drive_mode=getattr(ctrl, "drive_mode", None),
+    )
     m, n_samples = model.robot.n_cables, len(trajectory)
     names = model.cable_names
     quantities = (
@@ -177,11 +301,11 @@ def run_cdpr(
         log["l_set"][k] = command.l_set
         log["f_desired"][k] = command.f_desired
         log["h"][k] = command.h
-        controlled[k] = command.h > 0.5
+        controlled[k] = (command.h > 0.5) & ctrl.tracks_distribution
         marker[k] = plant.true_platform_position
         force[k] = plant.true_cable_tension
         try:
-            plant.step(1)
+            plant.step(substeps)
         except SimulationDivergedError as exc:
             error, done = exc, k + 1
             break
