@@ -266,37 +266,32 @@ def residuals_from_log(
                     f"{source}: column '{quantity}.{name}' is missing; the diagnosis needs "
                     f"q.<joint> for every joint and tension_motor.<cable> for every cable"
                 )
-    has_motor = all(f"motor_angle.{c}" in log.columns for c in cables)
-    if not has_motor:
-        missing = next(c for c in cables if f"motor_angle.{c}" not in log.columns)
-        warnings.warn(
-            f"{source}: column 'motor_angle.{missing}' is missing: no cable-length residual and "
-            "no motor speed, so the length terms, winch friction and encoder skew are left out "
-            "(for every log diagnosed with this one) and the cogging terms take its motor "
-            "angles as zero; the joint-torque and replay residuals are still computed",
-            DiagnosisWarning,
-            stacklevel=2,
-        )
-    has_reference = all(f"q_ref.{j}" in log.columns for j in joints)
-    if not has_reference:
-        missing = next(j for j in joints if f"q_ref.{j}" not in log.columns)
-        warnings.warn(
-            f"{source}: column 'q_ref.{missing}' is missing: the mass-error term uses the "
-            "measured accelerations, whose encoder noise is also in the residual (it may be "
-            "named on noise alone; its confidence tells)",
-            DiagnosisWarning,
-            stacklevel=2,
-        )
-    has_command = all(f"tension_cmd.{c}" in log.columns for c in cables)
-    if not has_command:
-        missing = next(c for c in cables if f"tension_cmd.{c}" not in log.columns)
-        warnings.warn(
-            f"{source}: column 'tension_cmd.{missing}' is missing: no drive residual (the "
-            "winch-friction, motor-cogging and command-delay terms cannot be fitted); the "
-            "joint-torque and cable-length residuals are still computed",
-            DiagnosisWarning,
-            stacklevel=2,
-        )
+    has_motor = _has_channels(
+        log,
+        "motor_angle",
+        cables,
+        source,
+        "no cable-length residual and no motor speed, so the length terms, winch friction and "
+        "encoder skew are left out (for every log diagnosed with this one) and the cogging "
+        "terms take its motor angles as zero; the joint-torque and replay residuals are still "
+        "computed",
+    )
+    has_reference = _has_channels(
+        log,
+        "q_ref",
+        joints,
+        source,
+        "the mass-error term uses the measured accelerations, whose encoder noise is also in "
+        "the residual (it may be named on noise alone; its confidence tells)",
+    )
+    has_command = _has_channels(
+        log,
+        "tension_cmd",
+        cables,
+        source,
+        "no drive residual (the winch-friction, motor-cogging and command-delay terms cannot "
+        "be fitted); the joint-torque and cable-length residuals are still computed",
+    )
     segments = _segments(log, source, spec.target.window)
 
     n_samples, n, m = len(log), len(joints), len(cables)
@@ -389,6 +384,18 @@ def residuals_from_log(
         jacobian=out["jacobian"],
         wrap=out["wrap"],
     )
+
+
+def _has_channels(log: RunLog, quantity: str, names: list[str], source: str, without: str) -> bool:
+    """Whether the log has ``quantity.<name>`` for every name; if not, warn what is lost."""
+    missing = [name for name in names if f"{quantity}.{name}" not in log.columns]
+    if missing:
+        warnings.warn(
+            f"{source}: column '{quantity}.{missing[0]}' is missing: {without}",
+            DiagnosisWarning,
+            stacklevel=3,
+        )
+    return not missing
 
 
 def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
