@@ -185,3 +185,23 @@ def test_a_user_candidate_with_a_bad_design_is_named(logs, arm):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Flat()])
     with pytest.raises(InputError, match=r"test_nan: design\(\) has a non-finite value"):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Nan()])
+
+
+def test_a_delay_kernel_is_also_given_in_milliseconds():
+    from msarm.diagnose.cable_effects import CommandDelay
+
+    notes = _notes(CommandDelay(n_cables=9), np.array([0.0, 1.0, 0.0, 0.0]), np.zeros(4), (), 0.004)
+    assert notes == ("the weights make a delay of 8 ms (dt times the weighted tap, dt = 4 ms)",)
+
+
+def test_a_warning_about_many_logs_is_shown_once_then_summarised():
+    from msarm.cli import RepeatedWarnings
+
+    repeats = RepeatedWarnings()
+    assert repeats.first("a/run1.parquet: column 'q_ref.x' is missing: y")
+    assert not repeats.first("b/run2.parquet: column 'q_ref.x' is missing: y")
+    assert repeats.first("a/run1.parquet: another problem")
+    assert repeats.first("a warning about no file")
+    assert repeats.summary() == [
+        "the same (column 'q_ref.x' is missing: y) for 1 more log(s): b/run2.parquet"
+    ]

@@ -6,6 +6,8 @@ heavy imports happen inside the commands so that ``msarm --help`` stays fast.
 
 from __future__ import annotations
 
+import re
+
 import typer
 
 from msarm.cli.arm import arm_command
@@ -79,6 +81,40 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
     return out
 
 
+class RepeatedWarnings:
+    """Tells the first of a warning about several log files from its repeats.
+
+    A warning ``"<file>.parquet: <what>"`` is shown for its first file; the same ``<what>``
+    for further files is only counted, and :meth:`summary` names those files once.
+    """
+
+    _ABOUT_A_FILE = re.compile(r"^(?P<source>\S+\.parquet): (?P<what>.*)$", re.DOTALL)
+
+    def __init__(self) -> None:
+        self.sources: dict[str, list[str]] = {}
+
+    def first(self, text: str) -> bool:
+        """Whether ``text`` is to be shown (not the repeat of a warning about another file)."""
+        match = self._ABOUT_A_FILE.match(text)
+        if match is None:
+            return True
+        sources = self.sources.setdefault(match["what"], [])
+        sources.append(match["source"])
+        return len(sources) == 1
+
+    def summary(self) -> list[str]:
+        """One line per repeated warning: how many more files, and which."""
+        lines = []
+        for what, sources in self.sources.items():
+            if len(sources) > 1:
+                head = what if len(what) <= 60 else what[:57] + "..."
+                lines.append(
+                    f"the same ({head}) for {len(sources) - 1} more log(s): "
+                    + ", ".join(sources[1:])
+                )
+        return lines
+
+
 def main() -> None:
     """Entry point of the ``msarm`` console script.
 
@@ -91,11 +127,14 @@ def main() -> None:
     from msarm.errors import MsarmError, MsarmWarning
 
     default_show = warnings.showwarning
+    repeats = RepeatedWarnings()
 
     def show(message, category, filename, lineno, file=None, line=None) -> None:
-        # msarm's own warnings name their file and column: one line, no source location
+        # msarm's own warnings name their file and column: one line, no source location; the
+        # same warning about further logs is counted and summarised at the end
         if issubclass(category, MsarmWarning):
-            print(f"msarm: warning: {message}", file=sys.stderr if file is None else file)
+            if repeats.first(str(message)):
+                print(f"msarm: warning: {message}", file=sys.stderr if file is None else file)
         else:
             default_show(message, category, filename, lineno, file, line)
 
@@ -105,3 +144,6 @@ def main() -> None:
     except MsarmError as exc:
         print(f"msarm: error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
+    finally:
+        for text in repeats.summary():
+            print(f"msarm: warning: {text}", file=sys.stderr)

@@ -351,15 +351,25 @@ def _resolve(
 
 
 def _notes(
-    term: CandidateEffect, theta: FloatArray, std: FloatArray, groups: Sequence[str]
+    term: CandidateEffect,
+    theta: FloatArray,
+    std: FloatArray,
+    groups: Sequence[str],
+    dt: float | None = None,
 ) -> tuple[str, ...]:
     """What a reader should know about a selected term's answer (see ``SelectedEffect.notes``).
 
     A parameter of a kind that is never negative physically (``term.nonnegative``) fitted
     below zero (by more than twice its bootstrap std, when there is one); a load-cell error
-    named without the drive residual, where it cannot be told from a loss in the sheaths.
+    named without the drive residual, where it cannot be told from a loss in the sheaths; the
+    delay in seconds that a delay kernel's weights make (with the sample period ``dt`` [s]).
     """
     notes = []
+    if isinstance(term, CommandDelay) and dt is not None:
+        notes.append(
+            f"the weights make a delay of {1e3 * term.delay(theta, dt):.3g} ms "
+            f"(dt times the weighted tap, dt = {1e3 * dt:.3g} ms)"
+        )
     negative = [
         f"{name} = {value:.3g}"
         for name, value, spread in zip(term.parameter_names, theta, std, strict=True)
@@ -831,7 +841,7 @@ def select_effects(
             confidence=confidence[k],
             message=message,
             parameter_units=tuple(term.term.unit_of(p) for p in term.parameter_names),
-            notes=_notes(term.term, theta, std, layout.groups),
+            notes=_notes(term.term, theta, std, layout.groups, data.train.dt),
         )
         for k, (term, theta, std, message) in enumerate(
             zip(final.terms, final.parameters, stds, final.messages, strict=True)
