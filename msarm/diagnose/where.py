@@ -485,6 +485,9 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
         for k in range(len(eb) - 1):
             count = breakdown.posture_samples[i, k]
             if count:
+                value = breakdown.posture_rms[i, k]
+                # dark text on magma's light end, light text on its dark end
+                light = np.isfinite(value) and mesh.norm(value) > 0.6
                 ax.text(
                     (eb[k] + eb[k + 1]) / 2,
                     (ea[i] + ea[i + 1]) / 2,
@@ -492,7 +495,7 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
                     ha="center",
                     va="center",
                     fontsize=7,
-                    color="cyan",
+                    color="black" if light else "white",
                 )
     ax.set_xlabel(f"{breakdown.posture_joints[1]} [rad]")
     ax.set_ylabel(f"{breakdown.posture_joints[0]} [rad]")

@@ -582,7 +582,10 @@ def _read_parquet(path: Path) -> tuple[dict[str, FloatArray], dict[str, str]]:
     columns: dict[str, FloatArray] = {}
     for name, col in zip(names, table.columns, strict=True):
         if col.type != pa.float64():
-            raise LogError(f"{label}: column {name!r} has type {col.type}, expected double")
+            raise LogError(
+                f"{label}: column {name!r} has type {col.type}, expected double (float64); "
+                "write every column as float64"
+            )
         if col.null_count:
             row = int(np.argmax(col.is_null().to_numpy(zero_copy_only=False)))
             raise LogError(f"{label}: column {name!r} has a null at row {row}")
