@@ -82,6 +82,9 @@ Winch parameters: the drum radius ``r_D`` and the inertia ``J_D`` of the winch's
 are not given in paper 000; :class:`WinchParameters` defaults to ``r_D = 0.02 m`` (35 N then
 needs 0.70 N m, the nominal torque of the paper's motors, 0.69 N m) and
 ``J_D = 3e-5 kg m^2``. Give the controller the values of the robot it drives.
+:class:`WinchParameters` lives in :mod:`msarm.cdpr.force_estimation` (re-exported here): its
+eq. 3 and eq. 9 are the single copy that HC-tau and HC-e use for their set values and that
+the load-cell-free force estimates of that module invert.
 """
 
 from __future__ import annotations
@@ -95,12 +98,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.allocation import make_allocator
-from msarm.cdpr.following_error import PAPER_000_FOLLOWING_ERROR, FollowingErrorModel
+from msarm.cdpr.force_estimation import WinchParameters
 from msarm.cdpr.forward_kinematics import STANDARD_GRAVITY
 from msarm.cdpr.kinematics import CableRobot
 from msarm.cdpr.sensitivity import sensitivity_index
 from msarm.cdpr.switching import SwitchingFactor
-from msarm.cdpr.winch_friction import PAPER_000_WINCH_FRICTION, WinchFrictionModel
 from msarm.control.pid import (
     CYCLE_TIME,
     HC_E_GAINS,
@@ -242,50 +244,6 @@ class PlatformParameters:
         inertia = R @ self.inertia @ R.T
         moment = _cross(c, force) - inertia @ alpha - _cross(omega, inertia @ omega)
         return np.concatenate([force, moment])
-
-
-@dataclass(frozen=True)
-class WinchParameters:
-    """Winch data for eq. 3 and eq. 9 (one model for all winches, as in paper 000).
-
-    Attributes:
-        drum_radius: r_D [m], > 0.
-        drum_inertia: J_D, inertia of all parts turning with the motor shaft [kg m^2], >= 0.
-        friction: Friction torque (eq. 5) and force (eq. 7) model (Table 1 by default).
-        following_error: FE model of eq. 9 (c_f, c_v, K_p of the paper by default).
-    """
-
-    drum_radius: float = 0.02
-    drum_inertia: float = 3e-5
-    friction: WinchFrictionModel = PAPER_000_WINCH_FRICTION
-    following_error: FollowingErrorModel = PAPER_000_FOLLOWING_ERROR
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.drum_radius) and self.drum_radius > 0.0):
-            raise InputError(f"drum_radius must be finite and > 0 m, got {self.drum_radius}")
-        if not (math.isfinite(self.drum_inertia) and self.drum_inertia >= 0.0):
-            raise InputError(
-                f"drum_inertia must be finite and >= 0 kg m^2, got {self.drum_inertia}"
-            )
-
-    def motor_torque(
-        self, f: FloatArray, v: FloatArray, a: FloatArray, *, friction_model: bool = True
-    ) -> FloatArray:
-        """Motor torque that gives the tension f, eq. 3: ``f r_D + tau_F(f, v) + tau_In`` [N m].
-
-        Args:
-            f: Cable tension [N], >= 0, shape (k,).
-            v: Cable velocity [m/s] (> 0: paid out), shape (k,).
-            a: Cable acceleration [m/s^2] (> 0: pay-out accelerating), shape (k,).
-            friction_model: False sets tau_F = 0.
-
-        Returns:
-            tau [N m], shape (k,); ``tau_In = -J_D a / r_D``.
-        """
-        tau = f * self.drum_radius - self.drum_inertia * a / self.drum_radius
-        if friction_model:
-            tau = tau + self.friction.torque(f, v)
-        return tau
 
 
 class CdprReadingsLike(Protocol):
@@ -978,15 +936,17 @@ class HybridController(CdprController):
             if not self.friction_model:
                 return f.copy()
             return f + self.winch.friction.force(f, v)
-        tau = self.winch.motor_torque(
-            f, v, nominal.accelerations[idx], friction_model=self.friction_model
-        )
+        a = nominal.accelerations[idx]
+        # one copy of eq. 3 and eq. 9 (msarm.cdpr.force_estimation inverts the same formulas)
         if self.feedback == "torque":
-            return tau
-        # Eq. 9's c_v v is the lag of the P position loop without velocity feedforward; with
-        # v_ff = v_i the loop does not lag and the FE is eq. 8's torque term alone.
-        v_lag = np.zeros_like(v) if self.velocity_feedforward else v
-        return self.winch.following_error.following_error(tau, v_lag)
+            return self.winch.motor_torque(f, v, a, friction_model=self.friction_model)
+        return self.winch.following_error_for_force(
+            f,
+            v,
+            a,
+            friction_model=self.friction_model,
+            velocity_feedforward=self.velocity_feedforward,
+        )
 
     def _command(self, r: FloatArray, nominal: NominalState, measurement: Any) -> CdprCommand:
         m = self.m
