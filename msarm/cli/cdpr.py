@@ -85,6 +85,37 @@ _METRIC_COLUMNS = (
 )
 
 
+def controller_options(items: list[str]) -> dict[str, object]:
+    """``KEY=VALUE`` texts as controller keyword options (values read as YAML scalars).
+
+    Raises:
+        InputError: An item without ``=``, a key that is not an identifier, a key given
+            twice, or a value that is not a YAML number, boolean or string.
+    """
+    import yaml
+
+    from msarm.errors import InputError
+
+    options: dict[str, object] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key.isidentifier():
+            raise InputError(f"--option: expected KEY=VALUE with KEY an identifier, got {item!r}")
+        if key in options:
+            raise InputError(f"--option: {key} given twice")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise InputError(f"--option {key}: {text!r} is not a YAML value ({exc})") from None
+        if not isinstance(value, (bool, int, float, str)):
+            raise InputError(
+                f"--option {key}: expected a number, true/false or a word, got {text!r}"
+            )
+        options[key] = value
+    return options
+
+
 @cdpr_app.command("run")
 def run_command(
     controller: Annotated[
@@ -103,6 +134,15 @@ def run_command(
         ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+    option: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--option",
+            metavar="KEY=VALUE",
+            help="A keyword option of the controller (repeat for several), e.g. "
+            "fe_feedforward=true (HC-e) or friction_model=false; values are read as YAML.",
+        ),
+    ] = None,
 ) -> None:
     """Run one controller along one trajectory; print its metrics; write log and force plot."""
     from rich.progress import Progress
@@ -118,8 +158,10 @@ def run_command(
     model = load_cable_robot()
     path = get_cdpr_trajectory(trajectory)
     plant_config = _plant(plant)
-    check_cdpr_run(model, plant_config, controller, path)  # before any folder is created
-    on = _plant_suffix(plant_config)
+    options = controller_options(option or [])
+    # before any folder is created
+    check_cdpr_run(model, plant_config, controller, path, options)
+    on = _plant_suffix(plant_config) + "".join(f"-{k}={v}" for k, v in options.items())
     folder = output_folder(out or Path("runs") / f"cdpr-{controller}-{trajectory}{on}")
     with Progress(transient=True, disable=json_output) as bar:
         job = bar.add_task(f"{controller} on {trajectory}", total=1.0)
@@ -129,6 +171,7 @@ def run_command(
             controller,
             path,
             seed,
+            options,
             progress=lambda done: bar.update(job, completed=done),
         )
     metadata = LogMetadata(
@@ -136,7 +179,7 @@ def run_command(
         model_sha256=model.sha256,
         sample_rate_hz=1000.0,
         units=CDPR_UNITS,
-        controller_config={"name": controller},
+        controller_config={"name": controller, **options},
         extra={"trajectory": trajectory, "seed": seed, "plant": plant_config.name},
     )
     files = {"log": write_log(folder / "log.parquet", RunLog(run.columns, metadata))}
@@ -150,6 +193,7 @@ def run_command(
     files["config"] = write_config(
         {
             "controller": controller,
+            "controller_options": options,
             "trajectory": trajectory,
             "seed": seed,
             "plant": config_to_dict(plant_config),

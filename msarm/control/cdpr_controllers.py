@@ -823,6 +823,13 @@ class HybridController(CdprController):
             HC-tau with a filter (Sec. 3, not specified) and feeds the FE of HC-e raw.
             Discretised by backward Euler: ``y_k = y_{k-1} + T / (T + T_f) (x_k - y_{k-1})``,
             started at the first reading.
+        fe_feedforward: HC-e only (msarm's addition, off by default as in paper 000): add
+            to the set length of every switchable cable, in the share ``1 - h`` it is
+            position-controlled, the following error eq. 9 predicts for its desired force.
+            Its drive runs pure P (so that it can be switched to force control), which leaves
+            the cable longer than its set length by that following error; the paper reports
+            this did not affect its robot's accuracy, on msarm's simulated one it doubles
+            HC-e's mean position error (see the README).
         **options: ``winch``, ``f_min``, ``f_max``, ``dt``, ``solver`` of
             :class:`CdprController`.
 
@@ -848,9 +855,16 @@ class HybridController(CdprController):
         friction_model: bool = True,
         delta_l_limit: float | None = DEFAULT_DELTA_L_LIMIT,
         filter_time: float = 0.0,
+        fe_feedforward: bool = False,
         **options: Any,
     ) -> None:
         super().__init__(robot, platform, **options)
+        if fe_feedforward and feedback != "following_error":
+            raise InputError(
+                "fe_feedforward: only HC-e (feedback='following_error') runs P drives whose "
+                f"following error it compensates; got feedback={feedback!r}"
+            )
+        self.fe_feedforward = bool(fe_feedforward)
         if not (math.isfinite(filter_time) and filter_time >= 0.0):
             raise InputError(f"filter_time must be finite and >= 0 s, got {filter_time}")
         self.filter_time = float(filter_time)
@@ -977,6 +991,8 @@ class HybridController(CdprController):
         self._pid.reset(~engaged)
         delta_l[~engaged] = 0.0
         l_set = nominal.lengths + h * delta_l
+        if self.fe_feedforward:  # a P drive leaves the cable FE longer than its set length
+            l_set[sw] += (1.0 - h[sw]) * target[sw]
         return CdprCommand(
             l_set=l_set,
             v_ff=self._feedforward(nominal),
@@ -1258,8 +1274,10 @@ _OPTIONS: dict[str, tuple[str, ...]] = {
     "ikc": _COMMON_OPTIONS,
     "hc-f": _COMMON_OPTIONS + _HYBRID_OPTIONS,
     "hc-tau": _COMMON_OPTIONS + _HYBRID_OPTIONS,
-    "hc-e": _COMMON_OPTIONS + _HYBRID_OPTIONS,
-    "hc-e-all": _COMMON_OPTIONS + tuple(o for o in _HYBRID_OPTIONS if o != "pair_selector"),
+    "hc-e": _COMMON_OPTIONS + _HYBRID_OPTIONS + ("fe_feedforward",),
+    "hc-e-all": _COMMON_OPTIONS
+    + tuple(o for o in _HYBRID_OPTIONS if o != "pair_selector")
+    + ("fe_feedforward",),
     "nc": _COMMON_OPTIONS
     + ("mean_force", "low_force", "low_weight", "k_i", "k_p", "friction_model", "delta_l_limit"),
 }
