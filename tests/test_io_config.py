@@ -269,6 +269,17 @@ def test_a_plant_file_without_a_name_is_named_after_it(tmp_path):
         resolve_plant(str(tmp_path / "missing.yaml"))
     with pytest.raises(InputError, match="unknown plant 'nope'"):
         resolve_plant("nope")
+    # a name that would misplace or overwrite run folders
+    path.write_text("name: ../../elsewhere")
+    with pytest.raises(ConfigError, match="name must be a simple identifier"):
+        resolve_plant(str(path))
+    path.write_text("name: ideal")
+    with pytest.raises(InputError, match="named 'ideal', the name of a preset"):
+        resolve_plant(str(path))
+    spaced = tmp_path / "my plant.yaml"
+    spaced.write_text("effects: {cogging: {enabled: true}}")
+    with pytest.raises(InputError, match="give the file a 'name' key or rename the file"):
+        resolve_plant(str(spaced))
 
 
 def test_an_output_folder_that_is_a_file_is_refused_up_front(tmp_path):

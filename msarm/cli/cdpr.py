@@ -39,25 +39,10 @@ def _plant(name: str):
             like a preset (its runs would overwrite the preset's), or, without a ``name``
             key, the file's stem is not a simple identifier.
     """
-    from msarm.errors import InputError, MsarmError
     from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, IDEAL_CDPR_PLANT, CdprPlantConfig
 
     presets = {"default": DEFAULT_CDPR_PLANT, "ideal": IDEAL_CDPR_PLANT}
-    try:
-        config = resolve_config(name, presets, CdprPlantConfig, "plant")
-    except ValueError as exc:  # a file's stem taken as the name, refused by the config
-        if isinstance(exc, MsarmError):
-            raise
-        raise InputError(
-            f"--plant {name}: {exc}; give the file a 'name' key or rename the file"
-        ) from None
-    if name not in presets and config.name in presets:
-        raise InputError(
-            f"--plant {name}: the file's plant is named {config.name!r}, the name of a preset "
-            f"(its runs would overwrite the preset's); expected another name (not "
-            f"{', '.join(presets)})"
-        )
-    return config
+    return resolve_config(name, presets, CdprPlantConfig, "plant")
 
 
 def _plant_suffix(config) -> str:

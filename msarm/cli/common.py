@@ -26,10 +26,13 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
         what: What the config is, for the error message (e.g. ``"plant"``).
 
     A file without a ``name`` key is named after the file (its stem), so that its runs are
-    not labelled, nor stored, as a preset's.
+    not labelled, nor stored, as a preset's; a file whose ``name`` is a preset's is refused
+    for the same reason.
 
     Raises:
-        InputError: ``spec`` is neither a preset nor an existing file.
+        InputError: ``spec`` is neither a preset nor an existing file; the file's config is
+            named like a preset; or, without a ``name`` key, the file's stem is not a name the
+            config takes (it names run folders).
     """
     if spec in presets:
         return presets[spec]
@@ -52,7 +55,18 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
     if "name" in names:
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
         if not (isinstance(raw, dict) and "name" in raw):  # not the preset's name: the file's
-            config = dataclasses.replace(config, name=path.stem)
+            try:
+                config = dataclasses.replace(config, name=path.stem)
+            except ValueError as exc:  # the stem refused as a name
+                raise InputError(
+                    f"{spec}: {exc}; give the file a 'name' key or rename the file"
+                ) from None
+        if config.name in presets:
+            raise InputError(
+                f"{spec}: the file's {what} is named {config.name!r}, the name of a preset (its "
+                f"runs would overwrite the preset's); expected another name (not "
+                f"{', '.join(presets)})"
+            )
     return config
 
 

@@ -42,7 +42,6 @@ loop in the drive, 1 ms cycle), the friction model (Table 1) and the following-e
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -56,7 +55,7 @@ from msarm.cdpr.winch_friction import (
     V_LOW_M_PER_MIN,
     WinchFrictionModel,
 )
-from msarm.io.config import check_numbers
+from msarm.io.config import check_numbers, check_plant_name
 
 __all__ = [
     "DEFAULT_CDPR_PLANT",
@@ -77,25 +76,6 @@ __all__ = [
 DriveMode = Literal["pi", "p"]
 #: The velocity-loop modes of a drive: PI (default) or pure P (HC-e, paper 000 Sec. 3).
 DRIVE_MODES: tuple[str, ...] = ("pi", "p")
-
-_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
-
-
-def check_plant_name(name: object) -> None:
-    """Refuse a plant name that cannot be one part of an output folder's name.
-
-    Args:
-        name: The plant's name: letters, digits, ``_``, ``-`` and ``.``, not starting with
-            ``.`` or ``-`` (no ``/``, no ``..``, not empty).
-
-    Raises:
-        ValueError: Naming the name and what was expected.
-    """
-    if not (isinstance(name, str) and _NAME.fullmatch(name)):
-        raise ValueError(
-            f"name must be a simple identifier (letters, digits, '_', '-', '.', not starting "
-            f"with '.' or '-'; it names the run folder), got {name!r}"
-        )
 
 
 @dataclass(frozen=True)

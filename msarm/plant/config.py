@@ -29,7 +29,7 @@ from __future__ import annotations
 import numbers
 from dataclasses import dataclass, field, replace
 
-from msarm.io.config import check_numbers
+from msarm.io.config import check_numbers, check_plant_name
 
 __all__ = [
     "DEFAULT_PLANT",
@@ -270,6 +270,7 @@ class PlantConfig:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"name must be a non-empty string, got {self.name!r}")
+        check_plant_name(self.name)
         if not 0 < self.timestep <= 0.001:
             raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
 
