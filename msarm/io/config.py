@@ -87,23 +87,23 @@ def check_numbers(
                 raise ValueError(f"{name} must be {expected}, got {value}")
 
 
-_PLANT_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+_PLANT_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+=-]*")
 
 
 def check_plant_name(name: object) -> None:
     """Refuse a plant name that cannot be one part of an output folder's name.
 
     Args:
-        name: The plant's name: letters, digits, ``_``, ``-`` and ``.``, not starting with
-            ``.`` or ``-`` (no ``/``, no ``..``, not empty).
+        name: The plant's name: letters, digits, ``_``, ``-``, ``+``, ``=`` and ``.``, not
+            starting with ``.`` or ``-`` (no ``/``, no ``..``, not empty).
 
     Raises:
         ValueError: Naming the name and what was expected.
     """
     if not (isinstance(name, str) and _PLANT_NAME.fullmatch(name)):
         raise ValueError(
-            f"name must be a simple identifier (letters, digits, '_', '-', '.', not starting "
-            f"with '.' or '-'; it names the run folder), got {name!r}"
+            "name must be a simple identifier (letters, digits, '_', '-', '+', '=', '.', not "
+            f"starting with '.' or '-'; it names the run folder), got {name!r}"
         )
 
 
