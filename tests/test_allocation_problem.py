@@ -164,3 +164,32 @@ def test_degenerate_problems_do_not_raise():
         res = make_allocator(8, 6, name).solve(M, b_bad, 0.0, 10.0)
         assert not res.feasible and res.status == "infeasible", name
         assert res.residual == pytest.approx(np.sqrt(0.5), rel=1e-6), name
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_per_tick_reference_does_not_stay_for_later_ticks(solver):
+    problem = random_problem(np.random.default_rng(3), 4, 9)
+    alloc = make_allocator(9, 4, solver)
+    before = alloc.solve(problem.M, problem.b, problem.f_min, problem.f_max).f.copy()
+    moved = alloc.solve(
+        problem.M, problem.b, problem.f_min, problem.f_max, f_ref=problem.f_max
+    ).f.copy()
+    after = alloc.solve(problem.M, problem.b, problem.f_min, problem.f_max).f
+    assert np.abs(moved - before).max() > 1e-3  # the reference matters on this problem
+    np.testing.assert_allclose(after, before, atol=1e-9)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("zero_b", [True, False])
+def test_swapped_bounds_are_refused_by_every_solver(solver, zero_b):
+    problem = random_problem(np.random.default_rng(5), 4, 9)
+    f_min = problem.f_min.copy()
+    f_min[8] = problem.f_max[8] + 1.0
+    b = np.zeros(4) if zero_b else problem.b
+    with pytest.raises(InputError, match="f_min must be <= f_max"):
+        make_allocator(9, 4, solver).solve(problem.M, b, f_min, problem.f_max)
+
+
+def test_a_tolerance_that_is_not_a_number_is_named():
+    with pytest.raises(InputError, match="tol must be a number"):
+        make_allocator(9, 4, "newton", tol="x")

@@ -160,3 +160,38 @@ def test_a_task_too_short_or_out_of_range_is_refused_before_it_runs(arm):
         run_tracking(plant, controller, far)
     with pytest.raises(InputError, match="without leading zeros, random-7"):
         get_task("random-007", arm)
+
+
+def _readings(arm, q):
+    from msarm.plant.effects import SensorReadings
+
+    m = arm.n_cables
+    return SensorReadings(0.0, np.asarray(q, float), np.zeros(m), np.zeros(m), np.zeros(m))
+
+
+def test_the_controller_refuses_bad_input_and_keeps_its_state(arm):
+    controller = MuscleSpaceController(arm)
+    home, zero = np.array([0.0, 0.0, 0.0, -0.2]), np.zeros(4)
+    with pytest.raises(InputError, match=r"q must have shape \(4,\), got \(2,\)"):
+        controller.reset(np.zeros(2))  # the compiled filter would write past its end
+    with pytest.raises(InputError, match="q must be finite"):
+        controller.reset([0.0, np.nan, 0.0, 0.0])
+    controller.reset(home)
+    first = controller.update(_readings(arm, home), home, zero, zero).tension_command
+    controller.reset(home)
+    bad = home.copy()
+    bad[0] = np.nan
+    with pytest.raises(InputError, match="q_ref must be finite, got nan at index 0"):
+        controller.update(_readings(arm, home), bad, zero, zero)
+    with pytest.raises(InputError, match="feedforward must be"):
+        controller.update(_readings(arm, home), home, zero, zero, feedforward=np.full(4, np.inf))
+    # neither refusal left anything in the filter, integral or activation state
+    again = controller.update(_readings(arm, home), home, zero, zero).tension_command
+    np.testing.assert_array_equal(again, first)
+
+
+def test_controller_settings_the_arm_cannot_meet_are_refused(arm):
+    with pytest.raises(InputError, match="min_tension 600.0 N is above the strength of biceps"):
+        MuscleSpaceController(arm, ArmControllerConfig(min_tension=600.0))
+    with pytest.raises(ValueError, match="kp must be a list of finite gains >= 0.*got 60.0"):
+        ArmControllerConfig(kp=60.0)

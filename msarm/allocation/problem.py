@@ -143,7 +143,10 @@ class AllocationSpec:
                 raise InputError(f"f_ref must be finite [N], got {ref}")
             mode = "fixed"
         ref.setflags(write=False)
-        tol = float(tol)
+        try:
+            tol = float(tol)
+        except (TypeError, ValueError):
+            raise InputError(f"tol must be a number in (0, 1e-3], got {tol!r}") from None
         if not (0.0 < tol <= 1e-3):
             raise InputError(f"tol must be in (0, 1e-3], got {tol}")
         return cls(m, n, w, mode, ref, tol)
@@ -308,8 +311,8 @@ def check_tick(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, float]:
     """The hot path of ``validate_tick``: shapes and finiteness, and ``b @ b``.
 
-    It does not check ``f_min <= f_max``: a solver that finds f within the bounds proves
-    their order, and ``Allocator.solve`` calls ``check_bound_order`` on every other path.
+    It does not check ``f_min <= f_max``: ``Allocator.solve`` calls ``check_bound_order``
+    after it (a solver's answer does not prove the order).
     """
     n, m = spec.n_dof, spec.n_actuators
     if type(M) is not np.ndarray or M.dtype is not _F64:

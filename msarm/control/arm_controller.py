@@ -55,11 +55,18 @@ def _vector(value: ArrayLike, size: int, name: str) -> FloatArray:
     """``value`` as a float64 array of shape ``(size,)`` (itself when it already is one).
 
     Raises:
-        InputError: The shape is not ``(size,)`` (the compiled kernels index it blindly).
+        InputError: The shape is not ``(size,)`` (the compiled kernels index it blindly), or
+            a value is NaN or infinite (it would stay in the filter and integral states).
     """
-    array = np.asarray(value, dtype=float)
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be {size} numbers, got {value!r}") from None
     if array.shape != (size,):
         raise InputError(f"{name} must have shape ({size},), got {array.shape}")
+    if not np.isfinite(array).all():
+        k = int(np.argmax(~np.isfinite(array)))
+        raise InputError(f"{name} must be finite, got {array[k]} at index {k}")
     return array
 
 
@@ -103,7 +110,8 @@ class ArmControllerConfig:
             gains = np.asarray(getattr(self, name), dtype=float)
             if gains.ndim != 1 or not np.all(np.isfinite(gains) & (gains >= 0)):
                 raise ValueError(
-                    f"{name} must be a list of finite gains >= 0, got {list(getattr(self, name))}"
+                    f"{name} must be a list of finite gains >= 0 (one per joint), got "
+                    f"{getattr(self, name)!r}"
                 )
 
 
@@ -163,6 +171,14 @@ class MuscleSpaceController:
                 raise InputError(
                     f"controller {name} needs {n} gains, got {getattr(self.config, name)}"
                 )
+        strongest = np.asarray(model.muscles.max_isometric_force, dtype=float)
+        if self.config.min_tension > strongest.min():
+            weak = int(np.argmin(strongest))
+            raise InputError(
+                f"controller min_tension {self.config.min_tension} N is above the strength of "
+                f"{model.cable_names[weak]} ({strongest[weak]} N, its max isometric force): "
+                "expected a floor every muscle can pull"
+            )
         self.period = 1.0 / self.config.rate_hz
         self._kp = np.asarray(self.config.kp, dtype=float)
         self._ki = np.asarray(self.config.ki, dtype=float)
@@ -226,10 +242,14 @@ class MuscleSpaceController:
         return self._state.qdot.copy()
 
     def reset(self, q: ArrayLike) -> None:
-        """Start from rest at the measured posture ``q`` [rad], shape ``(n,)``."""
+        """Start from rest at the measured posture ``q`` [rad], shape ``(n,)``.
+
+        Raises:
+            InputError: ``q`` is not ``n`` finite numbers.
+        """
         n, m = self.model.n_joints, self.model.n_cables
         self._state = _ControllerState(
-            np.asarray(q, dtype=float).copy(), np.zeros(n), np.zeros(n), np.zeros(m)
+            _vector(q, n, "q").copy(), np.zeros(n), np.zeros(n), np.zeros(m)
         )
 
     def update(
@@ -256,12 +276,37 @@ class MuscleSpaceController:
 
         Returns:
             The commands and what led to them.
+
+        Raises:
+            InputError: A reading or reference of the wrong shape or not finite, or a
+                feedforward that gives one; the controller's state is then as before the call.
         """
-        state, cfg = self._state, self.config
+        state = self._state
         n = state.qdot.shape[0]
         q = _vector(readings.q, n, "readings.q")
         q_ref, qd_ref = _vector(q_ref, n, "q_ref"), _vector(qd_ref, n, "qd_ref")
         tau = self._inverse_dynamics(q_ref, qd_ref, _vector(qdd_ref, n, "qdd_ref"))
+        kept = [state.q_prev.copy(), state.qdot.copy(), state.integral.copy()]
+        activation, started = state.activation, state.started
+        try:
+            return self._tick(readings, q, q_ref, qd_ref, tau, feedforward)
+        except Exception:
+            for now, then in zip((state.q_prev, state.qdot, state.integral), kept, strict=True):
+                now[:] = then
+            state.activation, state.started = activation, started
+            raise
+
+    def _tick(
+        self,
+        readings: SensorReadings,
+        q: FloatArray,
+        q_ref: FloatArray,
+        qd_ref: FloatArray,
+        tau: FloatArray,
+        feedforward: ArrayLike | Callable[..., ArrayLike] | None,
+    ) -> ControlOutput:
+        """The tick of :meth:`update` after its input checks (it changes the state)."""
+        state, cfg = self._state, self.config
         filter_and_pid(
             q,
             q_ref,

@@ -147,6 +147,9 @@ class Allocator(ABC):
         """
         t0 = perf_counter()
         M, b, f_min, f_max, bb = check_tick(self.spec, M, b, f_min, f_max)
+        # checked on every path: a solver's answer does not prove the order (DAQP returns
+        # f = 0 as optimal for b = 0 with f_min > f_max; a closed form can overstep f_max)
+        check_bound_order(f_min, f_max)
         ref = self._reference(f_min, f_max, f_ref)
         f, status, iterations, active = self._solve(M, b, f_min, f_max, ref)
         tol = self._tol
@@ -157,7 +160,6 @@ class Allocator(ABC):
             if residual > tol * (1.0 + bnorm):
                 f = None  # a method that claims success but misses M f = b: do not trust it
         if f is None:
-            check_bound_order(f_min, f_max)
             f, extra = self._fallback(M, b, f_min, f_max, ref)
             iterations += extra
             r = M @ f - b

@@ -66,6 +66,9 @@ class DaqpAllocator(Allocator):
         if exitflag < 0:  # pragma: no cover - DAQP rejects only malformed data
             raise RuntimeError(f"DAQP setup failed with exit flag {exitflag}")
         self._model.settings = {"primal_tol": PRIMAL_TOL}
+        # whether DAQP's linear term is the spec's reference's (set up with it): a tick with
+        # its own f_ref, or a batch, replaces it, and the next tick must put it back
+        self._g_is_spec = True
 
     def _fallback(
         self, M: FloatArray, b: FloatArray, f_min: FloatArray, f_max: FloatArray, f_ref: FloatArray
@@ -84,10 +87,12 @@ class DaqpAllocator(Allocator):
         bl[m:] = b
         A = self._A
         np.copyto(A, M)  # DAQP needs a writable C-ordered buffer; M may be a view
-        if self._fixed_g and f_ref is self.spec.f_ref:
+        spec_ref = self._fixed_g and f_ref is self.spec.f_ref
+        if spec_ref and self._g_is_spec:
             self._model.update(A=A, bupper=bu, blower=bl, sense=self._sense)
         else:
             self._model.update(f=-self._w2 * f_ref, A=A, bupper=bu, blower=bl, sense=self._sense)
+            self._g_is_spec = spec_ref
         x, _, exitflag, info = self._model.solve()
         if exitflag != _EXIT_OPTIMAL:
             return None, OPTIMAL, int(info["iterations"]), None
@@ -125,6 +130,7 @@ class DaqpAllocator(Allocator):
         iterations = np.zeros(count, dtype=np.int64)
         update, solve, sense = self._model.update, self._model.solve, self._sense
         M = np.array(M, dtype=np.float64, order="C")  # writable and contiguous for DAQP
+        self._g_is_spec = False  # each problem sets its own linear term
         for i in range(count):
             update(f=g[i], A=M[i], bupper=bu[i], blower=bl[i], sense=sense)
             x, _, exitflag, info = solve()
