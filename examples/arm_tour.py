@@ -1,10 +1,10 @@
-"""A tour of the musculoskeletal arm: what `make demo` runs.
+"""A tour of the musculoskeletal arm: what `make tour` runs.
 
 Loads models/msarm_arm.xml into MuJoCo and Pinocchio, prints its joints and its nine cable
 muscles (Hill parameters, lengths, wrap angles and moment arms) and writes PNG plots of the
 moment arms over the joint range, the Hill curves and the controllability margin.
 
-    python examples/arm_tour.py --out runs/demo
+    python examples/arm_tour.py --out runs/tour
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from msarm.model import load_arm
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="folder for plots")
+    parser.add_argument("--out", type=Path, default=Path("runs/tour"), help="folder for plots")
     args = parser.parse_args()
 
     arm = load_arm()

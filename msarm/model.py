@@ -146,12 +146,21 @@ class RobotModel:
         """Cable lengths, muscle Jacobian and wrap angles at posture ``q`` (scratch data).
 
         Args:
-            q: Joint coordinates [rad], shape ``(n,)``.
+            q: Joint coordinates [rad], shape ``(n,)``. Any finite posture is computed (callers
+                evaluate the range's edges and beyond), but the model's guarantees hold only
+                inside the joint range ``[joint_lower, joint_upper]``: there the Jacobian has
+                full column rank and the cables span every joint torque with positive tensions
+                (tested on a grid, ``tests/test_geometry.py``); outside it they may not, and
+                the Hill model may find a muscle too short. The plant and the task runner
+                refuse postures outside the range.
             qdot: Joint velocities [rad/s], shape ``(n,)``; zero if omitted.
             with_wrap_angles: Compute the wrap angles (NaN if False; about 3/4 of the cost).
 
         Returns:
             A :class:`msarm.muscle.geometry.CableGeometry`.
+
+        Raises:
+            InputError: ``q`` or ``qdot`` of the wrong shape or not finite.
         """
         from msarm.muscle.geometry import cable_geometry
 

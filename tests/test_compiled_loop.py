@@ -149,7 +149,7 @@ def test_runs_the_compiled_loop_cannot_do_take_the_python_one(arm):
     assert compiled_loop_supported(ArmPlant(arm, WITH_DELAY, seed=0), controller, None)
 
     class LouderNoise(SensorNoise):  # a user's sensor effect runs in Python
-        pass
+        name = "louder_noise"  # a name of its own (the built-in one is taken)
 
     louder = ArmPlant(arm, DEFAULT_PLANT, seed=0, extra_effects=[LouderNoise(SensorNoiseConfig())])
     assert louder.compiled and not compiled_loop_supported(louder, controller, None)

@@ -248,6 +248,20 @@ def test_equation_15_rejects_zero_activation_and_too_small_force(muscles):
         muscles.fiber_velocity_for_force(np.full(3, 0.5), force * [1, 1, 0.001], length)
 
 
+@pytest.mark.parametrize("activation", [0.01, 1e-6])
+def test_equation_15_rejects_a_force_above_the_eccentric_range(muscles, activation):
+    """A force no plausible lengthening speed gives: refused, not 1e115 m/s or inf."""
+    length, velocity = mtu_state(1.0, 10.0)
+    top = muscles.force(np.full(3, activation), length, velocity)
+    fiber = muscles.fiber_velocity_for_force(np.full(3, activation), top * (1 - 1e-12), length)
+    assert np.all(np.isfinite(fiber))
+    force = top * [1.0, 1.0, 1.01]
+    with pytest.raises(InputError, match=r"force\[2\] \(muscle 'deltoid'\) = .* N is above "):
+        muscles.fiber_velocity_for_force(np.full(3, activation), force, length)
+    with pytest.raises(InputError, match=r"force\[0\].* above .* lengthening at 10 times"):
+        muscles.fiber_velocity_for_force(np.full(3, activation), np.full(3, 400.0), length)
+
+
 # ---------------------------------------------------------------- bad input
 
 
@@ -293,6 +307,25 @@ def test_wrong_shapes_are_rejected(muscles):
 def test_activation_out_of_range_is_rejected(muscles):
     with pytest.raises(InputError, match=r"activation\[2\] \(muscle 'deltoid'\) = 1.5"):
         muscles.force([0.1, 0.2, 1.5], *mtu_state(1.0, 0.0))
+
+
+def test_none_and_complex_inputs_are_named(muscles):
+    length, velocity = mtu_state(1.0, 0.0)
+    with pytest.raises(InputError, match=r"activation must be an array of shape \(3,\).*got None"):
+        muscles.force(None, length, velocity)
+    with pytest.raises(InputError, match="activation must be real numbers; got complex"):
+        muscles.force(np.full(3, 0.5 + 1j), length, velocity)
+
+
+def test_messages_print_plain_floats(muscles):
+    length, velocity = mtu_state(1.0, 0.0)
+    length[0] = muscles.tendon_slack_length[0]
+    with pytest.raises(InputError) as caught:
+        muscles.force(np.ones(3), length, velocity)
+    assert "np.float64" not in str(caught.value)
+    with pytest.raises(InputError) as caught:
+        muscles.force(np.array([0.5, 2.0, 0.5]), *mtu_state(1.0, 0.0))
+    assert "activation[1] (muscle 'triceps') = 2.0; expected" in str(caught.value)
 
 
 def test_shortening_faster_than_vmax_is_rejected(muscles):

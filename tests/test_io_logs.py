@@ -123,6 +123,54 @@ def test_for_model_uses_name_hash_and_standard_units(arm):
     assert md.units == dict(STANDARD_UNITS)
 
 
+def test_standard_units_cover_what_msarm_logs(arm):
+    """One source of units: the runner's log and truth quantities are in the defaults."""
+    from msarm.control import MuscleSpaceController
+    from msarm.io.logs import STANDARD_TRUTH_UNITS
+    from msarm.plant import IDEAL_PLANT, ArmPlant
+    from msarm.tasks.runner import LOG_UNITS, TRUTH_UNITS, run_tracking
+    from msarm.tasks.trajectories import hold_then_move
+
+    assert LOG_UNITS == {key: STANDARD_UNITS[key] for key in LOG_UNITS}
+    assert TRUTH_UNITS == dict(STANDARD_TRUTH_UNITS)
+    home = np.array([0.0, 0.0, 0.0, -0.2])
+    task = hold_then_move("short", home, home + 0.05, wait=0.02, move_time=0.02, duration=0.05)
+    run = run_tracking(ArmPlant(arm, IDEAL_PLANT), MuscleSpaceController(arm), task)
+    log = RunLog(run.columns, LogMetadata.for_model(arm, 250.0))
+    assert {"qdot_est", "tau_cmd"} <= set(log.quantities())
+
+
+def test_sample_rate_accepts_numpy_numbers():
+    assert _metadata(sample_rate_hz=np.int64(250)).sample_rate_hz == 250.0
+    assert type(_metadata(sample_rate_hz=np.float32(250)).sample_rate_hz) is float
+    for bad in (True, "250", None):
+        with pytest.raises(InputError, match="sample_rate_hz must be a real number"):
+            _metadata(sample_rate_hz=bad)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "key"),
+    [
+        ("extra", {"a": float("nan")}, r"extra\['a'\]"),
+        ("extra", {"a": [1.0, np.inf]}, r"extra\['a'\]\[1\]"),
+        ("controller_config", {"pid": {"ti": -np.inf}}, r"controller_config\['pid'\]\['ti'\]"),
+    ],
+)
+def test_non_finite_metadata_is_refused_with_its_key(field, value, key):
+    """Every metadata value is standard JSON: no NaN/Infinity tokens in the file."""
+    with pytest.raises(InputError, match=key + " is not finite; metadata is standard JSON"):
+        _metadata(**{field: value})
+
+
+def test_write_under_a_file_names_the_path(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(InputError, match=rf"cannot write .*run.parquet: {blocker} is a file"):
+        write_log(blocker / "sub" / "run.parquet", _log(0))
+    with pytest.raises(InputError, match="it is a folder, expected a file path"):
+        write_log(tmp_path, _log(0))
+
+
 def test_missing_file_and_not_parquet(tmp_path):
     with pytest.raises(LogError, match=r"nope\.parquet: file not found"):
         read_log(tmp_path / "nope.parquet")

@@ -172,6 +172,18 @@ def test_force_velocity_inverse_rejects_values_below_curve_range(value):
         force_velocity_inverse(value)
 
 
+@pytest.mark.parametrize("value", [2.6, 40.0, 1000.0, np.array([1.0, 1e6])])
+def test_force_velocity_inverse_rejects_values_above_the_eccentric_range(value):
+    """Past force_velocity(10) the analytic inverse grows to 1e115 or overflows: refused."""
+    with pytest.raises(InputError, match=r"f_v must be <= force_velocity\(10\) = 2.50724"):
+        force_velocity_inverse(value)
+
+
+def test_force_velocity_inverse_reaches_ten_times_vmax_lengthening():
+    top = force_velocity(10.0)
+    assert force_velocity_inverse(top) == pytest.approx(10.0, abs=1e-9)
+
+
 # ---------------------------------------------------------------- bad input
 
 

@@ -37,3 +37,22 @@ def test_fast_path_refuses_a_length_below_slack(arm):
     lengths[3] = arm.muscles.tendon_slack_length[3]
     with pytest.raises(InputError, match="pectoralis_major"):
         fast.parts(lengths, np.zeros(arm.n_cables))
+
+
+def test_fast_path_names_a_nan_before_the_slack_length(arm):
+    """NaN is reported as NaN, for the argument that holds it, in plain floats."""
+    fast = FastHill(arm.muscles)
+    lengths = np.array(arm.muscles.tendon_slack_length) + 0.1
+    speeds = np.zeros(arm.n_cables)
+    slack = float(arm.muscles.tendon_slack_length[3])
+    lengths[3] = slack
+    with pytest.raises(InputError, match=rf"mtu_length\[3\] .* = {slack} m is not longer") as e:
+        fast.parts(lengths, speeds)
+    assert "np.float64" not in str(e.value)
+    lengths[3] = np.nan
+    with pytest.raises(InputError, match=r"mtu_length\[3\] .* must be finite, got nan m$"):
+        fast.parts(lengths, speeds)
+    lengths[3] = slack + 0.1
+    speeds[5] = np.nan
+    with pytest.raises(InputError, match=r"mtu_velocity\[5\] .* must be finite, got nan m/s"):
+        fast.parts(lengths, speeds)

@@ -245,6 +245,168 @@ def test_bad_reset_is_refused(arm):
         plant.reset(POSTURE, tensions=-np.ones(arm.n_cables))
 
 
+class _Loss(Effect):
+    """A user effect with a fixed transmission factor."""
+
+    name = "loss"
+
+    def __init__(self, factor: float = 0.8) -> None:
+        self.factor = factor
+
+    def transmission(self, state):
+        return np.full(state.lengths.shape, self.factor)
+
+    def parameters(self):
+        return {"factor": self.factor}
+
+
+def test_effects_of_one_name_are_refused(arm):
+    """Two effects of one name would overwrite each other's ground truth."""
+    with pytest.raises(InputError, match=r"extra_effects\[0\] \(_Loss\) and extra_effects\[1\]"):
+        ArmPlant(arm, IDEAL_PLANT, extra_effects=[_Loss(0.8), _Loss(0.5)])
+
+    class MyFriction(_Loss):
+        name = "sheath_friction"
+
+    default = only(sheath_friction=SheathFrictionConfig(enabled=True))
+    for config in (default, IDEAL_PLANT):  # a built-in name is reserved, on or off
+        with pytest.raises(InputError, match="'sheath_friction', the name of msarm's built-in"):
+            ArmPlant(arm, config, extra_effects=[MyFriction()])
+
+    class Stretchy(_Loss):
+        name = "elasticity"
+
+    with pytest.raises(InputError, match="built-in effect 'elasticity'"):
+        ArmPlant(arm, IDEAL_PLANT, extra_effects=[Stretchy()])
+    with pytest.raises(InputError, match=r"extra_effects\[0\] must be an msarm.plant.Effect"):
+        ArmPlant(arm, IDEAL_PLANT, extra_effects=["loss"])
+
+
+class _Hooks(Effect):
+    """A user effect whose hooks return what the test asks for."""
+
+    name = "hooks"
+
+    def __init__(self, hook: str, value) -> None:
+        self.hook, self.value = hook, value
+
+    def transmission(self, state):
+        return self.value if self.hook == "transmission" else np.ones(state.lengths.shape)
+
+    def winch_torque(self, state):
+        m = state.lengths.shape[0]
+        return self.value if self.hook == "winch_torque" else (np.zeros(m), np.zeros(m))
+
+    def actuate(self, command):
+        return self.value if self.hook == "actuate" else command
+
+    def sense(self, readings, rng):
+        return self.value(readings) if self.hook == "sense" else readings
+
+
+@pytest.mark.parametrize(
+    ("hook", "value", "message"),
+    [
+        ("transmission", -np.ones(9), r"transmission\(\) must return values >= 0.0, got -1.0"),
+        (
+            "transmission",
+            np.ones(3),
+            r"transmission\(\) must return shape \(9,\), got shape \(3,\)",
+        ),
+        ("transmission", np.r_[np.nan, np.ones(8)], r"transmission\(\) must return finite"),
+        ("transmission", None, r"transmission\(\) must return shape \(9,\)"),
+        ("winch_torque", np.zeros(9), r"winch_torque\(\) must return a pair"),
+        ("winch_torque", (np.zeros(9), np.full(9, np.inf)), r"winch_torque\(\) slope must"),
+        ("winch_torque", (np.zeros(2), np.zeros(9)), r"winch_torque\(\) torque must return shape"),
+        ("actuate", -np.ones(9), r"actuate\(\) must return values >= 0.0"),
+        ("actuate", np.ones(2), r"actuate\(\) must return shape"),
+        ("sense", lambda r: r.q, r"sense\(\) must return SensorReadings, got ndarray"),
+        (
+            "sense",
+            lambda r: replace(r, tension_motor=r.tension_motor[:3]),
+            r"sense\(\).tension_motor must return shape \(9,\)",
+        ),
+        ("sense", lambda r: replace(r, q=r.q * np.nan), r"sense\(\).q must return finite"),
+    ],
+)
+def test_bad_user_hook_outputs_are_refused(arm, hook, value, message):
+    """A user hook's bad output is named (effect and hook), not broadcast or simulated."""
+    plant = ArmPlant(arm, IDEAL_PLANT, extra_effects=[_Hooks(hook, value)])
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 20.0))
+    with pytest.raises(InputError, match="effect 'hooks' \\(_Hooks\\): " + message):
+        plant.command(np.full(arm.n_cables, 20.0))
+        plant.sense()
+        plant.step(2)
+
+
+def test_built_in_effects_keep_the_compiled_step(arm):
+    """User-hook checks cost nothing to a plant of built-in effects."""
+    from msarm.mujoco_c import step_functions
+    from msarm.plant import DEFAULT_PLANT
+
+    if step_functions() is None:
+        pytest.skip("MuJoCo's library was not found: no compiled step")
+    assert ArmPlant(arm, DEFAULT_PLANT).compiled
+    assert not ArmPlant(arm, DEFAULT_PLANT, extra_effects=[_Loss()]).compiled
+
+
+def test_bad_command_and_step_count_are_refused(arm):
+    plant = ArmPlant(arm, IDEAL_PLANT)
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 20.0))
+    with pytest.raises(InputError, match=r"tension must be >= 0 N .* -100.0 N for cable 0"):
+        plant.command(np.r_[-100.0, np.full(arm.n_cables - 1, 20.0)])
+    with pytest.raises(InputError, match="tension must be finite, got nan at index 2"):
+        plant.command(np.r_[20.0, 20.0, np.nan, np.full(arm.n_cables - 3, 20.0)])
+    with pytest.raises(InputError, match="tension must be an array of shape \\(9,\\), got None"):
+        plant.command(None)
+    for bad in (-5, 2.5, "3", True):
+        with pytest.raises(InputError, match="n_steps must be an integer >= 0"):
+            plant.step(bad)
+    time = plant.time
+    plant.step(0)  # documented: nothing happens
+    plant.step(np.int64(2))
+    assert plant.time == pytest.approx(time + 2 * IDEAL_PLANT.timestep)
+
+
+def test_bad_seed_and_config_are_refused(arm):
+    for bad in (None, 1.5, "a", True):
+        with pytest.raises(InputError, match="seed must be a non-negative integer or a numpy"):
+            ArmPlant(arm, IDEAL_PLANT, seed=bad)
+    with pytest.raises(InputError, match="seed must be a non-negative integer, got -1"):
+        ArmPlant(arm, IDEAL_PLANT, seed=np.int64(-1))
+    with pytest.raises(InputError, match="config must be an msarm.plant.PlantConfig, got NoneType"):
+        ArmPlant(arm, None)
+
+
+def test_a_generator_seed_gives_the_same_run_at_every_reset(arm):
+    from msarm.plant import DEFAULT_PLANT
+
+    def noise(plant):
+        plant.reset(POSTURE, tensions=np.full(arm.n_cables, 20.0))
+        plant.step(4)
+        return plant.sense().tension_motor
+
+    generator = np.random.default_rng(7)
+    plant = ArmPlant(arm, DEFAULT_PLANT, seed=generator)
+    first = noise(plant)
+    generator.standard_normal(5)  # the caller's generator moving on changes nothing
+    np.testing.assert_array_equal(noise(plant), first)
+    np.testing.assert_array_equal(
+        noise(ArmPlant(arm, DEFAULT_PLANT, seed=np.random.default_rng(7))), first
+    )
+    np.testing.assert_array_equal(noise(ArmPlant(arm, DEFAULT_PLANT, seed=7)), first)
+
+
+def test_reset_outside_the_joint_range_is_refused(arm):
+    plant = ArmPlant(arm, IDEAL_PLANT)
+    q = POSTURE.copy()
+    q[3] = arm.joint_upper[3] + 0.1
+    name = arm.joint_names[3]
+    with pytest.raises(InputError, match=rf"q: joint 3 \('{name}'\) at .* outside the model's"):
+        plant.reset(q)
+    plant.reset(np.asarray(arm.joint_upper))  # the range's edges are inside
+
+
 @pytest.mark.parametrize(
     "effects",
     [

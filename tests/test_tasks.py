@@ -151,6 +151,15 @@ def test_unknown_task_lists_the_valid_ones(arm):
         get_task("random-x", arm)
 
 
+@pytest.mark.parametrize(
+    ("name", "canonical"), [("table1-01", "table1-1"), ("random-007", "random-7")]
+)
+def test_one_task_one_name(arm, name, canonical):
+    """A number with leading zeros is refused (runs are stored by task name)."""
+    with pytest.raises(InputError, match=f"{name!r}: write .* without leading zeros, {canonical}"):
+        get_task(name, arm)
+
+
 def test_task_checks_its_moves():
     home = np.zeros(2)
     with pytest.raises(InputError, match="before the previous move ends"):

@@ -146,6 +146,15 @@ def run_command(
     options = controller_options(option or [])
     # before any folder is created
     check_cdpr_run(model, plant_config, controller, path, options)
+    # the log's metadata too (standard JSON: an option of .inf is refused now, not after)
+    metadata = LogMetadata(
+        robot_model=model.name,
+        model_sha256=model.sha256,
+        sample_rate_hz=1000.0,
+        units=CDPR_UNITS,
+        controller_config={"name": controller, **options},
+        extra={"trajectory": trajectory, "seed": seed, "plant": plant_config.name},
+    )
     on = _plant_suffix(plant_config) + "".join(f"-{k}={v}" for k, v in options.items())
     folder = output_folder(out or Path("runs") / f"cdpr-{controller}-{trajectory}{on}")
     with Progress(transient=True, disable=json_output) as bar:
@@ -159,14 +168,6 @@ def run_command(
             options,
             progress=lambda done: bar.update(job, completed=done),
         )
-    metadata = LogMetadata(
-        robot_model=model.name,
-        model_sha256=model.sha256,
-        sample_rate_hz=1000.0,
-        units=CDPR_UNITS,
-        controller_config={"name": controller, **options},
-        extra={"trajectory": trajectory, "seed": seed, "plant": plant_config.name},
-    )
     files = {"log": write_log(folder / "log.parquet", RunLog(run.columns, metadata))}
     files["sidecar"] = write_sidecar(
         files["log"], run.truth, {"plant": plant_config.name}, {"tension": "N"}

@@ -3,6 +3,7 @@
 from msarm.io.config import config_to_dict, dump_config, load_config, write_config
 from msarm.io.logs import (
     SCHEMA_VERSION,
+    STANDARD_TRUTH_UNITS,
     STANDARD_UNITS,
     LogMetadata,
     RunLog,
@@ -16,6 +17,7 @@ from msarm.io.logs import (
 
 __all__ = [
     "SCHEMA_VERSION",
+    "STANDARD_TRUTH_UNITS",
     "STANDARD_UNITS",
     "LogMetadata",
     "RunLog",

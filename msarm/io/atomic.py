@@ -16,6 +16,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from msarm.errors import InputError
+
 __all__ = ["atomic_path", "write_bytes_atomic", "write_json_atomic"]
 
 
@@ -39,9 +41,22 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
     Yields:
         The temporary path to write to (its name does not end in the target's suffix).
+
+    Raises:
+        InputError: ``path`` is a folder, or a folder on its way is a file (both named).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_dir():
+        raise InputError(f"cannot write {path}: it is a folder, expected a file path")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        blocker = next(
+            (p for p in reversed(path.parents) if p.exists() and not p.is_dir()), path.parent
+        )
+        raise InputError(
+            f"cannot write {path}: {blocker} is a file, not a folder (choose another path)"
+        ) from None
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     tmp = Path(name)

@@ -29,6 +29,10 @@ key                               value
 ``msarm.extra``                   object: anything else (task name, seed, ...; may be ``{}``)
 ================================  ========================================================
 
+Every value is standard JSON (RFC 8259): a NaN or an infinity anywhere in the metadata is
+refused when the metadata is built (the key named), never written as the non-standard
+``NaN``/``Infinity`` nor turned into ``null``.
+
 Other metadata keys (those of pandas or Arrow, say) are ignored; unknown ``msarm.`` keys are
 refused. A log from another robot is valid when it follows this schema; ``read_log`` checks
 all of it and names the file, the column or key, and what was expected.
@@ -68,6 +72,7 @@ from msarm.io.atomic import atomic_path
 __all__ = [
     "SCHEMA_VERSION",
     "SIDECAR_SCHEMA_VERSION",
+    "STANDARD_TRUTH_UNITS",
     "STANDARD_UNITS",
     "LogMetadata",
     "columns_from_quantities",
@@ -98,15 +103,19 @@ _SIDECAR_SUFFIX = ".truth.parquet"
 TIME = "t"
 _QUANTITY_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
-#: Units of the quantities msarm logs (SI), for :attr:`LogMetadata.units`.
+#: Units of the quantities msarm logs (SI), for :attr:`LogMetadata.units`: every quantity of
+#: the arm runner's logs (``msarm.tasks.runner.LOG_UNITS`` is taken from here) and the common
+#: names a user's own log may use (``qd``, ``tau``, ...).
 STANDARD_UNITS: Mapping[str, str] = {
     "q": "rad",
     "qd": "rad/s",
     "qdd": "rad/s^2",
+    "qdot_est": "rad/s",
     "q_ref": "rad",
     "qd_ref": "rad/s",
     "qdd_ref": "rad/s^2",
     "tau": "N m",
+    "tau_cmd": "N m",
     "tau_ff": "N m",
     "tension_cmd": "N",
     "tension_ff": "N",
@@ -116,6 +125,17 @@ STANDARD_UNITS: Mapping[str, str] = {
     "cable_length": "m",
     "activation": "1",
     "excitation": "1",
+}
+
+#: Units of the ground-truth quantities msarm writes to the sidecar (SI);
+#: ``msarm.tasks.runner.TRUTH_UNITS`` is taken from here.
+STANDARD_TRUTH_UNITS: Mapping[str, str] = {
+    "q": "rad",
+    "qdot": "rad/s",
+    "tension_insertion": "N",
+    "tension_motor": "N",
+    "stretch": "m",
+    "wrap_angle": "rad",
 }
 
 
@@ -148,10 +168,38 @@ def split_channel(column: str) -> tuple[str, str]:
     return quantity, name
 
 
+def _non_finite_key(value: Any, where: str) -> str | None:
+    """The path (``extra['a'][2]``) of the first NaN or infinity in ``value``, or None."""
+    if isinstance(value, float | np.floating) and not math.isfinite(value):
+        return where
+    if isinstance(value, Mapping):
+        items: Any = ((f"{where}[{key!r}]", item) for key, item in value.items())
+    elif isinstance(value, list | tuple):
+        items = ((f"{where}[{i}]", item) for i, item in enumerate(value))
+    else:
+        return None
+    for path, item in items:
+        found = _non_finite_key(item, path)
+        if found is not None:
+            return found
+    return None
+
+
 def _json_roundtrip(value: Any, what: str) -> Any:
-    """``value`` as it comes back from JSON (tuples become lists); refuses non-JSON values."""
+    """``value`` as it comes back from JSON (tuples become lists).
+
+    Raises:
+        InputError: ``value`` is not JSON-serialisable, or holds a NaN or an infinity
+            (standard JSON has none; the key is named).
+    """
+    bad = _non_finite_key(value, what)
+    if bad is not None:
+        raise InputError(
+            f"{bad} is not finite; metadata is standard JSON, which has no NaN or infinity "
+            "(store a finite number, or null/a string for 'no value')"
+        )
     try:
-        return json.loads(json.dumps(value))
+        return json.loads(json.dumps(value, allow_nan=False))
     except (TypeError, ValueError) as exc:
         raise InputError(f"{what} must be JSON-serialisable: {exc}") from None
 
@@ -166,11 +214,18 @@ class LogMetadata:
     Attributes:
         robot_model: Name of the robot model.
         model_sha256: SHA-256 of the robot's MJCF file (hex).
-        sample_rate_hz: Nominal sample rate [Hz], > 0.
+        sample_rate_hz: Nominal sample rate [Hz], finite and > 0 (a Python or numpy number;
+            stored as a float).
         units: Unit of every quantity of the log's channels (quantity -> unit string).
         controller_config: The controller's resolved config (plain data, see
-            :func:`msarm.io.config.config_to_dict`).
-        extra: Anything else worth keeping with the run (plain JSON data).
+            :func:`msarm.io.config.config_to_dict`), without NaN or infinities.
+        extra: Anything else worth keeping with the run (plain JSON data), without NaN or
+            infinities.
+
+    Raises:
+        InputError: A field of the wrong type, a sample rate that is not finite and > 0, or
+            a value that is not standard JSON (a NaN or infinity anywhere is refused, its key
+            named).
         schema_version: Log schema version (only :data:`SCHEMA_VERSION` exists).
     """
 
@@ -188,10 +243,15 @@ class LogMetadata:
         if not isinstance(self.model_sha256, str):
             raise InputError(f"model_sha256 must be a string, got {self.model_sha256!r}")
         rate = self.sample_rate_hz
-        if isinstance(rate, bool) or not isinstance(rate, int | float | np.floating):
-            raise InputError(f"sample_rate_hz must be a number, got {rate!r}")
+        if isinstance(rate, bool | np.bool_) or not isinstance(
+            rate, int | float | np.integer | np.floating
+        ):
+            raise InputError(
+                f"sample_rate_hz must be a real number [Hz], got {rate!r} of type "
+                f"{type(rate).__name__}"
+            )
         if not (math.isfinite(rate) and rate > 0):
-            raise InputError(f"sample_rate_hz must be finite and > 0 [Hz], got {rate!r}")
+            raise InputError(f"sample_rate_hz must be finite and > 0 [Hz], got {float(rate)}")
         object.__setattr__(self, "sample_rate_hz", float(rate))
         if not isinstance(self.units, Mapping) or not all(
             isinstance(k, str) and isinstance(v, str) for k, v in self.units.items()
@@ -222,7 +282,8 @@ class LogMetadata:
         Args:
             model: Anything with ``.name`` and ``.sha256``.
             sample_rate_hz: Nominal sample rate [Hz].
-            units: Units of the logged quantities; default :data:`STANDARD_UNITS`.
+            units: Units of the logged quantities; default :data:`STANDARD_UNITS` (which
+                covers every quantity of msarm's own arm runs).
             controller_config: The controller's resolved config (plain data).
             extra: Anything else.
 

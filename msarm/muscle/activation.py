@@ -167,6 +167,10 @@ def activation_derivative(
 ) -> FloatArray:
     """Time derivative of the activation, ``da/dt = (e - a) / tau(e, a)``.
 
+    Argument order: **excitation first, then activation** (``activation_derivative(e, a)``,
+    as in ``da/dt = f(e, a)``); :func:`step_activation` takes them the other way round,
+    ``step_activation(a, e, dt)`` (state first). Pass them by keyword where in doubt.
+
     Args:
         excitation: Neural excitation ``e`` [-] in [0, 1], scalar or array.
         activation: Activation ``a`` [-] in [0, 1], broadcastable with ``excitation``.
@@ -194,6 +198,10 @@ def step_activation(
     smoothing: float = DEFAULT_ACTIVATION_SMOOTHING,
 ) -> FloatArray:
     """Advance the activation by one step ``dt`` with the excitation held constant.
+
+    Argument order: **activation first (the state), then excitation** (``step_activation(a,
+    e, dt)``); :func:`activation_derivative` takes them the other way round,
+    ``activation_derivative(e, a)``. Pass them by keyword where in doubt.
 
     Exponential midpoint step: the time constant is frozen at a predicted midpoint,
     ``a_half = e + (a - e) exp(-dt / (2 tau(e, a)))`` and

@@ -41,7 +41,9 @@ __all__ = [
     "FORCE_VELOCITY_D2",
     "FORCE_VELOCITY_D3",
     "FORCE_VELOCITY_D4",
+    "FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING",
     "FORCE_VELOCITY_AT_MAX_SHORTENING",
+    "MAX_INVERSE_LENGTHENING_VELOCITY",
     "MAX_SHORTENING_VELOCITY",
     "PASSIVE_E0",
     "PASSIVE_KPE",
@@ -82,6 +84,12 @@ FORCE_VELOCITY_D4: Final[float] = 0.886
 
 #: Fastest normalised shortening velocity the curves accept (fibre velocity = -v_max).
 MAX_SHORTENING_VELOCITY: Final[float] = -1.0
+
+#: Fastest normalised lengthening velocity :func:`force_velocity_inverse` returns (10 v_max,
+#: ten times the end of the fitted range [-1, 1]). The curve rises only logarithmically past
+#: +1, so a larger multiplier is no muscle's force at any plausible speed, and the analytic
+#: inverse grows exponentially (``f_v = 4`` gives about 1e3 v_max, ``f_v = 40`` overflows).
+MAX_INVERSE_LENGTHENING_VELOCITY: Final[float] = 10.0
 
 
 def _checked_array(value: ArrayLike, name: str) -> FloatArray:
@@ -221,6 +229,12 @@ FORCE_VELOCITY_AT_MAX_SHORTENING: Final[float] = float(
     _force_velocity_unchecked(np.float64(MAX_SHORTENING_VELOCITY))
 )
 
+#: ``force_velocity(10)`` ≈ 2.507: the largest value :func:`force_velocity_inverse` accepts
+#: (lengthening at :data:`MAX_INVERSE_LENGTHENING_VELOCITY`).
+FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING: Final[float] = float(
+    _force_velocity_unchecked(np.float64(MAX_INVERSE_LENGTHENING_VELOCITY))
+)
+
 
 def force_velocity(v_norm: ArrayLike) -> FloatArray:
     """Force-velocity curve ``f_v`` of De Groote et al. (2016).
@@ -263,17 +277,21 @@ def force_velocity_inverse(f_v: ArrayLike) -> FloatArray:
     ``v(f) = (sinh((f - d4) / d1) - d3) / d2`` with the constants of :func:`force_velocity`.
 
     Args:
-        f_v: Force-velocity multiplier [-], scalar or array of any shape, finite and
-            >= ``force_velocity(-1)`` ≈ 0.01208 (:data:`FORCE_VELOCITY_AT_MAX_SHORTENING`),
-            the range of :func:`force_velocity` on its domain ``v_norm >= -1``.
+        f_v: Force-velocity multiplier [-], scalar or array of any shape, finite, in
+            ``[force_velocity(-1), force_velocity(10)]`` ≈ [0.01208, 2.507]
+            (:data:`FORCE_VELOCITY_AT_MAX_SHORTENING`,
+            :data:`FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING`): the range of
+            :func:`force_velocity` from shortening at ``v_max`` to lengthening at
+            :data:`MAX_INVERSE_LENGTHENING_VELOCITY` ``v_max``.
 
     Returns:
-        Normalised fibre velocity ``v_M / v_max`` [-], negative = shortening, >= -1 up to
+        Normalised fibre velocity ``v_M / v_max`` [-], negative = shortening, in [-1, 10] up to
         round-off; same shape as ``f_v`` (a numpy float for a scalar).
 
     Raises:
-        InputError: If ``f_v`` holds a NaN, an infinity or a value below
-            ``force_velocity(-1)``.
+        InputError: If ``f_v`` holds a NaN, an infinity, a value below ``force_velocity(-1)``
+            or above ``force_velocity(10)`` (no plausible lengthening speed gives it; the
+            formula would return up to 1e138 or overflow to inf).
     """
     multiplier = _checked_array(f_v, "f_v")
     _raise_where(
@@ -282,6 +300,14 @@ def force_velocity_inverse(f_v: ArrayLike) -> FloatArray:
         "f_v",
         f">= force_velocity(-1) = {FORCE_VELOCITY_AT_MAX_SHORTENING:.6g} (the range of the "
         "force-velocity curve)",
+    )
+    _raise_where(
+        multiplier > FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING,
+        multiplier,
+        "f_v",
+        f"<= force_velocity({MAX_INVERSE_LENGTHENING_VELOCITY:g}) = "
+        f"{FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING:.6g} (lengthening at most "
+        f"{MAX_INVERSE_LENGTHENING_VELOCITY:g} v_max)",
     )
     velocity = (
         np.sinh((multiplier - FORCE_VELOCITY_D4) / FORCE_VELOCITY_D1) - FORCE_VELOCITY_D3

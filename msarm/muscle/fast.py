@@ -9,8 +9,9 @@ which capacity, inverse and forward model are one line of arithmetic each:
 - ``activation_for_force(F) = clip((F - passive) / active, 0, 1)``.
 
 It skips the per-call validation of :class:`HillMuscles` (its inputs come from the
-controller's own geometry) except what would make the numbers meaningless: an MTU length at
-or below the tendon slack length raises :class:`msarm.errors.InputError`. The fibre velocity
+controller's own geometry) except what would make the numbers meaningless: a non-finite MTU
+length or speed, or an MTU length at or below the tendon slack length, raises
+:class:`msarm.errors.InputError`. The fibre velocity
 is limited below at the maximum shortening velocity (callers limit the MTU velocity first;
 see ``max_shortening_speed``). A test keeps it equal to :class:`HillMuscles` to round-off.
 """
@@ -56,13 +57,15 @@ def hill_parts(
 ):
     """Write active and passive tendon-force parts [N]; return the first bad index or -1.
 
-    The compiled kernel of :meth:`FastHill.parts`, also for compiled callers: the muscle
-    arrays between ``velocities`` and ``active`` are :attr:`FastHill.parameters`.
+    A muscle is bad when its MTU length or speed is not finite or its length is not longer
+    than its tendon slack length. The compiled kernel of :meth:`FastHill.parts`, also for
+    compiled callers: the muscle arrays between ``velocities`` and ``active`` are
+    :attr:`FastHill.parameters`.
     """
     d1, d2, d3, d4, kpe, e0 = curve[0], curve[1], curve[2], curve[3], curve[4], curve[5]
     for i in range(lengths.shape[0]):
         along = lengths[i] - l_slack[i]
-        if not along > 0.0:
+        if not (along > 0.0 and math.isfinite(along) and math.isfinite(velocities[i])):
             return i
         fiber = math.hypot(along, thickness[i])
         l_norm = fiber / l_opt[i]
@@ -142,13 +145,28 @@ class FastHill:
     ) -> tuple[FloatArray, FloatArray]:
         """Compute ``(active, passive)`` [N], each ``(m,)`` (arrays reused between calls).
 
+        Args:
+            mtu_length: MTU lengths [m], shape ``(m,)``.
+            mtu_velocity: MTU speeds [m/s], shape ``(m,)`` (lengthening positive).
+
         Raises:
-            InputError: An MTU length is not longer than its tendon slack length.
+            InputError: An MTU length or speed is not finite, or a length is not longer than
+                its tendon slack length (argument, muscle and value named).
         """
         bad = hill_parts(mtu_length, mtu_velocity, *self.parameters, self.active, self.passive)
         if bad >= 0:
-            raise InputError(
-                f"mtu_length[{bad}] (muscle {self.muscles.names[bad]!r}) = {mtu_length[bad]!r} m "
-                f"is not longer than its tendon slack length {self._l_slack[bad]!r} m"
-            )
+            raise InputError(self._bad_message(bad, mtu_length, mtu_velocity))
         return self.active, self.passive
+
+    def _bad_message(self, i: int, mtu_length: FloatArray, mtu_velocity: FloatArray) -> str:
+        """What is wrong with muscle ``i`` (the kernel's bad index): NaN first, then length."""
+        muscle = f"(muscle {self.muscles.names[i]!r})"
+        length, speed = float(mtu_length[i]), float(mtu_velocity[i])
+        if not math.isfinite(length):
+            return f"mtu_length[{i}] {muscle} must be finite, got {length} m"
+        if not math.isfinite(speed):
+            return f"mtu_velocity[{i}] {muscle} must be finite, got {speed} m/s"
+        return (
+            f"mtu_length[{i}] {muscle} = {length} m is not longer than its tendon slack length "
+            f"{float(self._l_slack[i])} m (the fibre length would be <= 0)"
+        )

@@ -105,7 +105,9 @@ def cable_geometry(
     Args:
         model: The robot.
         data: A work space of ``model``.
-        q: Joint coordinates [rad], shape ``(n,)``.
+        q: Joint coordinates [rad], shape ``(n,)``; not checked against the joint range (the
+            full-rank and positive-spanning guarantees hold only inside it: see
+            :meth:`msarm.model.RobotModel.geometry`).
         qdot: Joint velocities [rad/s], shape ``(n,)``; zero if omitted.
         with_wrap_angles: Compute the wrap angles (NaN if False: a controller needs none).
 
@@ -113,6 +115,8 @@ def cable_geometry(
         The cable geometry at ``(q, qdot)``.
     """
     n = model.n_joints
+    if q is None:
+        raise InputError(f"q must be joint coordinates of shape ({n},), got None")
     q = _checked_vector(q, n, "q")
     qdot = _checked_vector(qdot, n, "qdot")
     m_model, m_data = model.mj_model, data.mj

@@ -38,7 +38,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError
 from msarm.muscle.curves import (
+    FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING,
     FORCE_VELOCITY_AT_MAX_SHORTENING,
+    MAX_INVERSE_LENGTHENING_VELOCITY,
     MAX_SHORTENING_VELOCITY,
     FloatArray,
     active_force_length,
@@ -276,10 +278,8 @@ class HillMuscles:
         if not np.any(bad):
             return
         i = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{name}[{i}] (muscle {self._names[i]!r}) = {float(array[i])!r} {unit}; "
-            f"expected {expected}"
-        )
+        value = f"{float(array[i])} {unit}" if unit else f"{float(array[i])}"
+        raise InputError(f"{name}[{i}] (muscle {self._names[i]!r}) = {value}; expected {expected}")
 
     def _per_muscle(self, value: ArrayLike, name: str, unit: str) -> FloatArray:
         """Validate a per-muscle input: shape ``(m,)`` and finite.
@@ -293,8 +293,19 @@ class HillMuscles:
             A float64 array of shape ``(m,)``.
 
         Raises:
-            InputError: On a wrong shape, a non-numeric value, a NaN or an infinity.
+            InputError: On ``None``, a wrong shape, a non-numeric or complex value, a NaN or an
+                infinity.
         """
+        if value is None:
+            raise InputError(
+                f"{name} must be an array of shape ({len(self)},), one value per muscle "
+                f"{list(self._names)}; got None"
+            )
+        if np.iscomplexobj(value):
+            raise InputError(
+                f"{name} must be real numbers; got complex values (dtype "
+                f"{np.asarray(value).dtype}), whose imaginary part would be lost"
+            )
         try:
             array = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError) as exc:
@@ -322,8 +333,8 @@ class HillMuscles:
         if np.any(too_short):
             i = int(np.flatnonzero(too_short)[0])
             raise InputError(
-                f"mtu_length[{i}] (muscle {self._names[i]!r}) = {float(length[i])!r} m is not "
-                f"longer than its tendon_slack_length {float(slack[i])!r} m; with a rigid "
+                f"mtu_length[{i}] (muscle {self._names[i]!r}) = {float(length[i])} m is not "
+                f"longer than its tendon_slack_length {float(slack[i])} m; with a rigid "
                 "tendon the fibre length would be <= 0"
             )
         return length
@@ -476,13 +487,17 @@ class HillMuscles:
             mtu_length: MTU lengths ``l_MT`` [m], shape ``(m,)``, each > ``l_Ts``.
 
         Returns:
-            Fibre velocities ``v_M`` [m/s], shape ``(m,)``, negative = shortening, >=
-            ``-v_max l_M0``.
+            Fibre velocities ``v_M`` [m/s], shape ``(m,)``, negative = shortening, in
+            ``[-v_max l_M0, 10 v_max l_M0]``.
 
         Raises:
             InputError: On a wrong shape, NaN, an activation outside (0, 1], an invalid
-                length, or a force below what the muscle gives at this activation while
-                shortening at ``v_max`` (eq. 15 has no solution then).
+                length, a force below what the muscle gives at this activation while
+                shortening at ``v_max`` (eq. 15 has no solution then), or a force above what
+                it gives while lengthening at 10 ``v_max``
+                (:data:`msarm.muscle.curves.MAX_INVERSE_LENGTHENING_VELOCITY`: the curve was
+                fitted on [-1, 1] and its inverse grows exponentially beyond). Each names the
+                muscle and the least or largest force reachable.
         """
         a = self._activation(activation)
         self._fail(a <= 0.0, a, "activation", "", "a value in (0, 1] (eq. 15 divides by a)")
@@ -502,6 +517,16 @@ class HillMuscles:
                 f"force[{i}] (muscle {self._names[i]!r}) = {float(wanted[i])!r} N is below "
                 f"{float(least):.6g} N, the force at activation {float(a[i]):.4g} while "
                 "shortening at the maximum contraction velocity; eq. 15 has no solution"
+            )
+        fastest = f_v > FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING
+        if np.any(fastest):
+            i = int(np.flatnonzero(fastest)[0])
+            most = scale[i] * (a[i] * f_l[i] * FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING + f_pe[i])
+            raise InputError(
+                f"force[{i}] (muscle {self._names[i]!r}) = {float(wanted[i])} N is above "
+                f"{float(most):.6g} N, the force at activation {float(a[i]):.4g} while "
+                f"lengthening at {MAX_INVERSE_LENGTHENING_VELOCITY:g} times the maximum "
+                "contraction velocity; no plausible fibre velocity gives it (eq. 15)"
             )
         f_v = np.maximum(f_v, FORCE_VELOCITY_AT_MAX_SHORTENING)
         return force_velocity_inverse(f_v) * self._v_max * self._l_opt

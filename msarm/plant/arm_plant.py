@@ -16,8 +16,9 @@ parameters) is available separately and never through :meth:`ArmPlant.sense`.
 
 from __future__ import annotations
 
+import copy
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -29,7 +30,13 @@ from msarm.mujoco_c import step_functions
 from msarm.muscle.batch_kinematics import current_wrap_angles
 from msarm.plant.cable_kernel import PARAMS, step_cables, step_plant
 from msarm.plant.config import PlantConfig
-from msarm.plant.effects import CableState, Effect, SensorReadings, build_effects
+from msarm.plant.effects import (
+    EFFECT_DESCRIPTIONS,
+    CableState,
+    Effect,
+    SensorReadings,
+    build_effects,
+)
 from msarm.plant.instability import UNSTABLE_INDEX, instability_found
 
 __all__ = ["ArmPlant", "SimulationDivergedError"]
@@ -55,6 +62,96 @@ def _overrides(effect: Effect, hook: str) -> bool:
     return getattr(type(effect), hook) is not getattr(Effect, hook)
 
 
+def _seed_generator(seed: object) -> np.random.Generator:
+    """The generator the plant copies at every reset, from ``seed`` (checked).
+
+    Raises:
+        InputError: ``seed`` is neither a non-negative integer nor a ``numpy.random.Generator``.
+    """
+    if isinstance(seed, np.random.Generator):
+        # a private copy: every reset starts from the state the generator had here
+        return copy.deepcopy(seed)
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+        if seed < 0:
+            raise InputError(f"seed must be a non-negative integer, got {int(seed)}")
+        return np.random.default_rng(int(seed))
+    raise InputError(
+        "seed must be a non-negative integer or a numpy.random.Generator (same seed, same run),"
+        f" got {seed!r} of type {type(seed).__name__}"
+    )
+
+
+def _check_effects(user: Sequence[Effect], built_in: Sequence[Effect]) -> None:
+    """Refuse user effects that are not effects or whose names clash.
+
+    Every effect's name keys its parameters in :meth:`ArmPlant.effect_parameters` (and so in
+    the ground-truth sidecar): two effects of one name would overwrite each other there.
+
+    Raises:
+        InputError: An entry is not an :class:`Effect`, its ``name`` is not a non-empty
+            string, two user effects share a name, or a user effect takes the name of a
+            built-in effect (both named).
+    """
+    reserved = set(EFFECT_DESCRIPTIONS) | {effect.name for effect in built_in}
+    seen: dict[str, int] = {}
+    for i, effect in enumerate(user):
+        if not isinstance(effect, Effect):
+            raise InputError(
+                f"extra_effects[{i}] must be an msarm.plant.Effect, got {type(effect).__name__}"
+            )
+        name = effect.name
+        label = f"extra_effects[{i}] ({type(effect).__name__})"
+        if not isinstance(name, str) or not name:
+            raise InputError(f"{label}: name must be a non-empty string, got {name!r}")
+        if name in reserved:
+            raise InputError(
+                f"{label} is named {name!r}, the name of msarm's built-in effect {name!r}; "
+                "give it a name of its own (effect names key the ground-truth parameters)"
+            )
+        if name in seen:
+            j = seen[name]
+            raise InputError(
+                f"extra_effects[{j}] ({type(user[j]).__name__}) and {label} are both named "
+                f"{name!r}; effect names must be unique (they key the ground-truth parameters)"
+            )
+        seen[name] = i
+
+
+def _hook_array(
+    effect: Effect, hook: str, value: object, size: int, low: float | None = None
+) -> FloatArray:
+    """A user hook's output as a float array of shape ``(size,)``, checked.
+
+    Args:
+        effect: The effect whose hook returned ``value``.
+        hook: The hook and output (for the message), e.g. ``"transmission()"``.
+        value: What the hook returned.
+        size: The expected length.
+        low: The smallest value allowed, or ``None``.
+
+    Raises:
+        InputError: Wrong shape, a non-finite value, or a value below ``low`` (effect, hook
+            and index named).
+    """
+    where = f"effect {effect.name!r} ({type(effect).__name__}): {hook}"
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise InputError(
+            f"{where} must return an array of {size} floats, got {type(value).__name__}"
+        ) from error
+    if array.shape != (size,):
+        raise InputError(f"{where} must return shape ({size},), got shape {array.shape}")
+    bad = ~np.isfinite(array)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(f"{where} must return finite values, got {float(array[i])} at index {i}")
+    if low is not None and (array < low).any():
+        i = int(np.argmax(array < low))
+        raise InputError(f"{where} must return values >= {low}, got {float(array[i])} at index {i}")
+    return array
+
+
 class ArmPlant:
     """The simulated musculoskeletal arm: the "real robot" of msarm.
 
@@ -62,32 +159,53 @@ class ArmPlant:
         model: The arm (its file is loaded again into a private MuJoCo model, so effects may
             change that model without touching ``model``).
         config: Plant parameters and effect switches.
-        seed: Seed of the plant's random generator (sensor noise); same seed, same run.
-        extra_effects: User effects added after the built-in ones.
+        seed: Seed of the plant's random generator (sensor noise): a non-negative integer or a
+            ``numpy.random.Generator`` (copied: every :meth:`reset` starts again from the state
+            it had here); same seed, same run.
+        extra_effects: User effects added after the built-in ones. Each must have a name of its
+            own (not a built-in effect's, not another user effect's): the names key
+            :meth:`effect_parameters`. Their hooks' outputs are checked at every call (shape,
+            finite values, range; see :mod:`msarm.plant.effects`).
+
+    Raises:
+        InputError: ``config`` is not a :class:`PlantConfig`, ``seed`` is neither a
+            non-negative integer nor a generator, the model has no Hill parameters, or an
+            effect's name clashes (both effects named).
     """
 
     def __init__(
         self,
         model: RobotModel,
         config: PlantConfig,
-        seed: int = 0,
-        extra_effects: list[Effect] | None = None,
+        seed: int | np.random.Generator = 0,
+        extra_effects: Sequence[Effect] | None = None,
     ) -> None:
-        if model.muscles is None:
-            raise InputError("the arm plant needs a model with Hill parameters (F_max per cable)")
+        if not isinstance(config, PlantConfig):
+            raise InputError(
+                f"config must be an msarm.plant.PlantConfig, got {type(config).__name__}"
+            )
+        if getattr(model, "muscles", None) is None:
+            raise InputError(
+                "model: the arm plant needs a robot model with Hill parameters (F_max per "
+                f"cable), got {type(model).__name__} without them"
+            )
+        self._seed_rng = _seed_generator(seed)
         self.model = model
         self.config = config
         self.seed = seed
+        user = list(extra_effects or [])
+        built_in = build_effects(config.effects)
+        _check_effects(user, built_in)
         self.mj_model = mujoco.MjModel.from_xml_path(str(model.path))
         self.mj_model.opt.timestep = config.timestep
         self.mj_data = mujoco.MjData(self.mj_model)
-        self.effects: list[Effect] = build_effects(config.effects) + list(extra_effects or [])
+        self.effects: list[Effect] = built_in + user
         for effect in self.effects:
             effect.configure(self)
+        # user effects' hook outputs are checked; the built-in ones are trusted (fast path)
+        self._user_ids = {id(effect) for effect in user}
         self._transmitters = [e for e in self.effects if _overrides(e, "transmission")]
         self._winch_loads = [e for e in self.effects if _overrides(e, "winch_torque")]
-        if extra_effects is None:
-            extra_effects = []
         self._sensors = [e for e in self.effects if _overrides(e, "sense")]
         self._actuators = [e for e in self.effects if _overrides(e, "actuate")]
         m = model.n_cables
@@ -135,7 +253,7 @@ class ArmPlant:
             tension_motor=np.zeros(m),
             drum_radius=winch.drum_radius,
         )
-        self._rng = np.random.default_rng(seed)
+        self._rng = copy.deepcopy(self._seed_rng)
         self._period_start = {
             "q": np.zeros(self.mj_model.nq),
             "qdot": np.zeros(self.mj_model.nv),
@@ -193,20 +311,33 @@ class ArmPlant:
         """Put the arm at rest at ``q`` with the cables pre-tensioned to ``tensions``.
 
         Args:
-            q: Joint angles [rad], shape ``(n,)``.
-            tensions: Motor-side tensions [N], shape ``(m,)``; zero if omitted. The drives are
-                commanded the same until the first :meth:`command`.
+            q: Joint angles [rad], shape ``(n,)``, inside the model's joint range
+                ``[joint_lower, joint_upper]`` (edges included).
+            tensions: Motor-side tensions [N], shape ``(m,)``, each >= 0; zero if omitted. The
+                drives are commanded the same until the first :meth:`command`.
             qdot: Joint velocities [rad/s], shape ``(n,)``; zero if omitted.
+
+        Raises:
+            InputError: A wrong shape, a non-finite value, a joint of ``q`` outside its range
+                (joint, value and range named), or a negative tension (cable named).
         """
         n, m = self.model.n_joints, self.n_cables
         q = self._vector(q, n, "q")
+        lower = np.asarray(self.model.joint_lower, dtype=float)
+        upper = np.asarray(self.model.joint_upper, dtype=float)
+        outside = (q < lower) | (q > upper)
+        if outside.any():
+            j = int(np.argmax(outside))
+            raise InputError(
+                f"q: joint {j} ({self.model.joint_names[j]!r}) at {float(q[j])} rad is outside "
+                f"the model's joint range [{float(lower[j])}, {float(upper[j])}] rad"
+            )
         tensions = self._vector(np.zeros(m) if tensions is None else tensions, m, "tensions")
-        if np.any(tensions < 0):
-            raise InputError(f"tensions must be >= 0 N, got {tensions}")
+        self._check_tensions(tensions, "tensions")
         mujoco.mj_resetData(self.mj_model, self.mj_data)
         self.mj_data.qpos[:] = q
         self.mj_data.qvel[:] = 0.0 if qdot is None else self._vector(qdot, n, "qdot")
-        self._rng = np.random.default_rng(self.seed)
+        self._rng = copy.deepcopy(self._seed_rng)
         for effect in self.effects:
             effect.reset(self._rng)
         mujoco.mj_forward(self.mj_model, self.mj_data)
@@ -226,10 +357,23 @@ class ArmPlant:
         self.motor_torque[:] = tensions * self.drum_radius
 
     def command(self, tension: ArrayLike) -> None:
-        """Set the tension command of the drives [N], shape ``(m,)``; held until the next."""
-        tension = self._vector(tension, self.n_cables, "tension command")
+        """Set the tension command of the drives; held until the next.
+
+        Args:
+            tension: Motor-side tension command [N], shape ``(m,)``, finite and >= 0 (a cable
+                only pulls; nothing is clipped).
+
+        Raises:
+            InputError: A wrong shape, a non-finite or negative value (cable named), or a
+                user effect's ``actuate`` hook returned a bad command (effect named).
+        """
+        m = self.n_cables
+        tension = self._vector(tension, m, "tension")
+        self._check_tensions(tension, "tension")
         for effect in self._actuators:
             tension = effect.actuate(tension)
+            if id(effect) in self._user_ids:
+                tension = _hook_array(effect, "actuate()", tension, m, low=0.0)
         self._command[:] = tension
 
     def sense(self) -> SensorReadings:
@@ -243,6 +387,33 @@ class ArmPlant:
         )
         for effect in self._sensors:
             readings = effect.sense(readings, self._rng)
+            if id(effect) in self._user_ids:
+                readings = self._checked_readings(effect, readings)
+        return readings
+
+    def _checked_readings(self, effect: Effect, readings: object) -> SensorReadings:
+        """A user ``sense`` hook's output, checked (type, shapes, finite values).
+
+        Raises:
+            InputError: Not a :class:`SensorReadings`, or a channel of the wrong shape or with
+                a non-finite value (effect, hook and channel named).
+        """
+        if not isinstance(readings, SensorReadings):
+            raise InputError(
+                f"effect {effect.name!r} ({type(effect).__name__}): sense() must return "
+                f"SensorReadings, got {type(readings).__name__}"
+            )
+        n, m = self.model.n_joints, self.n_cables
+        channels = {
+            "t": np.array([readings.t]) if np.isscalar(readings.t) else readings.t,
+            "q": readings.q,
+            "motor_angle": readings.motor_angle,
+            "motor_torque": readings.motor_torque,
+            "tension_motor": readings.tension_motor,
+        }
+        sizes = {"t": 1, "q": n, "motor_angle": m, "motor_torque": m, "tension_motor": m}
+        for key, value in channels.items():
+            _hook_array(effect, f"sense().{key}", value, sizes[key])
         return readings
 
     def ground_truth(self) -> dict[str, FloatArray]:
@@ -308,9 +479,21 @@ class ArmPlant:
     def step(self, n_steps: int = 1) -> None:
         """Advance the plant by ``n_steps`` time steps with the current command.
 
+        Args:
+            n_steps: Number of plant time steps, an integer >= 0 (0: nothing happens).
+
         Raises:
+            InputError: ``n_steps`` is not an integer or is negative; a user effect's hook
+                returned a bad value (effect and hook named).
             SimulationDivergedError: NaN in the state or a MuJoCo instability warning.
         """
+        if not isinstance(n_steps, (int, np.integer)) or isinstance(n_steps, (bool, np.bool_)):
+            raise InputError(
+                f"n_steps must be an integer >= 0, got {n_steps!r} of type {type(n_steps).__name__}"
+            )
+        if n_steps < 0:
+            raise InputError(f"n_steps must be an integer >= 0, got {int(n_steps)}")
+        n_steps = int(n_steps)
         # MuJoCo resets its state (time included) when it finds a bad one: take the time and
         # the state first, to name them if the period fails
         end = float(self.mj_data.time) + n_steps * self.config.timestep
@@ -347,13 +530,25 @@ class ArmPlant:
         self._user_slope[:] = 0.0
         self._user_factor[:] = 1.0
         for effect in self._winch_loads:
-            torque, slope = effect.winch_torque(state)
+            output = effect.winch_torque(state)
+            if id(effect) in self._user_ids:
+                if not isinstance(output, tuple) or len(output) != 2:
+                    raise InputError(
+                        f"effect {effect.name!r} ({type(effect).__name__}): winch_torque() must "
+                        f"return a pair (torque, slope), got {type(output).__name__}"
+                    )
+                output = (
+                    _hook_array(effect, "winch_torque() torque", output[0], m),
+                    _hook_array(effect, "winch_torque() slope", output[1], m),
+                )
+            torque, slope = output
             self._user_torque += torque
             self._user_slope += slope
         for effect in self._transmitters:
-            self._user_factor *= effect.transmission(state)
-        if self._user_factor.shape != (m,):
-            raise InputError(f"user effects must return arrays of shape ({m},)")
+            factor = effect.transmission(state)
+            if id(effect) in self._user_ids:
+                factor = _hook_array(effect, "transmission()", factor, m, low=0.0)
+            self._user_factor *= factor
 
     def _cable_kernel_args(self) -> tuple:
         """The arguments of :func:`step_cables`, in its order (views, built once).
@@ -423,11 +618,30 @@ class ArmPlant:
             state,
         )
 
+    def _check_tensions(self, tensions: FloatArray, name: str) -> None:
+        """Refuse a negative tension (cables only pull), naming the first such cable."""
+        negative = tensions < 0
+        if negative.any():
+            i = int(np.argmax(negative))
+            raise InputError(
+                f"{name} must be >= 0 N (a cable only pulls), got {float(tensions[i])} N for "
+                f"cable {i} ({self.model.cable_names[i]!r})"
+            )
+
     @staticmethod
     def _vector(value: ArrayLike, size: int, name: str) -> FloatArray:
-        array = np.asarray(value, dtype=float)
+        if value is None:
+            raise InputError(f"{name} must be an array of shape ({size},), got None")
+        try:
+            array = np.asarray(value, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise InputError(
+                f"{name} must be an array of {size} real numbers, got {type(value).__name__}"
+            ) from error
         if array.shape != (size,):
             raise InputError(f"{name} must have shape ({size},), got {array.shape}")
-        if not np.isfinite(array).all():
-            raise InputError(f"{name} must be finite, got {array}")
+        bad = ~np.isfinite(array)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(f"{name} must be finite, got {float(array[i])} at index {i}")
         return array.copy()

@@ -15,9 +15,12 @@ Sources of the default values (plausible values for a robot of this size, not me
   damping 40 N s/m (a damping time c/k of 2 ms, a few percent of critical for the cable-arm
   modes);
 - sheath friction: a Bowden sheath against a polymer cable, mu = 0.12 per radian of wrap.
-  With the arm's 2.4-3.9 rad of wrap this transmits exp(-mu Theta) = 62-75 % of the force
-  when pulling, inside the 60-85 % reported for Bowden cables over about half a metre
-  (Schiele et al., IEEE BioRob 2006; Jeong and Cho, IJPEM 2016);
+  At q = 0 the arm's cables wrap 2.4-3.9 rad, which transmits exp(-mu Theta) = 62-75 % of
+  the force when pulling, inside the 60-85 % reported for Bowden cables over about half a
+  metre (Schiele et al., IEEE BioRob 2006; Jeong and Cho, IJPEM 2016). Over the whole joint
+  range the wrap spans 1.8-5.9 rad (measured on a 9^4 grid of the range, edges included):
+  49-81 % transmitted, the low end from the elbow cables (up to 4.7 and 5.9 rad) at the
+  range's edges;
 - winch friction: Coulomb 0.02 N m and viscous 2e-4 N m s/rad, about 1-2 % of the peak torque,
   the shape of paper 000 eq. 5 (Coulomb + viscous);
 - joint friction: 0.15 N m Coulomb and 0.05 N m s/rad viscous at every joint (plain bearings);

@@ -11,13 +11,23 @@ nothing per step):
   ``mj_model``, e.g. joint friction);
 - ``reset(rng)``: at every plant reset, with the plant's seeded generator;
 - ``transmission(state) -> (m,)``: factor from motor-side to insertion-side tension,
-  ``T_insertion = factor * T_motor`` (several multiply);
+  ``T_insertion = factor * T_motor`` (several multiply); finite and ``>= 0`` (a cable only
+  pulls; above 1 is allowed, as a cable paid out through its sheath delivers more);
 - ``winch_torque(state) -> ((m,), (m,))``: torque added on each winch [N m] and its
-  derivative with respect to the winch speed [N m s/rad] (the plant integrates the winch
-  implicitly, so steep friction laws stay stable);
+  derivative with respect to the winch speed [N m s/rad], both finite (the plant integrates
+  the winch implicitly, so steep friction laws stay stable);
 - ``sense(readings, rng) -> readings``: change what the sensors report (noise, bias, delay);
+  a :class:`SensorReadings` of the same shapes, finite;
 - ``actuate(command) -> command``: change the tension command on its way to the drives;
-- ``parameters() -> dict``: the ground truth written to the sidecar file.
+  shape ``(m,)``, finite and ``>= 0`` [N];
+- ``parameters() -> dict``: the ground truth written to the sidecar file, under the
+  effect's ``name``.
+
+Each effect of a plant has its own ``name`` (a user effect may not take a built-in effect's
+name, nor another's): the plant refuses a clash when it is built. The plant checks what a
+user effect's hooks return at every call (shape, finite values, the ranges above) and raises
+:class:`msarm.errors.InputError` naming the effect and the hook; the built-in effects' hooks
+are not checked (the compiled step runs them).
 
 Winch angle ``theta`` is positive when the winch reels cable in; the cable slides through
 its sheath towards the motor at ``v_in = r * omega``. Users add their own effect by
@@ -120,19 +130,23 @@ class Effect:
         """Reset internal state (called at every plant reset)."""
 
     def transmission(self, state: CableState) -> FloatArray:
-        """Factor ``T_insertion / T_motor`` of each cable, shape ``(m,)``."""
+        """Factor ``T_insertion / T_motor`` of each cable [-], shape ``(m,)``, finite, ``>= 0``."""
         raise NotImplementedError
 
     def winch_torque(self, state: CableState) -> tuple[FloatArray, FloatArray]:
-        """Torque on each winch [N m] and its derivative wrt the winch speed, each ``(m,)``."""
+        """Torque on each winch [N m] and its derivative wrt the winch speed [N m s/rad].
+
+        Returns:
+            ``(torque, slope)``, each of shape ``(m,)`` and finite.
+        """
         raise NotImplementedError
 
     def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:
-        """Return the readings as this effect changes them."""
+        """Return the readings as this effect changes them (same shapes, finite values)."""
         raise NotImplementedError
 
     def actuate(self, command: FloatArray) -> FloatArray:
-        """Return the tension command [N] as it reaches the drives, shape ``(m,)``."""
+        """Return the tension command [N] as it reaches the drives, ``(m,)``, finite, ``>= 0``."""
         raise NotImplementedError
 
     def parameters(self) -> dict:

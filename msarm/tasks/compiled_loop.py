@@ -22,8 +22,8 @@ path calls:
 The result is the same bits as the Python loop (tested). What the compiled loop cannot
 finish it hands back for one tick: an allocation the Newton method does not settle goes to
 the controller's allocator (DAQP, then the bounded least squares) and the loop goes on from
-there; a bad muscle length, a non-finite command or a diverged simulation are raised by the
-Python functions that raise them on the Python path, with the same messages.
+there; a bad muscle length, a non-finite or negative command or a diverged simulation are
+raised by the Python functions that raise them on the Python path, with the same messages.
 
 :func:`compiled_loop_supported` says when a run qualifies: no feedforward, a plant whose step
 is compiled and whose only sensor and actuation effects are the built-in noise and delay (no
@@ -68,9 +68,10 @@ DONE = 0
 ALLOCATE = 1
 """Status: the Newton method did not settle this tick's allocation (Python solves it)."""
 BAD_MUSCLE_LENGTH = 2
-"""Status: an MTU length at or below its tendon slack length (the Hill model raises)."""
+"""Status: a non-finite MTU length or speed, or a length at or below its tendon slack length
+(the Hill model raises)."""
 BAD_COMMAND = 3
-"""Status: a non-finite tension command (the plant refuses it)."""
+"""Status: a non-finite or negative tension command (the plant refuses it)."""
 DIVERGED = 4
 """Status: the plant diverged during this tick's step."""
 
@@ -360,7 +361,7 @@ def run_ticks(
         activation_and_reach(a.force, c.active, c.passive, c.activation, c.reach)
         for i in range(c.command.shape[0]):
             c.command[i] = c.activation[i] * c.active[i] + c.passive[i]
-            if not np.isfinite(c.command[i]):
+            if not (np.isfinite(c.command[i]) and c.command[i] >= 0.0):
                 return BAD_COMMAND, k
         # ArmPlant.command: the drives get the command of tick max(k - delay, 0)
         size = plant.command_history.shape[0]

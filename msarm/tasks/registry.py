@@ -116,6 +116,11 @@ def get_task(name: str, model: _HasJointLimits | None = None) -> Task:
     """
     table1 = _TABLE1_RE.match(name) if isinstance(name, str) else None
     random = _RANDOM_RE.match(name) if isinstance(name, str) else None
+    if table1 and table1.group(1) != str(int(table1.group(1))):
+        raise InputError(
+            f"task {name!r}: write the number without leading zeros, table1-{int(table1.group(1))}"
+            " (one task, one name: runs are stored by task name)"
+        )
     if table1 and 1 <= int(table1.group(1)) <= len(TABLE1_TARGETS):
         task = table1_task(int(table1.group(1)))
     elif random and random.group(1) != str(int(random.group(1))):

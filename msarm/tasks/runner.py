@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from msarm.control.arm_controller import ControlOutput, MuscleSpaceController
 from msarm.errors import InputError
-from msarm.io.logs import columns_from_quantities
+from msarm.io.logs import STANDARD_TRUTH_UNITS, STANDARD_UNITS, columns_from_quantities
 from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.effects import SensorReadings
 from msarm.tasks.compiled_loop import compiled_loop_supported, run_compiled
@@ -31,30 +31,28 @@ __all__ = ["LOG_UNITS", "TRUTH_UNITS", "Feedforward", "TrackingRun", "run_tracki
 
 FloatArray = NDArray[np.float64]
 
-#: Units of the log's quantities (the runner's channels).
+#: Units of the log's quantities (the runner's channels, in the log's order), taken from
+#: :data:`msarm.io.logs.STANDARD_UNITS` (one source of the units).
 LOG_UNITS = {
-    "q_ref": "rad",
-    "qd_ref": "rad/s",
-    "q": "rad",
-    "qdot_est": "rad/s",
-    "tau_cmd": "N m",
-    "tau_ff": "N m",
-    "motor_angle": "rad",
-    "motor_torque": "N m",
-    "tension_motor": "N",
-    "tension_cmd": "N",
-    "activation": "1",
-    "tension_ff": "N",
+    key: STANDARD_UNITS[key]
+    for key in (
+        "q_ref",
+        "qd_ref",
+        "q",
+        "qdot_est",
+        "tau_cmd",
+        "tau_ff",
+        "motor_angle",
+        "motor_torque",
+        "tension_motor",
+        "tension_cmd",
+        "activation",
+        "tension_ff",
+    )
 }
-#: Units of the ground-truth (sidecar) quantities.
-TRUTH_UNITS = {
-    "q": "rad",
-    "qdot": "rad/s",
-    "tension_insertion": "N",
-    "tension_motor": "N",
-    "stretch": "m",
-    "wrap_angle": "rad",
-}
+#: Units of the ground-truth (sidecar) quantities, from
+#: :data:`msarm.io.logs.STANDARD_TRUTH_UNITS`.
+TRUTH_UNITS = dict(STANDARD_TRUTH_UNITS)
 
 #: Wrap angles change slowly with posture: refresh them every this many control periods.
 _WRAP_REFRESH_PERIODS = 10
