@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import short_move_logs
 
 from msarm.compensation.feedforward import LearnedFeedforward
 from msarm.compensation.identify import identify_sheath
@@ -18,7 +19,6 @@ from msarm.plant import DEFAULT_PLANT
 from msarm.plant.effects import SensorReadings
 from msarm.tasks.registry import get_task
 from msarm.tasks.track import TrackSettings, track
-from tests.conftest import short_move_logs
 
 POSTURE = np.array([0.1, 0.3, -0.2, -0.8])
 PERIOD = 0.004
