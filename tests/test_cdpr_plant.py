@@ -383,3 +383,23 @@ def test_plant_names_must_be_simple_identifiers(name):
     with pytest.raises(ValueError, match="name must be a simple identifier"):
         CdprPlantConfig(name=name)
     assert CdprPlantConfig(name="wire-x_2.b").name == "wire-x_2.b"
+
+
+def test_the_cable_robot_plant_takes_the_arm_plant_s_seeds(cdpr):
+    for bad in (None, 1.5, "a", True, -1):
+        with pytest.raises(InputError, match="seed must be a non-negative integer"):
+            CdprPlant(cdpr, DEFAULT_CDPR_PLANT, seed=bad)
+
+    r, R = off_home_pose(cdpr)
+
+    def noise(plant):
+        plant.reset((r, R), tensions=np.full(cdpr.n_cables, 12.0))
+        plant.step(3)
+        return plant.sense().load_cell
+
+    by_number = noise(CdprPlant(cdpr, DEFAULT_CDPR_PLANT, seed=7))
+    generator = np.random.default_rng(7)
+    plant = CdprPlant(cdpr, DEFAULT_CDPR_PLANT, seed=generator)
+    generator.standard_normal(5)  # the caller's generator moving on changes nothing
+    np.testing.assert_array_equal(noise(plant), by_number)
+    np.testing.assert_array_equal(noise(plant), by_number)  # every reset starts again

@@ -38,6 +38,7 @@ from msarm.plant.effects import (
     build_effects,
 )
 from msarm.plant.instability import UNSTABLE_INDEX, instability_found
+from msarm.plant.seeding import seed_generator
 
 __all__ = ["ArmPlant", "SimulationDivergedError"]
 
@@ -60,25 +61,6 @@ class SimulationDivergedError(MsarmError):
 
 def _overrides(effect: Effect, hook: str) -> bool:
     return getattr(type(effect), hook) is not getattr(Effect, hook)
-
-
-def _seed_generator(seed: object) -> np.random.Generator:
-    """The generator the plant copies at every reset, from ``seed`` (checked).
-
-    Raises:
-        InputError: ``seed`` is neither a non-negative integer nor a ``numpy.random.Generator``.
-    """
-    if isinstance(seed, np.random.Generator):
-        # a private copy: every reset starts from the state the generator had here
-        return copy.deepcopy(seed)
-    if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
-        if seed < 0:
-            raise InputError(f"seed must be a non-negative integer, got {int(seed)}")
-        return np.random.default_rng(int(seed))
-    raise InputError(
-        "seed must be a non-negative integer or a numpy.random.Generator (same seed, same run),"
-        f" got {seed!r} of type {type(seed).__name__}"
-    )
 
 
 def _check_effects(user: Sequence[Effect], built_in: Sequence[Effect]) -> None:
@@ -189,7 +171,7 @@ class ArmPlant:
                 "model: the arm plant needs a robot model with Hill parameters (F_max per "
                 f"cable), got {type(model).__name__} without them"
             )
-        self._seed_rng = _seed_generator(seed)
+        self._seed_rng = seed_generator(seed)
         self.model = model
         self.config = config
         self.seed = seed

@@ -65,6 +65,7 @@ read; ground truth (:meth:`CdprPlant.ground_truth`) never goes through them.
 
 from __future__ import annotations
 
+import copy
 import math
 import numbers
 from collections.abc import Sequence
@@ -87,6 +88,7 @@ from msarm.errors import InputError
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, DRIVE_MODES, CdprPlantConfig
 from msarm.plant.instability import instability_found
+from msarm.plant.seeding import seed_generator
 from msarm.small_linalg import cholesky_solve
 
 __all__ = ["CdprPlant", "CdprSensorReadings", "SimulationDivergedError"]
@@ -400,7 +402,9 @@ class CdprPlant:
         model: The cable robot (its file is loaded again into a private MuJoCo model); the
             ``models/ipanema_mini.xml`` robot if None.
         config: Plant parameters; :data:`~msarm.plant.cdpr_config.DEFAULT_CDPR_PLANT` if None.
-        seed: Seed of the plant's random generator (sensor noise); same seed, same run.
+        seed: Seed of the plant's random generator (sensor noise): a non-negative integer or
+            a ``numpy.random.Generator`` (copied: every :meth:`reset` starts again from the
+            state it had here); same seed, same run.
 
     Call :meth:`reset` before the first :meth:`step`.
     """
@@ -409,11 +413,12 @@ class CdprPlant:
         self,
         model: CableRobotModel | None = None,
         config: CdprPlantConfig | None = None,
-        seed: int = 0,
+        seed: int | np.random.Generator = 0,
     ) -> None:
         self.model = load_cable_robot() if model is None else model
         self.config = DEFAULT_CDPR_PLANT if config is None else config
         self.seed = seed
+        self._seed_rng = seed_generator(seed)
         cfg = self.config
         self.mj_model = mujoco.MjModel.from_xml_path(str(self.model.path))
         self.mj_model.opt.timestep = cfg.timestep
@@ -465,7 +470,7 @@ class CdprPlant:
         self._ext_force = np.zeros(3)
         self._ext_moment = np.zeros(3)
         self._has_ext = False
-        self._rng = np.random.default_rng(seed)
+        self._rng = copy.deepcopy(self._seed_rng)
         self._is_reset = False
         self.last_iterations = 0
 
@@ -573,7 +578,7 @@ class CdprPlant:
         self._ext_force[:] = 0.0
         self._ext_moment[:] = 0.0
         self._has_ext = False
-        self._rng = np.random.default_rng(self.seed)
+        self._rng = copy.deepcopy(self._seed_rng)
         self._is_reset = True
 
     def command(
