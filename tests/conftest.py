@@ -35,3 +35,17 @@ def short_move_logs(arm, root, plant, n_runs: int, first_seed: int = 0) -> list:
         settings = TrackSettings(f"move{seed}", seed, plant, ArmControllerConfig())
         paths.append(track(arm, task, settings, root / f"run{seed}", plots_too=False).files["log"])
     return paths
+
+
+def trajectory_head(trajectory, n: int):
+    """The first ``n`` samples of a cable-robot trajectory (a short run that starts as the
+    full one)."""
+    from dataclasses import replace
+
+    return replace(
+        trajectory,
+        t=trajectory.t[:n],
+        position=trajectory.position[:n],
+        velocity=trajectory.velocity[:n],
+        acceleration=trajectory.acceleration[:n],
+    )

@@ -16,10 +16,9 @@ said otherwise. Tolerances are about twice what was measured
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
+from conftest import trajectory_head
 
 from msarm.cdpr import (
     WinchParameters,
@@ -40,14 +39,7 @@ CRUISE = 1.0  # motion start 0.5 s + ramp 0.5 s
 
 
 def _head(trajectory, seconds):
-    n = int(round(seconds / trajectory.dt)) + 1
-    return replace(
-        trajectory,
-        t=trajectory.t[:n],
-        position=trajectory.position[:n],
-        velocity=trajectory.velocity[:n],
-        acceleration=trajectory.acceleration[:n],
-    )
+    return trajectory_head(trajectory, int(round(seconds / trajectory.dt)) + 1)
 
 
 @pytest.fixture(scope="module")

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
+from conftest import trajectory_head
 from typer.testing import CliRunner
 
 from msarm.cdpr.robot_model import load_cable_robot
@@ -120,19 +121,6 @@ def test_sensitivity_map_shows_each_pair_good_on_its_side(robot, tmp_path):
     assert plot_sensitivity(robot, tmp_path / "map.png", points=11).is_file()
 
 
-def _head(trajectory, n: int):
-    """The first ``n`` samples of a trajectory (a short run that starts as the full one)."""
-    from dataclasses import replace
-
-    return replace(
-        trajectory,
-        t=trajectory.t[:n],
-        position=trajectory.position[:n],
-        velocity=trajectory.velocity[:n],
-        acceleration=trajectory.acceleration[:n],
-    )
-
-
 def test_a_plant_step_finer_than_the_cycle_keeps_the_timing(robot):
     """A 0.5 ms plant advances two steps a 1 ms cycle: the platform keeps up with the path."""
     from dataclasses import replace
@@ -169,7 +157,7 @@ def test_feasibility_is_checked_with_the_controllers_force_bounds(robot):
 def test_the_plant_starts_holding_the_distribution_the_controller_commands(
     robot, triangle, controller
 ):
-    run = run_cdpr(robot, DEFAULT_CDPR_PLANT, controller, _head(triangle, 30))
+    run = run_cdpr(robot, DEFAULT_CDPR_PLANT, controller, trajectory_head(triangle, 30))
     names = robot.cable_names
     start = np.array([run.truth[f"tension.{n}"][0] for n in names])
     desired = np.array([run.columns[f"f_desired.{n}"][0] for n in names])
@@ -255,7 +243,7 @@ def test_cdpr_compare_records_its_plant_in_a_folder_of_its_own(tmp_path, monkeyp
 def test_the_forces_plot_names_controller_and_trajectory_once(robot, triangle):
     from msarm.tasks.cdpr_compare import forces_title
 
-    run = run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", _head(triangle, 5))
+    run = run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", trajectory_head(triangle, 5))
     assert forces_title(run).startswith("hc-e on triangle-12 (")
     assert forces_title(run, "test 21").startswith("test 21: hc-e on triangle-12 (")
 
@@ -263,7 +251,7 @@ def test_the_forces_plot_names_controller_and_trajectory_once(robot, triangle):
 def test_fe_feedforward_holds_hc_e_position_controlled_cables_at_their_set_length(robot):
     """HC-e's P drives leave position-controlled switchable cables a following error long;
     the option feeds eq. 9's following error forward, so they end at the length asked."""
-    trajectory = _head(get_cdpr_trajectory("triangle-12"), 2000)  # hold, ramp, 1 s moving
+    trajectory = trajectory_head(get_cdpr_trajectory("triangle-12"), 2000)  # hold, ramp, 1 s moving
     names = robot.cable_names
     ik = np.array([robot.cable_lengths(p, trajectory.rotation) for p in trajectory.position])
     off = {}
