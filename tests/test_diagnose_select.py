@@ -79,7 +79,11 @@ def test_joint_friction_is_found_and_the_gap_shrinks(arm, friction_logs):
     assert 0.5 < first.confidence <= 1.0
     payload = json.loads(json.dumps(result.as_dict()))
     assert payload["selected"][0]["name"] == first.name
-    assert "| joint | shoulder_abduction |" in result.to_markdown()
+    text = result.to_markdown()
+    assert "| joint | shoulder_abduction |" in text
+    assert f"- {first.name}: {first.description}" in text  # what the effect is, in words
+    assert payload["selected"][0]["units"][first.parameter_names[0]] in ("N m", "N m s/rad")
+    assert all("below zero" not in note for note in first.notes)  # a physical friction
 
 
 def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs, monkeypatch):

@@ -276,6 +276,8 @@ class Diagnosis:
                     f"| {k} | {s.name} | {', '.join(s.groups)} | {parameters} | "
                     f"{s.explained_variance:.3f} | {s.gain:+.3f} | {confidence} |"
                 )
+            lines += ["", "What each named effect is (its equation):", ""]
+            lines += [f"- {s.name}: {s.description}" for s in self.selected]
             notes = [f"- {s.name}: {note}" for s in self.selected for note in s.notes]
             if notes:
                 lines += ["", "Notes:", "", *notes]
