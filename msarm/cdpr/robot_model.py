@@ -43,6 +43,7 @@ import numpy as np
 import pinocchio
 from numpy.typing import ArrayLike, NDArray
 
+from msarm.allocation.problem import check_bound_order
 from msarm.allocation.workspace import feasibility_batch, is_wrench_feasible
 from msarm.cdpr.forward_kinematics import (
     ForwardKinematicsResult,
@@ -413,8 +414,7 @@ class CableRobotModel:
             if not np.isfinite(arr).all() or np.any(arr < 0.0):
                 raise InputError(f"{name} must be finite and >= 0 N, got {value!r}")
             out.append(arr.astype(np.float64))
-        if np.any(out[0] > out[1]):
-            raise InputError(f"need f_min <= f_max [N], got {f_min!r}, {f_max!r}")
+        check_bound_order(out[0], out[1])
         return out[0], out[1]
 
     def first_infeasible(
