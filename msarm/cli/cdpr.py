@@ -115,7 +115,8 @@ def run_command(
         Path | None,
         typer.Option(
             help="Output folder (default runs/cdpr-<controller>-<trajectory>, with "
-            "-<plant> after it for a plant other than the default)."
+            "-<plant> after it for a plant other than the default and -KEY=VALUE for each "
+            "--option)."
         ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
