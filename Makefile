@@ -33,8 +33,9 @@ test: install lint
 	$(PY) -m pytest -n 2 --dist loadfile -q
 
 # Speed and accuracy benchmarks; the withheld-effect diagnosis benchmark simulates its 29
-# scenarios once (cached under runs/bench-diagnose) and takes about 7 minutes the first time
-# on the 2-core development machine (3 minutes to re-score cached logs).
+# scenarios once (cached under runs/bench-diagnose): 1 min 15 s the first time on the fastest
+# 2-core development machine, up to 7 minutes on the slowest (1-3 minutes to re-score
+# the cached logs).
 bench: install
 	$(VENV)/bin/msarm bench allocation
 	$(VENV)/bin/msarm bench sim
