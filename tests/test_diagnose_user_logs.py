@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -105,6 +106,25 @@ def test_missing_reference_and_little_motion_are_said(logs, arm, tmp_path):
     held = _rewrite(logs[0], tmp_path / "still.parquet", still)
     with pytest.warns(DiagnosisWarning, match=r"still\.parquet: no joint moves more than"):
         load_data(arm, [held, logs[1]], [logs[2]], candidates=["coulomb"])
+
+
+def test_a_sample_rate_slightly_off_is_warned_and_far_off_refused(logs, arm, tmp_path):
+    log = read_log(logs[0])
+    rate = log.metadata.sample_rate_hz
+    spec = ResidualSpec(replay=False)
+    close = _rewrite(logs[0], tmp_path / "close.parquet", sample_rate_hz=rate * 1.01)
+    with pytest.warns(
+        DiagnosisWarning,
+        match=r"close\.parquet: column 't' has a median step .* "
+        r"off the .* sample_rate_hz",
+    ):
+        residuals_from_log(arm, close, spec=spec)
+    far = _rewrite(logs[0], tmp_path / "far.parquet", sample_rate_hz=rate * 1.2)
+    with pytest.raises(LogError, match=r"far\.parquet: column 't' has a median step"):
+        residuals_from_log(arm, far, spec=spec)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DiagnosisWarning)
+        residuals_from_log(arm, logs[0], spec=spec)  # an exact rate: no warning
 
 
 def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):

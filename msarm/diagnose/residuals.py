@@ -69,6 +69,9 @@ _QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
 _GAP_FACTOR = 1.5
 #: The median step of ``t`` may differ from the nominal period by this fraction at most.
 _RATE_TOLERANCE = 0.05
+#: Beyond this fraction (but within :data:`_RATE_TOLERANCE`) the difference is warned about:
+#: the filtered derivatives use the metadata's period, so velocities are off by as much.
+_RATE_WARNING = 0.002
 #: A replay error beyond this [rad] counts as diverged: it is clipped and the window starts
 #: again from the next sample's logged state.
 _REPLAY_LIMIT = np.pi
@@ -413,6 +416,17 @@ def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
             f"{source}: column '{TIME}' has a median step of {np.median(steps):.6g} s, but the "
             f"metadata's sample_rate_hz {log.metadata.sample_rate_hz:g} means {period:.6g} s; "
             "resample the log or fix its sample rate"
+        )
+    if len(steps) and abs(np.median(steps) - period) > _RATE_WARNING * period:
+        off = 100.0 * (np.median(steps) / period - 1.0)
+        warnings.warn(
+            f"{source}: column '{TIME}' has a median step of {np.median(steps):.6g} s, "
+            f"{off:+.2g} % off the {period:.6g} s of the metadata's sample_rate_hz "
+            f"{log.metadata.sample_rate_hz:g}; the filtered velocities and accelerations use "
+            "the metadata's period, so they are off by about as much (fix sample_rate_hz if "
+            "it is wrong)",
+            DiagnosisWarning,
+            stacklevel=3,
         )
     gaps = np.flatnonzero(steps > _GAP_FACTOR * period) + 1
     bounds = [0, *gaps.tolist(), len(t)]
