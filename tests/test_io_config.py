@@ -282,6 +282,35 @@ def test_a_plant_file_without_a_name_is_named_after_it(tmp_path):
         resolve_plant(str(spaced))
 
 
+def test_a_runs_config_gives_its_plant_back(tmp_path):
+    from dataclasses import replace
+
+    from msarm.cli.cdpr import _plant as resolve_cdpr_plant
+    from msarm.cli.common import resolve_plant
+    from msarm.errors import InputError
+    from msarm.io.config import config_to_dict
+    from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT
+    from msarm.plant.config import DEFAULT_PLANT
+
+    def run_config(plant, name="config.yaml"):
+        path = tmp_path / name
+        record = {"task": "reach", "seed": 3, "plant": config_to_dict(plant), "controller": {}}
+        path.write_text(yaml.safe_dump(record))
+        return str(path)
+
+    assert resolve_plant(run_config(DEFAULT_PLANT)) is DEFAULT_PLANT  # the preset itself
+    assert resolve_cdpr_plant(run_config(DEFAULT_CDPR_PLANT)) is DEFAULT_CDPR_PLANT
+    mine = replace(DEFAULT_PLANT, name="mine", timestep=0.0005)
+    assert resolve_plant(run_config(mine)) == mine
+    # a changed plant that kept a preset's name would overwrite the preset's runs
+    with pytest.raises(InputError, match="named 'default', the name of a preset"):
+        resolve_plant(run_config(replace(DEFAULT_PLANT, timestep=0.0005)))
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("task: reach\nplant: {name: mine, timestepp: 0.001}\n")
+    with pytest.raises(ConfigError, match=r"broken\.yaml \(its 'plant' section\): unknown key"):
+        resolve_plant(str(broken))
+
+
 def test_an_output_folder_that_is_a_file_is_refused_up_front(tmp_path):
     from msarm.cli.common import output_folder
     from msarm.errors import InputError

@@ -87,7 +87,11 @@ def allocation(
 @bench_app.command("sim")
 def sim(
     task: str = typer.Option("table1-1", "--task", help="Task to run (see msarm track --list)."),
-    plant: str = typer.Option("default", "--plant", help="default, ideal or a plant YAML file."),
+    plant: str = typer.Option(
+        "default",
+        "--plant",
+        help="default, ideal, a plant YAML file, or a run's config.yaml (its plant).",
+    ),
     repeats: int = typer.Option(3, "--repeats", min=1, help="Runs of each; the best counts."),
     json_output: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:

@@ -109,7 +109,10 @@ def run_command(
     trajectory: Annotated[
         str, typer.Option(help="triangle-12, circle-12, triangle-34, circle-34, rectangle-switch.")
     ] = "triangle-12",
-    plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
+    plant: Annotated[
+        str,
+        typer.Option(help="default, ideal, a plant YAML file, or a run's config.yaml (its plant)."),
+    ] = "default",
     seed: Annotated[int, typer.Option(min=0, help="Seed of the sensor noise.")] = 0,
     out: Annotated[
         Path | None,
@@ -213,7 +216,10 @@ def run_command(
 
 @cdpr_app.command("compare")
 def compare_command(
-    plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
+    plant: Annotated[
+        str,
+        typer.Option(help="default, ideal, a plant YAML file, or a run's config.yaml (its plant)."),
+    ] = "default",
     repeats: Annotated[
         int,
         typer.Option(

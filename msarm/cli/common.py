@@ -25,14 +25,17 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
         cls: The config's dataclass (how the YAML file is read).
         what: What the config is, for the error message (e.g. ``"plant"``).
 
-    A file without a ``name`` key is named after the file (its stem), so that its runs are
-    not labelled, nor stored, as a preset's; a file whose ``name`` is a preset's is refused
-    for the same reason.
+    A run's ``config.yaml`` (a mapping whose ``plant`` key holds the plant, as ``msarm
+    track`` and ``msarm cdpr run`` write it) gives its ``plant`` section, so a run's plant can
+    be given back as it was recorded. A file without a ``name`` key is named after the file
+    (its stem), so that its runs are not labelled, nor stored, as a preset's; a file whose
+    ``name`` is a preset's is refused for the same reason, unless its config is that preset's
+    exactly (then it is the preset).
 
     Raises:
         InputError: ``spec`` is neither a preset nor an existing file; the file's config is
-            named like a preset; or, without a ``name`` key, the file's stem is not a name the
-            config takes (it names run folders).
+            named like a preset but differs from it; or, without a ``name`` key, the file's
+            stem is not a name the config takes (it names run folders).
     """
     if spec in presets:
         return presets[spec]
@@ -48,12 +51,27 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
 
     import yaml
 
+    from msarm.errors import ConfigError
     from msarm.io.config import load_config
 
-    config = load_config(path, cls)
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        raw = None  # load_config says what is wrong with the file
+    fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    section = raw.get(what) if isinstance(raw, dict) and what not in fields else None
+    if isinstance(section, dict) and not set(raw) <= fields:  # a run's config.yaml
+        try:
+            config = load_config(section, cls)
+        except ConfigError as exc:  # name the file and its section, not "<mapping>"
+            raise ConfigError(
+                str(exc).replace("<mapping>", f"{spec} (its '{what}' section)", 1)
+            ) from None
+        raw = section
+    else:
+        config = load_config(path, cls)
     names = {f.name for f in dataclasses.fields(config)} if dataclasses.is_dataclass(config) else ()
     if "name" in names:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
         if not (isinstance(raw, dict) and "name" in raw):  # not the preset's name: the file's
             try:
                 config = dataclasses.replace(config, name=path.stem)
@@ -61,6 +79,8 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
                 raise InputError(
                     f"{spec}: {exc}; give the file a 'name' key or rename the file"
                 ) from None
+        if config.name in presets and config == presets[config.name]:
+            return presets[config.name]  # the preset itself, written out (e.g. by a run)
         if config.name in presets:
             raise InputError(
                 f"{spec}: the file's {what} is named {config.name!r}, the name of a preset (its "

@@ -149,7 +149,10 @@ def compare_command(
     ff: Annotated[
         Path, typer.Option("--ff", help="Compensator checkpoint (from msarm train).")
     ] = DEFAULT_CHECKPOINT,
-    plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
+    plant: Annotated[
+        str,
+        typer.Option(help="default, ideal, a plant YAML file, or a run's config.yaml (its plant)."),
+    ] = "default",
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/compare"),
     seed: Annotated[int, typer.Option(min=0, help="Noise seed of the Table I runs.")] = 0,
     extra: Annotated[

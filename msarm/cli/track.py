@@ -86,7 +86,10 @@ def track_command(
     task: Annotated[
         str, typer.Option(help="Task name: table1-1 ... table1-4, random-<seed>.")
     ] = "table1-1",
-    plant: Annotated[str, typer.Option(help="default, ideal or a plant YAML file.")] = "default",
+    plant: Annotated[
+        str,
+        typer.Option(help="default, ideal, a plant YAML file, or a run's config.yaml (its plant)."),
+    ] = "default",
     seed: Annotated[int, typer.Option(min=0, help="Seed of the plant's sensor noise.")] = 0,
     controller: Annotated[
         Path | None,
