@@ -53,8 +53,7 @@ def test_the_console_script_prints_msarm_warnings_as_one_line(monkeypatch, capsy
     passed_on = []  # what the console script hands to the warnings' previous printer
     monkeypatch.setattr(warnings, "showwarning", lambda *args, **kw: passed_on.append(args))
     monkeypatch.setattr(sys, "argv", ["msarm", "--help"])
-    with pytest.raises(SystemExit):
-        main()
+    main()  # help is a success: no SystemExit
     capsys.readouterr()
     message = "log.parquet: column 't' has 1 gap(s)"
     warnings.showwarning(DiagnosisWarning(message), DiagnosisWarning, "residuals.py", 398)
@@ -96,3 +95,36 @@ def test_bench_allocation_shows_the_fallback_count(monkeypatch):
     assert "fallback" in result.output
     line = next(x for x in result.output.splitlines() if "closed_form" in x)
     assert "5/5" in line and line.split("│")[7].strip() == "5"
+
+
+@pytest.mark.parametrize(
+    "argv,expected",
+    [
+        (
+            ["bench", "allocation", "--n-problems", "0"],
+            "msarm: error: Invalid value for '--n-problems': Input should be greater than or "
+            "equal to 1 (see 'msarm bench allocation --help')",
+        ),
+        (["track", "--nope"], "msarm: error: No such option: --nope (see 'msarm track --help')"),
+    ],
+)
+def test_a_command_line_error_is_one_line_with_exit_code_2(monkeypatch, capsys, argv, expected):
+    import sys
+
+    from msarm.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["msarm", *argv])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip() == expected
+
+
+def test_help_and_a_commands_own_exit_code_pass_through(monkeypatch, capsys):
+    import sys
+
+    from msarm.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["msarm", "track", "--help"])
+    main()  # no SystemExit: help is a success
+    assert "Usage: msarm track" in capsys.readouterr().out

@@ -333,9 +333,7 @@ def test_the_console_script_holds_out_every_log_after_holdout(noise_logs, monkey
     train, held = [str(p) for p in noise_logs[:2]], [str(p) for p in noise_logs[2:]]
     argv = ["msarm", "diagnose", *train, "--holdout", *held, "--candidates", "coulomb", "viscous"]
     monkeypatch.setattr(sys, "argv", [*argv, "--boot", "0", "--shortlist", "0", "--json"])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    assert exit_info.value.code in (0, None)
+    main()  # a success: no SystemExit
     payload = json.loads(capsys.readouterr().out)
     assert payload["train_runs"] == train and payload["holdout_runs"] == held
     assert set(payload["step_scores"][0]) == {"coulomb", "viscous"}

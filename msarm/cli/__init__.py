@@ -118,11 +118,17 @@ class RepeatedWarnings:
 def main() -> None:
     """Entry point of the ``msarm`` console script.
 
-    msarm's own errors (bad input, a bad model or log file, ...) are printed as one line
+    msarm's own errors (bad input, a bad model or log file, ...) and the command line's
+    (an unknown option, a value out of an option's range, ...) are printed as one line
     naming the problem, with exit code 2; anything else keeps its traceback (a bug).
     """
     import sys
     import warnings
+
+    from typer import Abort
+
+    # typer's own copy of click's errors (typer exports only BadParameter of these)
+    from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
 
     from msarm.errors import MsarmError, MsarmWarning
 
@@ -140,10 +146,28 @@ def main() -> None:
 
     warnings.showwarning = show
     try:
-        app(args=spread_multi_value_options(sys.argv[1:]))
+        code = app(
+            args=spread_multi_value_options(sys.argv[1:]), prog_name="msarm", standalone_mode=False
+        )
     except MsarmError as exc:
         print(f"msarm: error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
+    except NoArgsIsHelpError as exc:  # a command group without its command: its help
+        print(exc.format_message(), file=sys.stderr)
+        raise SystemExit(exc.exit_code) from None
+    except UsageError as exc:
+        command = exc.ctx.command_path if exc.ctx is not None else "msarm"
+        print(f"msarm: error: {exc.format_message()} (see '{command} --help')", file=sys.stderr)
+        raise SystemExit(exc.exit_code) from None
+    except ClickException as exc:
+        print(f"msarm: error: {exc.format_message()}", file=sys.stderr)
+        raise SystemExit(exc.exit_code) from None
+    except Abort:
+        print("msarm: aborted", file=sys.stderr)
+        raise SystemExit(1) from None
+    else:
+        if isinstance(code, int) and code != 0:  # typer.Exit(code) of a command
+            raise SystemExit(code)
     finally:
         for text in repeats.summary():
             print(f"msarm: warning: {text}", file=sys.stderr)
