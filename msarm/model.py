@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -30,6 +31,9 @@ from numpy.typing import NDArray
 
 from msarm.errors import ModelError
 from msarm.muscle.hill import HillMuscles, MuscleParameters
+
+if TYPE_CHECKING:
+    from msarm.muscle.geometry import CableGeometry
 
 __all__ = [
     "ARM_MODEL_PATH",
@@ -124,17 +128,34 @@ class RobotModel:
         return len(self.cable_names)
 
     def create_data(self) -> RobotData:
-        """Return a fresh work space for computations on this model."""
+        """Return a fresh work space for computations on this model.
+
+        Returns:
+            New MuJoCo and Pinocchio data of this model, owned by the caller.
+        """
         return RobotData(mj=mujoco.MjData(self.mj_model), pin=self.pin_model.createData())
 
     def scratch_data(self) -> RobotData:
-        """Return this model's shared work space for one-off calls (not thread-safe)."""
+        """Return this model's shared work space for one-off calls (not thread-safe).
+
+        Returns:
+            The same :class:`RobotData` on every call, created on the first; any call may
+            overwrite it.
+        """
         if not self._scratch:
             self._scratch.append(self.create_data())
         return self._scratch[0]
 
     def to_pinocchio(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Map MuJoCo joint coordinates, shape ``(..., n)``, to Pinocchio's order."""
+        """Map MuJoCo joint coordinates, shape ``(..., n)``, to Pinocchio's order.
+
+        Args:
+            q: Joint coordinates in MuJoCo order [rad or m], shape ``(..., n)``.
+
+        Returns:
+            The same coordinates in Pinocchio order (``q[..., pin_q_index]``, a new float
+            array), shape ``(..., n)``.
+        """
         return np.asarray(q, dtype=float)[..., self.pin_q_index]
 
     def geometry(
@@ -142,7 +163,7 @@ class RobotModel:
         q: NDArray[np.float64],
         qdot: NDArray[np.float64] | None = None,
         with_wrap_angles: bool = True,
-    ):
+    ) -> CableGeometry:
         """Cable lengths, muscle Jacobian and wrap angles at posture ``q`` (scratch data).
 
         Args:
@@ -168,7 +189,18 @@ class RobotModel:
 
 
 def load_arm(path: str | Path | None = None) -> RobotModel:
-    """Load the musculoskeletal arm (``models/msarm_arm.xml`` unless ``path`` is given)."""
+    """Load the musculoskeletal arm (``models/msarm_arm.xml`` unless ``path`` is given).
+
+    Args:
+        path: The MJCF file; :data:`ARM_MODEL_PATH` when ``None``.
+
+    Returns:
+        The loaded model, with :attr:`RobotModel.muscles` set.
+
+    Raises:
+        ModelError: The file cannot be loaded (see :func:`load_robot`), or it has no Hill
+            parameters ``hill/<cable>`` in ``<custom>``.
+    """
     model = load_robot(ARM_MODEL_PATH if path is None else path)
     if model.muscles is None:
         raise ModelError(

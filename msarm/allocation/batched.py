@@ -319,7 +319,22 @@ class BatchedAllocator(Allocator):
         *,
         f_ref: ArrayLike | None = None,
     ) -> AllocationResult:
-        """One tick through the batched path (a batch of one); see ``Allocator.solve``."""
+        """One tick through the batched path (a batch of one); see ``Allocator.solve``.
+
+        Args:
+            M: Shape (n, m): ``-J_c^T`` for the arm, ``A^T`` for a cable robot.
+            b: Shape (n,): joint torques [N m] for the arm, ``-w`` for a cable robot.
+            f_min: Lower force bounds [N], shape (m,) or scalar, finite.
+            f_max: Upper force bounds [N], shape (m,) or scalar, finite, >= f_min.
+            f_ref: Overrides the spec's reference force for this tick [N], shape (m,).
+
+        Returns:
+            The forces and how they were found (the batch's single answer, with the time of
+            this whole call).
+
+        Raises:
+            InputError: On wrong shapes, NaN or infinite values, or f_min > f_max.
+        """
         t0 = perf_counter()
         M, b, lo, hi = validate_tick(self.spec, M, b, f_min, f_max)
         ref = None if f_ref is None else self._reference(lo, hi, f_ref)

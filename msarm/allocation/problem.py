@@ -152,13 +152,32 @@ class AllocationSpec:
         return cls(m, n, w, mode, ref, tol)
 
     def reference(self, f_min: FloatArray, f_max: FloatArray) -> FloatArray:
-        """The reference force f_ref [N] of one tick, shape (m,) (or (N, m) for batches)."""
+        """The reference force f_ref [N] of one tick, shape (m,) (or (N, m) for batches).
+
+        Args:
+            f_min: Lower force bounds [N], shape (m,) or (N, m) (used in "midpoint" mode only).
+            f_max: Upper force bounds [N], shape of ``f_min``.
+
+        Returns:
+            The midpoint ``(f_min + f_max) / 2`` [N], shape of the bounds, in "midpoint" mode;
+            else the spec's (read-only) :attr:`f_ref` [N], shape (m,).
+        """
         if self.f_ref_mode == "midpoint":
             return 0.5 * (f_min + f_max)
         return self.f_ref
 
     def objective(self, f: ArrayLike, f_min: ArrayLike, f_max: ArrayLike) -> float:
-        """The objective 1/2 ||W (f - f_ref)||^2 of a solution f [N] of one tick."""
+        """The objective 1/2 ||W (f - f_ref)||^2 of a solution f [N] of one tick.
+
+        Args:
+            f: Actuator forces [N], shape (m,).
+            f_min: Lower force bounds [N], shape (m,) or scalar (they set f_ref in
+                "midpoint" mode only).
+            f_max: Upper force bounds [N], shape (m,) or scalar.
+
+        Returns:
+            The objective value [-] (W is in 1/N).
+        """
         f = np.asarray(f, dtype=np.float64)
         ref = self.reference(np.asarray(f_min, np.float64), np.asarray(f_max, np.float64))
         e = self.weights * (f - ref)

@@ -164,7 +164,19 @@ class CableRobot:
         return CableKinematics(lengths, u, rb)
 
     def cable_lengths(self, r: ArrayLike, R: ArrayLike) -> FloatArray:
-        """Cable lengths l_i = ||a_i - r - R b_i|| [m], shape (m,) or (N, m)."""
+        """Cable lengths l_i = ||a_i - r - R b_i|| [m], shape (m,) or (N, m).
+
+        Args:
+            r: Platform position in K_0 [m], shape (3,) or (N, 3).
+            R: Platform rotation matrix [-], shape (3, 3) or (N, 3, 3).
+
+        Returns:
+            The lengths [m], shape (m,) for one pose or (N, m) for a batch.
+
+        Raises:
+            InputError: On wrong shapes, non-finite values, a non-rotation ``R``, or a
+                cable of zero length.
+        """
         return self.inverse_kinematics(r, R).lengths
 
     def structure_matrix(self, r: ArrayLike, R: ArrayLike) -> FloatArray:

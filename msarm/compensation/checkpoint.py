@@ -136,7 +136,12 @@ class Compensator:
         return self.output_normalizer.size
 
     def state_dict(self) -> dict[str, torch.Tensor]:
-        """A copy of the network weights (float64 tensors, torch ``state_dict`` names)."""
+        """A copy of the network weights (float64 tensors, torch ``state_dict`` names).
+
+        Returns:
+            ``{"0.weight": (h1, d), "0.bias": (h1,), ...}``: each linear layer's weight
+            ``(out, in)`` and bias ``(out,)``, in normalised units, detached clones.
+        """
         return {k: v.detach().clone() for k, v in self._module.state_dict().items()}
 
     def layer_weights(self) -> list[tuple[FloatArray, FloatArray]]:
@@ -190,7 +195,17 @@ class Compensator:
     # --- files ----------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
-        """The plain form written by :meth:`save` (tensors, dicts, lists, strings, numbers)."""
+        """The plain form written by :meth:`save` (tensors, dicts, lists, strings, numbers).
+
+        Returns:
+            A dict with ``format``, ``format_version``, ``input_dim``, ``output_dim``,
+            ``config`` (plain data), ``state_dict`` (see :meth:`state_dict`),
+            ``input_normalizer`` and ``output_normalizer`` (see :meth:`Normalizer.to_dict`)
+            and ``metadata``; :meth:`from_dict` reads it back.
+
+        Raises:
+            InputError: ``metadata`` holds something that is not plain data (key named).
+        """
         return {
             "format": COMPENSATOR_FORMAT,
             "format_version": COMPENSATOR_VERSION,
@@ -274,6 +289,9 @@ class Compensator:
         Args:
             saved: The plain form.
             source: Where it came from, for error messages.
+
+        Returns:
+            The compensator (not yet checked against a model or a feature spec).
 
         Raises:
             CheckpointError: Wrong format or version, missing keys, or contents that do not fit.

@@ -27,6 +27,7 @@ from msarm.io.logs import STANDARD_UNITS, check_standard_units, read_log
 from msarm.model import RobotModel
 from msarm.plant import PlantConfig
 from msarm.tasks.registry import get_task
+from msarm.tasks.runner import Feedforward
 from msarm.tasks.track import TrackSettings, track
 
 __all__ = ["DataConfig", "RunSplit", "build_arrays", "collect_runs", "split_runs"]
@@ -111,7 +112,7 @@ def collect_runs(
     plant: PlantConfig,
     controller: ArmControllerConfig,
     progress: Callable[[int, int, bool], None] | None = None,
-    feedforward=None,
+    feedforward: Feedforward | None = None,
     feedforward_name: str = "",
     seeds: Sequence[int] | None = None,
     folder: str | Path | None = None,

@@ -128,7 +128,18 @@ class FastCompensator:
         return out
 
     def predict_batch(self, x: ArrayLike) -> FloatArray:
-        """Predict a batch: features ``(N, d)`` to targets ``(N, n)`` [N·m]."""
+        """Predict a batch: features ``(N, d)`` to targets ``(N, n)`` [N·m].
+
+        Args:
+            x: Features, shape ``(N, d)``, finite.
+
+        Returns:
+            Predicted targets [N·m], shape ``(N, n)``, a new array.
+
+        Raises:
+            InputError: ``x`` is not of shape ``(N, d)``, or holds a NaN or inf (row and
+                column named).
+        """
         array = np.asarray(x, dtype=np.float64)
         if array.ndim != 2 or array.shape[1] != self.input_dim:
             raise InputError(

@@ -171,6 +171,10 @@ class Normalizer:
 
         Returns:
             The normalizer of the ``k`` columns.
+
+        Raises:
+            InputError: ``data`` is not of shape ``(N, k)`` with ``N >= 1``, or holds a NaN or
+                an infinity (non-finite mean or standard deviation).
         """
         array = np.asarray(data, dtype=np.float64)
         if array.ndim != 2 or array.shape[0] < 1:
@@ -186,15 +190,33 @@ class Normalizer:
         return int(self.mean.shape[0])
 
     def normalize(self, values: ArrayLike) -> FloatArray:
-        """Map values to normalised units: shape ``(..., k)`` to ``(..., k)``."""
+        """Map values to normalised units: shape ``(..., k)`` to ``(..., k)``.
+
+        Args:
+            values: Values in the columns' units, shape ``(..., k)``.
+
+        Returns:
+            ``(values - mean) / std`` [-], shape ``(..., k)``, float64.
+        """
         return (np.asarray(values, dtype=np.float64) - self.mean) / self.std
 
     def denormalize(self, values: ArrayLike) -> FloatArray:
-        """Map normalised values back to the columns' units: ``(..., k)`` to ``(..., k)``."""
+        """Map normalised values back to the columns' units: ``(..., k)`` to ``(..., k)``.
+
+        Args:
+            values: Normalised values [-], shape ``(..., k)``.
+
+        Returns:
+            ``values * std + mean`` in the columns' units, shape ``(..., k)``, float64.
+        """
         return np.asarray(values, dtype=np.float64) * self.std + self.mean
 
     def to_dict(self) -> dict[str, torch.Tensor]:
-        """Plain form for a checkpoint: ``{"mean": tensor, "std": tensor}`` (float64)."""
+        """Plain form for a checkpoint: ``{"mean": tensor, "std": tensor}`` (float64).
+
+        Returns:
+            ``mean`` and ``std`` as float64 tensors of shape ``(k,)`` (copies).
+        """
         return {
             "mean": torch.from_numpy(self.mean.copy()),
             "std": torch.from_numpy(self.std.copy()),
@@ -202,7 +224,20 @@ class Normalizer:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Normalizer:
-        """Inverse of :meth:`to_dict` (accepts tensors, arrays or lists)."""
+        """Inverse of :meth:`to_dict` (accepts tensors, arrays or lists).
+
+        Args:
+            data: Mapping with ``"mean"`` and ``"std"``, each of shape ``(k,)`` (tensors,
+                arrays or lists).
+
+        Returns:
+            The normalizer of the ``k`` columns.
+
+        Raises:
+            KeyError: ``"mean"`` or ``"std"`` is missing.
+            InputError: Shapes differ or are not ``(k,)``, non-finite values, or a
+                standard deviation ``<= 0``.
+        """
         return cls(_as_numpy(data["mean"]), _as_numpy(data["std"]))
 
     def __eq__(self, other: object) -> bool:
@@ -271,6 +306,9 @@ def build_mlp(d: int, n: int, config: NetworkConfig) -> torch.nn.Sequential:
 
     Returns:
         The network, mapping ``(B, d)`` float64 tensors to ``(B, n)``.
+
+    Raises:
+        InputError: ``d`` or ``n`` is not a positive integer.
     """
     for name, value in (("d", d), ("n", n)):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:

@@ -230,6 +230,10 @@ class MuscleSpaceController:
             q_ref: Reference joint angles [rad], ``(T, n)``.
             qd_ref: Reference joint velocities [rad/s], ``(T, n)``.
             qdd_ref: Reference joint accelerations [rad/s^2], ``(T, n)``.
+
+        Returns:
+            The inverse-dynamics torque (Pinocchio RNEA of the nominal model) at every
+            sample [N m], ``(T, n)``, a new array.
         """
         out = np.empty(np.shape(q_ref))
         for k in range(out.shape[0]):
@@ -243,6 +247,11 @@ class MuscleSpaceController:
 
     def reset(self, q: ArrayLike) -> None:
         """Start from rest at the measured posture ``q`` [rad], shape ``(n,)``.
+
+        Clears the velocity estimate, the PID integral and the muscle activations.
+
+        Args:
+            q: Measured joint angles [rad], shape ``(n,)``.
 
         Raises:
             InputError: ``q`` is not ``n`` finite numbers.

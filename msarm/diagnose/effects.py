@@ -93,46 +93,116 @@ class Ops:
     """
 
     def const(self, a: FloatArray) -> Any:
-        """A data array ``(T, k)`` as a backend array."""
+        """A data array ``(T, k)`` as a backend array.
+
+        Args:
+            a: Data (signals, in their units), shape ``(T, k)``.
+
+        Returns:
+            The same values as a backend array ``(T, k)`` (numpy: float array; casadi: ``DM``).
+        """
         raise NotImplementedError
 
     def row(self, theta: Any, start: int, stop: int, n_rows: int) -> Any:
-        """Parameters ``theta[start:stop]`` as a ``(n_rows, stop - start)`` array (rows equal)."""
+        """Parameters ``theta[start:stop]`` as a ``(n_rows, stop - start)`` array (rows equal).
+
+        Args:
+            theta: The parameters, ``(p,)`` (numpy array, or casadi ``MX`` symbol of ``p``
+                elements).
+            start: First parameter index.
+            stop: One past the last parameter index.
+            n_rows: Number of rows, usually ``T``.
+
+        Returns:
+            ``theta[start:stop]`` repeated in every row, shape ``(n_rows, stop - start)``
+            (numpy: a ``(1, stop - start)`` row, which broadcasts).
+        """
         raise NotImplementedError
 
     def exp(self, x: Any) -> Any:
-        """Elementwise exponential."""
+        """Elementwise exponential.
+
+        Args:
+            x: Backend array of any shape, or a scalar.
+
+        Returns:
+            ``exp(x)``, shape of ``x``.
+        """
         raise NotImplementedError
 
     def tanh(self, x: Any) -> Any:
-        """Elementwise hyperbolic tangent."""
+        """Elementwise hyperbolic tangent.
+
+        Args:
+            x: Backend array of any shape, or a scalar.
+
+        Returns:
+            ``tanh(x)``, shape of ``x``.
+        """
         raise NotImplementedError
 
     def column(self, x: Any, j: int) -> Any:
-        """Column ``j`` of ``x`` as a ``(T, 1)`` array."""
+        """Column ``j`` of ``x`` as a ``(T, 1)`` array.
+
+        Args:
+            x: Backend array, shape ``(T, k)``.
+            j: Column index, ``0 <= j < k``.
+
+        Returns:
+            ``x[:, j]`` as a column, shape ``(T, 1)``.
+        """
         return x[:, j : j + 1]
 
     def sum_columns(self, x: Any) -> Any:
-        """Sum over columns, ``(T, k) -> (T, 1)``."""
+        """Sum over columns, ``(T, k) -> (T, 1)``.
+
+        Args:
+            x: Backend array, shape ``(T, k)``.
+
+        Returns:
+            The row sums, shape ``(T, 1)``.
+        """
         raise NotImplementedError
 
     def hcat(self, columns: Sequence[Any]) -> Any:
-        """Concatenate ``(T, 1)`` columns into ``(T, k)``."""
+        """Concatenate ``(T, 1)`` columns into ``(T, k)``.
+
+        Args:
+            columns: ``k`` backend arrays, each of shape ``(T, 1)``.
+
+        Returns:
+            The columns side by side, shape ``(T, k)``.
+        """
         raise NotImplementedError
 
     def zeros(self, n_rows: int) -> Any:
-        """A ``(n_rows, 1)`` column of zeros."""
+        """A ``(n_rows, 1)`` column of zeros.
+
+        Args:
+            n_rows: Number of rows, usually ``T``.
+
+        Returns:
+            Backend zeros, shape ``(n_rows, 1)``.
+        """
         return self.const(np.zeros((n_rows, 1)))
 
     def cable_to_joint(self, jacobian: FloatArray, g: Any) -> Any:
-        """``J_c^T g`` per sample: ``(T, m, n)`` data and ``(T, m)`` cable forces -> ``(T, n)``."""
+        """``J_c^T g`` per sample: ``(T, m, n)`` data and ``(T, m)`` cable forces -> ``(T, n)``.
+
+        Args:
+            jacobian: Muscle Jacobians ``J_c = dl/dq`` [m/rad], numpy, shape ``(T, m, n)``.
+            g: Backend array of cable forces [N], shape ``(T, m)``.
+
+        Returns:
+            ``J_c^T g`` of every sample [N m], shape ``(T, n)``.
+        """
         return self.hcat(
             [self.sum_columns(self.const(jacobian[:, :, j]) * g) for j in range(jacobian.shape[2])]
         )
 
 
 class NumpyOps(Ops):
-    """:class:`Ops` on numpy arrays (evaluation)."""
+    """Implements :class:`Ops` on numpy float arrays (evaluation); see :class:`Ops`'s methods."""
 
     def const(self, a: FloatArray) -> FloatArray:  # noqa: D102
         return np.asarray(a, dtype=float)
@@ -154,7 +224,10 @@ class NumpyOps(Ops):
 
 
 class CasadiOps(Ops):
-    """:class:`Ops` on casadi matrices (data as ``DM``, parameters as ``MX`` symbols)."""
+    """Implements :class:`Ops` on casadi matrices (data as ``DM``, parameters as ``MX`` symbols).
+
+    Builds the symbolic prediction that IPOPT fits; see :class:`Ops`'s methods.
+    """
 
     def const(self, a: FloatArray) -> casadi.DM:  # noqa: D102
         return casadi.DM(np.asarray(a, dtype=float))
@@ -204,7 +277,15 @@ class CandidateEffect(ABC):
     nonnegative: ClassVar[frozenset[str]] = frozenset()
 
     def unit_of(self, parameter: str) -> str:
-        """The unit of a parameter, by its kind (``""`` when the term states none)."""
+        """The unit of a parameter, by its kind (``""`` when the term states none).
+
+        Args:
+            parameter: A parameter name, e.g. ``"coulomb[1]"`` (see :func:`parameter_kind`).
+
+        Returns:
+            The unit from :attr:`parameter_units`, e.g. ``"N m"`` (``"-"``: dimensionless), or
+            ``""``.
+        """
         return self.parameter_units.get(parameter_kind(parameter), "")
 
     @property
@@ -219,6 +300,12 @@ class CandidateEffect(ABC):
         joint-torque columns [N m]), ``"drive"`` (``m`` load-cell-minus-command columns [N])
         and ``"length"`` (``m`` cable length error columns [m]); a term's prediction holds the
         columns of its ``groups`` in that order.
+
+        Args:
+            signals: The signals (for ``n`` and ``m``).
+
+        Returns:
+            ``W``, the summed sizes of the term's groups (``n`` for a joint-torque term).
         """
         sizes = {"joint": signals.n_joints, "drive": signals.n_cables, "length": signals.n_cables}
         return sum(sizes[g] for g in self.groups)
@@ -227,6 +314,13 @@ class CandidateEffect(ABC):
         """The regressor of a linear term [residual unit per parameter unit], ``(T, W, p)``.
 
         ``W`` is :meth:`width` (``n`` for a joint-torque term).
+
+        Args:
+            signals: Signals of ``T`` samples.
+
+        Returns:
+            The regressor, shape ``(T, W, p)``: the prediction is ``design @ theta``, zero in
+            the columns of joints outside :attr:`channels`.
 
         Raises:
             NotImplementedError: The term is nonlinear.
@@ -240,6 +334,25 @@ class CandidateEffect(ABC):
 
         Linear terms evaluate ``design @ theta`` (numpy only); nonlinear terms override this
         with code written in ``ops`` so that it works with numpy and casadi.
+
+        Args:
+            signals: Signals of ``T`` samples.
+            theta: Parameters, ``(p,)`` (units of :attr:`parameter_names`): a numpy array with
+                :class:`NumpyOps`, a casadi ``MX`` symbol of ``p`` elements with
+                :class:`CasadiOps`.
+            ops: The backend the prediction is written in: ``NUMPY_OPS`` (a
+                :class:`NumpyOps`) to evaluate it, a :class:`CasadiOps` to build the
+                expression IPOPT fits.
+
+        Returns:
+            The predicted residual ``r`` (residual units: [N m] for joint columns, [N] for
+            drive columns, [m] for length columns), shape ``(T, W)``: a numpy array, or a
+            casadi expression with :class:`CasadiOps`.
+
+        Raises:
+            InputError: ``theta`` is not of shape ``(p,)`` (linear terms, numpy), or the
+                signals do not fit the term.
+            NotImplementedError: A nonlinear term that does not override it.
         """
         if not self.linear:
             raise NotImplementedError(f"{type(self).__name__} must implement torque()")
@@ -255,16 +368,31 @@ class CandidateEffect(ABC):
 
         Args:
             signals: The training signals.
-            residual: The training residual [N m], ``(T, n)``, for data-driven guesses.
+            residual: The training residual [N m], ``(T, W)`` (:meth:`width`), for
+                data-driven guesses.
+
+        Returns:
+            The starting parameters, shape ``(p,)`` (clipped to :meth:`bounds` by the fit).
         """
         return np.zeros(self.n_parameters)
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:
-        """Lower and upper parameter bounds of a nonlinear fit, each ``(p,)`` (none by default)."""
+        """Lower and upper parameter bounds of a nonlinear fit, each ``(p,)`` (none by default).
+
+        Returns:
+            ``(lower, upper)``, each of shape ``(p,)`` in the parameters' units; ``-inf`` /
+            ``inf`` for an unbounded parameter.
+        """
         return np.full(self.n_parameters, -np.inf), np.full(self.n_parameters, np.inf)
 
     def check(self, signals: Signals) -> None:
-        """Raise :class:`InputError` when ``signals`` do not fit this term (sizes)."""
+        """Raise :class:`InputError` when ``signals`` do not fit this term (sizes).
+
+        The default accepts any signals.
+
+        Args:
+            signals: The signals the term is about to be fitted to or evaluated on.
+        """
         return None
 
     def restricted(self, groups: Sequence[str]) -> CandidateEffect | None:
@@ -272,6 +400,14 @@ class CandidateEffect(ABC):
 
         The diagnosis asks this when the logs lack one of the term's groups. Default: None
         (the term needs all its groups).
+
+        Args:
+            groups: The channel groups to keep (``"joint"``, ``"drive"``, ``"length"``), a
+                subset of :attr:`groups`.
+
+        Returns:
+            A new candidate whose prediction has only those groups' columns, or ``None`` when
+            the term cannot predict them without the others.
         """
         return None
 
@@ -317,6 +453,12 @@ def register(cls: _E) -> _E:
 
     A class registered again under its name by the same module and qualified name (a
     notebook cell run twice) replaces the first.
+
+    Args:
+        cls: The candidate class, with a non-empty class attribute ``name``.
+
+    Returns:
+        ``cls`` itself (unchanged), so that it can decorate the class.
 
     Raises:
         InputError: The class has no ``name`` or the name is taken by another class.

@@ -156,13 +156,36 @@ class Diagnosis:
         return self.channel_names["joint"]
 
     def shrink(self, group: str = "joint") -> FloatArray:
-        """Share of each channel's held-out gap removed, ``1 - after / before`` [-]."""
+        """Share of each channel's held-out gap removed, ``1 - after / before`` [-].
+
+        Args:
+            group: A diagnosed channel group (``"joint"``, ``"drive"`` or ``"length"``).
+
+        Returns:
+            The shrink of each channel of the group [-], shape ``(k,)`` with ``k`` its number
+            of channels (``n`` joints or ``m`` cables); 0 where the gap before is 0.
+
+        Raises:
+            KeyError: ``group`` was not diagnosed.
+        """
         before, after = self.gap_before[group], self.gap_after[group]
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(before > 0, 1.0 - after / before, 0.0)
 
     def gap_rows(self, group: str) -> list[tuple[str, float, float, float]]:
-        """``(channel, before, after, shrink)`` of each channel of a group."""
+        """``(channel, before, after, shrink)`` of each channel of a group.
+
+        Args:
+            group: A diagnosed channel group (``"joint"``, ``"drive"`` or ``"length"``).
+
+        Returns:
+            One tuple per channel, in channel order: its name, the held-out RMSE before and
+            after (in the group's unit, :data:`~msarm.diagnose.builder.GROUP_UNITS`) and the
+            shrink [-].
+
+        Raises:
+            KeyError: ``group`` was not diagnosed.
+        """
         return [
             (name, float(b), float(a), float(s))
             for name, b, a, s in zip(
@@ -175,7 +198,18 @@ class Diagnosis:
         ]
 
     def group_shrink(self, group: str) -> float:
-        """``1 - RMSE_after / RMSE_before`` of one group, pooled over its channels [-]."""
+        """``1 - RMSE_after / RMSE_before`` of one group, pooled over its channels [-].
+
+        Args:
+            group: A diagnosed channel group (``"joint"``, ``"drive"`` or ``"length"``).
+
+        Returns:
+            The pooled shrink [-] (1: gap removed, negative: gap grown); 0 when the gap
+            before is 0.
+
+        Raises:
+            KeyError: ``group`` was not diagnosed.
+        """
         before = float(np.sqrt(np.mean(self.gap_before[group] ** 2)))
         after = float(np.sqrt(np.mean(self.gap_after[group] ** 2)))
         return 0.0 if before == 0.0 else 1.0 - after / before
@@ -193,7 +227,14 @@ class Diagnosis:
         return float(np.mean([self.group_shrink(g) for g in acted])) if acted else 0.0
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict of the whole diagnosis."""
+        """A JSON-ready dict of the whole diagnosis.
+
+        Returns:
+            Plain data keyed like the attributes (``selected`` as :meth:`SelectedEffect.as_dict`
+            dicts), with ``gap`` (per group: unit, shrink and each channel's before, after and
+            shrink) in place of ``gap_before`` / ``gap_after`` and with ``total_shrink``;
+            non-finite step scores are ``None``.
+        """
         gap = {
             g: {
                 "unit": GROUP_UNITS[g],
@@ -228,7 +269,13 @@ class Diagnosis:
         }
 
     def to_markdown(self) -> str:
-        """The diagnosis as Markdown (tables only; :mod:`msarm.diagnose.report` adds plots)."""
+        """The diagnosis as Markdown (tables only; :mod:`msarm.diagnose.report` adds plots).
+
+        Returns:
+            The Markdown text: the selected effects, the held-out gap before and after per
+            channel and step by step, the replay (if computed) and the candidates tried,
+            confounded and skipped; ends with a newline.
+        """
         lines = ["# Sim-to-real gap diagnosis", ""]
         lines.append(
             f"Training runs: {len(self.train_runs)} ({self.n_train} samples); held-out runs: "

@@ -722,8 +722,14 @@ def select_effects(
         max_score_samples: The held-out scores use at most this many held-out samples, evenly
             thinned (the gaps reported use every held-out sample).
 
+    Returns:
+        The :class:`Diagnosis`: the selected effects with their fitted parameters and
+        bootstrap spreads, the held-out explained share after each step, the per-channel
+        gaps before and after, the waterfall, the replay (if asked) and the search settings.
+
     Raises:
-        InputError: A bad threshold, ``max_samples``, ``max_score_samples`` or ``shortlist``.
+        InputError: A bad threshold, ``max_samples``, ``max_score_samples``,
+            ``screen_samples`` or ``shortlist``.
     """
     counts = {
         "max_samples": max_samples,

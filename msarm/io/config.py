@@ -225,7 +225,17 @@ def config_to_dict(obj: Any) -> dict[str, Any]:
 
 
 def dump_config(obj: Any) -> str:
-    """The YAML text of a config (see :func:`config_to_dict`), keys in declaration order."""
+    """The YAML text of a config (see :func:`config_to_dict`), keys in declaration order.
+
+    Args:
+        obj: A config dataclass instance or a mapping.
+
+    Returns:
+        The YAML document (block style) that :func:`write_config` writes.
+
+    Raises:
+        TypeError: ``obj`` has no plain-data form (see :func:`config_to_dict`).
+    """
     return yaml.dump(config_to_dict(obj), Dumper=_Dumper, sort_keys=False, default_flow_style=False)
 
 

@@ -300,7 +300,13 @@ class LogMetadata:
         )
 
     def to_kv(self) -> dict[str, str]:
-        """The Parquet key-value metadata: ``msarm.<field>`` -> JSON text."""
+        """The Parquet key-value metadata: ``msarm.<field>`` -> JSON text.
+
+        Returns:
+            One entry per field (``schema_version``, ``robot_model``, ``model_sha256``,
+            ``sample_rate_hz``, ``units``, ``controller_config``, ``extra``), keyed
+            ``msarm.<field>``, each value the field's JSON text.
+        """
         return {
             _PREFIX + "schema_version": json.dumps(self.schema_version),
             _PREFIX + "robot_model": json.dumps(self.robot_model),
@@ -753,6 +759,9 @@ def sidecar_path(log_path: str | Path) -> Path:
 
     Returns:
         E.g. ``runs/a/log.truth.parquet``.
+
+    Raises:
+        InputError: ``log_path`` already ends in ``.truth.parquet`` (it is a sidecar).
     """
     log_path = Path(log_path)
     if log_path.name.endswith(_SIDECAR_SUFFIX):

@@ -39,6 +39,12 @@ def size_fibres(
 
     Returns:
         ``(optimal_fiber_length, tendon_slack_length)`` [m], each of shape ``(m,)``.
+
+    Raises:
+        InputError: ``cable_lengths`` is not a finite ``(k, m)`` array with ``k >= 2``;
+            ``pennation_at_optimal`` is not of shape ``(m,)``; ``span`` does not satisfy
+            ``sin(a0) < s_lo < s_hi`` for every cable; or a cable does not change length
+            over the postures.
     """
     lengths = np.asarray(cable_lengths, dtype=float)
     alpha = np.asarray(pennation_at_optimal, dtype=float)

@@ -359,7 +359,16 @@ class ArmPlant:
         self._command[:] = tension
 
     def sense(self) -> SensorReadings:
-        """Read the robot's sensors (encoders, motor torques, motor-side load cells)."""
+        """Read the robot's sensors (encoders, motor torques, motor-side load cells).
+
+        Returns:
+            The readings at the current time after every effect's ``sense`` hook (noise,
+            bias, delay): ``t`` [s], ``q`` [rad] ``(n,)``, ``motor_angle`` [rad],
+            ``motor_torque`` [N m] and ``tension_motor`` [N] ``(m,)`` (copies).
+
+        Raises:
+            InputError: A user effect's ``sense`` hook returned bad readings (effect named).
+        """
         readings = SensorReadings(
             t=float(self.mj_data.time),
             q=self._state.q.copy(),
@@ -402,8 +411,9 @@ class ArmPlant:
         """Simulation-only truth at the current step (never available to a controller).
 
         Returns:
-            ``q``, ``qdot`` [rad, rad/s]; ``tension_motor``, ``tension_insertion`` [N];
-            ``stretch`` [m] (negative: slack); ``wrap_angle`` [rad]; ``winch_angle`` [rad].
+            Copies keyed ``q``, ``qdot`` [rad, rad/s], shape ``(n,)``; ``tension_motor``,
+            ``tension_insertion`` [N]; ``stretch`` [m] (negative: slack); ``wrap_angle``
+            [rad]; ``winch_angle`` [rad], each of shape ``(m,)``.
         """
         truth = {key: value.copy() for key, value in self._truth_views().items()}
         truth["stretch"] = self._state.lengths - self.unstretched_length()
@@ -439,7 +449,12 @@ class ArmPlant:
         }
 
     def unstretched_length(self) -> FloatArray:
-        """Unstretched cable lengths [m], shape ``(m,)``: the path length minus the stretch."""
+        """Unstretched cable lengths [m], shape ``(m,)``: the path length minus the stretch.
+
+        Returns:
+            The reference path length at the reset posture minus the initial stretch and the
+            cable reeled in since (``r * theta``) [m], shape ``(m,)``, a new array.
+        """
         return (
             self._length_ref
             - self._stretch_motor0
@@ -448,7 +463,13 @@ class ArmPlant:
         )
 
     def effect_parameters(self) -> dict[str, dict]:
-        """Ground truth of the plant: every effect switched on, with its parameters."""
+        """Ground truth of the plant: every effect switched on, with its parameters.
+
+        Returns:
+            Effect name to its :meth:`Effect.parameters`, for every effect of the plant
+            (built-in and user), plus ``elasticity`` (``stiffness`` [N/m], ``damping``
+            [N s/m]) when the cables are elastic.
+        """
         truth = {effect.name: effect.parameters() for effect in self.effects}
         if self.elastic:
             truth["elasticity"] = {

@@ -227,7 +227,17 @@ class DelayConfig:
 
 @dataclass(frozen=True)
 class EffectsConfig:
-    """Switches and parameters of the built-in effects."""
+    """Switches and parameters of the built-in effects.
+
+    Attributes:
+        sheath_friction: Capstan friction of each cable in its sheath.
+        winch_friction: Coulomb + viscous friction of each winch.
+        elasticity: Elastic, damped cables and winch dynamics (off: rigid cables).
+        joint_friction: Coulomb + viscous friction at each joint.
+        cogging: Motor cogging torque.
+        sensor_noise: Gaussian noise and load-cell bias on the readings.
+        delay: Sensing and actuation delay in control periods.
+    """
 
     sheath_friction: SheathFrictionConfig = field(default_factory=SheathFrictionConfig)
     winch_friction: WinchFrictionConfig = field(default_factory=WinchFrictionConfig)
@@ -238,7 +248,12 @@ class EffectsConfig:
     delay: DelayConfig = field(default_factory=DelayConfig)
 
     def enabled(self) -> list[str]:
-        """Names of the effects switched on."""
+        """Names of the effects switched on.
+
+        Returns:
+            The names (as in :data:`EFFECT_NAMES`, in that order) of the blocks whose
+            ``enabled`` is true.
+        """
         return [name for name in EFFECT_NAMES if getattr(self, name).enabled]
 
 
@@ -279,7 +294,17 @@ class PlantConfig:
 
 
 def ideal_config(name: str = "ideal") -> PlantConfig:
-    """A plant with every effect off: rigid cables, perfect tension sources, no noise."""
+    """A plant with every effect off: rigid cables, perfect tension sources, no noise.
+
+    Args:
+        name: Name of the plant (logged; it names the run folder).
+
+    Returns:
+        The default plant's configuration with every effect's ``enabled`` false.
+
+    Raises:
+        ValueError: ``name`` is not a valid plant name.
+    """
     off = {name_: replace(getattr(EffectsConfig(), name_), enabled=False) for name_ in EFFECT_NAMES}
     return PlantConfig(name=name, effects=EffectsConfig(**off))
 

@@ -124,33 +124,86 @@ class Effect:
     name: ClassVar[str] = "effect"
 
     def configure(self, plant: ArmPlant) -> None:
-        """Prepare for ``plant`` (called once)."""
+        """Prepare for ``plant`` (called once).
+
+        Args:
+            plant: The plant being built; its private ``mj_model`` may be edited here.
+        """
 
     def reset(self, rng: np.random.Generator) -> None:
-        """Reset internal state (called at every plant reset)."""
+        """Reset internal state (called at every plant reset).
+
+        Args:
+            rng: The plant's generator, re-seeded at every reset (draw from it, not from a
+                generator of your own, to keep runs reproducible).
+        """
 
     def transmission(self, state: CableState) -> FloatArray:
-        """Factor ``T_insertion / T_motor`` of each cable [-], shape ``(m,)``, finite, ``>= 0``."""
+        """Factor ``T_insertion / T_motor`` of each cable [-], shape ``(m,)``, finite, ``>= 0``.
+
+        Called at every plant step; the insertion-side tension after sheath friction is
+        multiplied by the factor (the factors of several effects multiply).
+
+        Args:
+            state: The plant's state at this step (read-only views).
+
+        Returns:
+            The factor of each cable [-], shape ``(m,)``, finite and ``>= 0`` (1: no change;
+            above 1 is allowed).
+        """
         raise NotImplementedError
 
     def winch_torque(self, state: CableState) -> tuple[FloatArray, FloatArray]:
         """Torque on each winch [N m] and its derivative wrt the winch speed [N m s/rad].
 
+        Called at every plant step; the torques of several effects add to the winch friction
+        and cogging. Sign as the winch angle: a positive torque acts in the reel-in direction
+        (friction is ``-b * omega``, its slope ``-b``).
+
+        Args:
+            state: The plant's state at this step (read-only views).
+
         Returns:
-            ``(torque, slope)``, each of shape ``(m,)`` and finite.
+            ``(torque, slope)``, each of shape ``(m,)`` and finite: the torque added on each
+            winch [N m] and its derivative ``d torque / d omega`` [N m s/rad], which the plant
+            uses to integrate the winch implicitly.
         """
         raise NotImplementedError
 
     def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:
-        """Return the readings as this effect changes them (same shapes, finite values)."""
+        """Return the readings as this effect changes them (same shapes, finite values).
+
+        Args:
+            readings: The readings so far (true values, or as earlier effects changed them):
+                ``t`` [s] a float, ``q`` [rad] ``(n,)``, ``motor_angle`` [rad],
+                ``motor_torque`` [N m] and ``tension_motor`` [N] ``(m,)``. Do not modify them
+                in place.
+            rng: The plant's seeded generator (for noise).
+
+        Returns:
+            A new :class:`SensorReadings` with the same shapes, finite values.
+        """
         raise NotImplementedError
 
     def actuate(self, command: FloatArray) -> FloatArray:
-        """Return the tension command [N] as it reaches the drives, ``(m,)``, finite, ``>= 0``."""
+        """Return the tension command [N] as it reaches the drives, ``(m,)``, finite, ``>= 0``.
+
+        Args:
+            command: Motor-side tension command [N], shape ``(m,)``, finite and ``>= 0`` (as
+                the controller sent it, or as earlier effects changed it).
+
+        Returns:
+            The command passed on to the drives [N], shape ``(m,)``, finite and ``>= 0``.
+        """
         raise NotImplementedError
 
     def parameters(self) -> dict:
-        """The effect's parameters (ground truth for the sidecar file)."""
+        """The effect's parameters (ground truth for the sidecar file).
+
+        Returns:
+            Parameter names to values (YAML-serialisable), stored under the effect's
+            ``name``; empty by default.
+        """
         return {}
 
 
@@ -346,6 +399,13 @@ def build_effects(config: EffectsConfig) -> list[Effect]:
     """Instantiate the built-in effects that ``config`` switches on.
 
     Elasticity is not among them: it is the plant's cable model itself.
+
+    Args:
+        config: Switches and parameters of the built-in effects.
+
+    Returns:
+        One effect per enabled built-in effect (elasticity excepted), in the order sheath
+        friction, winch friction, cogging, joint friction, sensor noise, delay.
     """
     return [
         cls(getattr(config, name))

@@ -29,6 +29,7 @@ from msarm.model import RobotModel
 from msarm.plant import ArmPlant, PlantConfig
 from msarm.tasks.evaluate import TrackingMetrics, evaluate_run
 from msarm.tasks.runner import LOG_UNITS, TRUTH_UNITS, Feedforward, TrackingRun, run_tracking
+from msarm.tasks.trajectories import Task
 
 __all__ = ["TrackResult", "TrackSettings", "track"]
 
@@ -70,7 +71,7 @@ class TrackResult:
 
 def track(
     model: RobotModel,
-    task,
+    task: Task,
     settings: TrackSettings,
     out_dir: Path | None = None,
     feedforward: Feedforward | None = None,

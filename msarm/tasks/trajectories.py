@@ -216,7 +216,12 @@ class Task:
         return self.moves[-1].target if self.moves else self.home
 
     def postures(self) -> FloatArray:
-        """Home and every move's target [rad], shape ``(1 + len(moves), n)``."""
+        """Home and every move's target [rad], shape ``(1 + len(moves), n)``.
+
+        Returns:
+            ``home`` then the moves' targets in time order [rad], shape
+            ``(1 + len(moves), n)``, a new array.
+        """
         return np.vstack([self.home, *(m.target for m in self.moves)])
 
     def reference(self, t: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
