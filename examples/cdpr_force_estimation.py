@@ -8,7 +8,9 @@ run's ground truth). Prints max / RMS / mean error [N] per estimate, for cables 
 faster than v_L = 0.25 m/min and slower (where the eq. 6 friction blend is steep); the README's
 numbers come from here.
 
-    python examples/cdpr_force_estimation.py [--seconds 2.5] [--controller hc-e]
+    python examples/cdpr_force_estimation.py [--seconds S] [--controller hc-e]
+
+(``--seconds``: how much of the trajectory to run; the whole of it by default.)
 """
 
 from __future__ import annotations

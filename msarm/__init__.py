@@ -1,7 +1,13 @@
 """msarm: control of cable-driven robots whose cables run through sheaths and over pulleys.
 
-Layers (each depends only on those listed before it): ``model``, ``muscle``, ``allocation``,
-``plant``, ``control``, ``compensation``, ``tasks``, ``diagnose``, ``io`` and ``cli``.
+Parts: ``model`` (the robot model: MuJoCo and Pinocchio), ``muscle`` (Hill muscles, cable
+geometry), ``allocation`` (muscle-force allocation), ``plant`` (the simulated robots),
+``control``, ``tasks`` (tasks, runs, metrics), ``compensation`` (the feedforward
+compensator), ``diagnose`` (the sim-to-real gap diagnosis), ``cdpr`` (the cable-driven
+parallel robot), ``io`` (configs and logs, used by most of the others) and ``cli``. The
+robot model builds its muscles with ``muscle.hill`` and the muscle geometry works on the
+model; the compensator's sheath stage uses the diagnosis's capstan terms; the command line
+depends on everything.
 """
 
 __version__ = "0.1.0"

@@ -201,7 +201,7 @@ def test_plant_names_that_would_misplace_the_run_folder_are_refused(tmp_path, na
     from msarm.errors import MsarmError
 
     plant = tmp_path / "plant.yaml"
-    plant.write_text(f"name: {name}\n")
+    plant.write_text(f"name: {name}\ntimestep: 0.0005\n")  # not the preset (that one is taken)
     folder = tmp_path / "run"
     bad = CliRunner().invoke(app, ["cdpr", "run", "--plant", str(plant), "--out", str(folder)])
     assert isinstance(bad.exception, MsarmError), bad.output

@@ -106,7 +106,7 @@ def arm_command(
         Path | None, typer.Option(help="Folder for the PNG plots; no plots if omitted.")
     ] = None,
 ) -> None:
-    """Print the arm's joints and cable muscles (moment arms, Hill parameters) and plot them."""
+    """Print the arm's joints and cable muscles (moment arms, Hill parameters); --out: plots."""
     from msarm.cli.common import output_folder
     from msarm.model import load_arm
 

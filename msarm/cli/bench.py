@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
 
 from msarm.diagnose.effect_classes import EFFECT_CLASSES
@@ -142,12 +144,22 @@ _BENCH_DIAGNOSE_HELP = (
 
 @bench_app.command("diagnose", help=_BENCH_DIAGNOSE_HELP)
 def diagnose_bench(
-    out: str = typer.Option("runs/bench-diagnose", "--out", help="Folder of logs and results."),
+    out: Path = typer.Option(  # noqa: B008
+        Path("runs/bench-diagnose"), "--out", help="Folder of logs and results."
+    ),
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of scenarios and tasks."),
     draws: int = typer.Option(3, "--draws", min=1, help="Parameter draws per effect class."),
     n_null: int = typer.Option(3, "--null", min=0, help="Null plants (sensor noise only)."),
-    n_train: int = typer.Option(4, "--train", min=1, help="Training tasks per scenario."),
-    n_holdout: int = typer.Option(2, "--holdout", min=1, help="Held-out tasks per scenario."),
+    n_train: int = typer.Option(
+        4, "--train-tasks", "--train", min=1, help="Training tasks per scenario."
+    ),
+    n_holdout: int = typer.Option(
+        2,
+        "--holdout-tasks",
+        "--holdout",
+        min=1,
+        help="Held-out tasks per scenario (a number; msarm diagnose's --holdout takes logs).",
+    ),
     duration: float = typer.Option(10.0, "--duration", min=2.0, help=r"Task length \[s]."),
     n_boot: int = typer.Option(10, "--boot", min=0, help="Bootstrap draws of the diagnosis."),
     effects: list[str] = typer.Option(  # noqa: B008

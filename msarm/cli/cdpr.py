@@ -133,7 +133,7 @@ def run_command(
         ),
     ] = None,
 ) -> None:
-    """Run one controller along one trajectory; print its metrics; write log and force plot."""
+    """Run one controller along one trajectory; print its metrics; write log, config, plots."""
     from rich.progress import Progress
 
     from msarm.cdpr.robot_model import load_cable_robot

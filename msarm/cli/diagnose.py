@@ -189,7 +189,9 @@ def diagnose_command(
         Path | None,
         typer.Option(
             help="Folder for the report: report.md, report.html (self-contained), "
-            "diagnosis.json, diagnosis.md, waterfall.png, gap.png, where-<kind>.png."
+            "diagnosis.json, diagnosis.md, waterfall.png, gap.png and a where-<residual>.png "
+            "heat map per residual (joint_torque, drive, cable_length); if omitted, the answer "
+            "is only printed."
         ),
     ] = None,
     candidates: Annotated[
@@ -204,18 +206,19 @@ def diagnose_command(
         ),
     ] = None,
     threshold: Annotated[
-        float | None,
+        float,
         typer.Option(
             help="Least rise of the held-out explained share (on the groups it acts on) for an "
-            "effect to be named [-]; default 0.02."
+            "effect to be named [-]."
         ),
-    ] = None,
+    ] = 0.02,
     boot: Annotated[
         int,
         typer.Option(
             "--boot",
             metavar="N",
-            help="Bootstrap refits over training runs for the std and confidence (< 2: none).",
+            min=0,
+            help="Bootstrap refits over training runs for the std and confidence (0 or 1: none).",
         ),
     ] = 20,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the bootstrap draws.")] = 0,
@@ -297,8 +300,7 @@ def diagnose_command(
     }
     if candidates:
         options["candidates"] = list(candidates)
-    if threshold is not None:
-        options["threshold"] = threshold
+    options["threshold"] = threshold
     err = Console(stderr=True)
     status = nullcontext() if json_output else err.status("reading the logs", spinner="dots")
     where_skipped: dict[str, str] = {}

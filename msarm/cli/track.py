@@ -99,7 +99,11 @@ def track_command(
         ),
     ] = None,
     ff: Annotated[
-        Path | None, typer.Option("--ff", help="Feedforward compensator checkpoint.")
+        Path | None,
+        typer.Option(
+            "--ff",
+            help="Feedforward compensator checkpoint (from msarm train); none if omitted.",
+        ),
     ] = None,
     out: Annotated[
         Path | None,

@@ -23,4 +23,40 @@ Modules:
 - ``report``: the Markdown and HTML report with the waterfall, gap and heat-map plots.
 - ``scenarios``, ``bench``, ``baseline``: the withheld-effect benchmark against a PySINDy
   baseline (``msarm bench diagnose``).
+
+The entry points are importable from the package itself (``from msarm.diagnose import
+diagnose, CandidateEffect, register``; see ``__all__``).
 """
+
+from importlib import import_module
+from typing import Any
+
+#: The public API by name, and the module each comes from (imported when first asked for, so
+#: that importing one submodule does not load them all).
+_EXPORTS = {
+    "diagnose": "select",
+    "load_data": "select",
+    "select_effects": "select",
+    "available_candidates": "select",
+    "default_candidates": "select",
+    "Diagnosis": "result",
+    "SelectedEffect": "result",
+    "CandidateEffect": "effects",
+    "register": "effects",
+    "Signals": "signals",
+    "ResidualSpec": "residuals",
+    "DiagnosisWarning": "residuals",
+    "diagnose_where": "where",
+    "write_report": "report",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    """``msarm.diagnose.<name>`` for the names of :data:`__all__` (imported on first use)."""
+    if name in _EXPORTS:
+        value = getattr(import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
