@@ -395,3 +395,20 @@ def test_the_diagnosis_does_not_import_torch():
     code = "import sys, msarm.diagnose.select, msarm.cli.diagnose; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_the_package_exports_its_entry_points_and_the_cli_its_default_threshold():
+    import inspect
+
+    import msarm.diagnose as package
+    from msarm.cli.diagnose import diagnose_command
+    from msarm.diagnose import CandidateEffect, Diagnosis, diagnose, register
+    from msarm.diagnose.select import DEFAULT_THRESHOLD
+
+    assert diagnose is package.select.diagnose and register is package.effects.register
+    assert CandidateEffect.__module__ == "msarm.diagnose.effects" and Diagnosis is not None
+    assert all(getattr(package, name) is not None for name in package.__all__)
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        package.nope  # noqa: B018
+    default = inspect.signature(diagnose_command).parameters["threshold"].default
+    assert default == DEFAULT_THRESHOLD
