@@ -186,3 +186,25 @@ def test_a_checkpoint_whose_parts_do_not_fit_is_refused_with_its_file(trained, t
     result = CliRunner().invoke(app, ["compare", "--ff", str(path)])
     assert isinstance(result.exception, CheckpointError)
     assert "records no run split" in str(result.exception)
+
+
+def test_a_cached_run_is_reused_only_whole_undiverged_and_of_this_model(trained, tmp_path):
+    import json
+    import shutil
+
+    from msarm.compensation.dataset import _reusable
+    from msarm.tasks.track import TrackSettings
+
+    arm, recipe, _, _ = trained
+    run = tmp_path / "run-1000"
+    shutil.copytree(Path(recipe.data.folder) / "run-1000", run)
+    settings = load_config(run / "config.yaml", TrackSettings)
+    assert _reusable(run, settings, arm.sha256)
+    assert _reusable(run, settings, arm.sha256.upper())  # a hash is compared without case
+    assert not _reusable(run, settings, "0" * 64)  # recorded with another model file
+    assert not _reusable(run, replace(settings, seed=settings.seed + 1), arm.sha256)
+    metrics = json.loads((run / "metrics.json").read_text())
+    (run / "metrics.json").write_text(json.dumps({**metrics, "diverged": {"time": 3.0}}))
+    assert not _reusable(run, settings, arm.sha256)  # a diverged run is simulated again
+    (run / "metrics.json").unlink()
+    assert not _reusable(run, settings, arm.sha256)  # metrics are written last: cut short

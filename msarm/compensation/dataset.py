@@ -11,6 +11,7 @@ column of any NaN.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +24,7 @@ from msarm.compensation.target import TargetSpec, torque_error
 from msarm.control import ArmControllerConfig
 from msarm.errors import InputError, MsarmError
 from msarm.io.config import load_config
-from msarm.io.logs import STANDARD_UNITS, check_standard_units, read_log
+from msarm.io.logs import STANDARD_UNITS, check_standard_units, read_log, read_model_sha256
 from msarm.model import RobotModel
 from msarm.plant import PlantConfig
 from msarm.tasks.registry import get_task
@@ -139,7 +140,7 @@ def collect_runs(
         run_dir = run_folder(data.folder if folder is None else folder, seed)
         settings = TrackSettings(f"random-{seed}", seed, plant, controller, feedforward_name)
         log_path = run_dir / "log.parquet"
-        reused = _reusable(run_dir, settings)
+        reused = _reusable(run_dir, settings, model.sha256)
         if not reused:
             task = get_task(settings.task, model)
             result = track(model, task, settings, run_dir, feedforward=feedforward, plots_too=False)
@@ -151,13 +152,25 @@ def collect_runs(
     return paths
 
 
-def _reusable(folder: Path, settings: TrackSettings) -> bool:
+def _reusable(folder: Path, settings: TrackSettings, model_sha256: str) -> bool:
+    """Whether the run in ``folder`` is the one ``settings`` ask for, whole, on this model.
+
+    A run is reused when its config is ``settings``, its metrics were written (they are
+    written last) and say it did not diverge, and its log was recorded with the model of
+    ``model_sha256``; any other run is simulated again.
+    """
     config_path, log_path = folder / "config.yaml", folder / "log.parquet"
-    if not (config_path.is_file() and log_path.is_file()):
+    metrics_path = folder / "metrics.json"
+    if not (config_path.is_file() and log_path.is_file() and metrics_path.is_file()):
         return False
     try:
-        return load_config(config_path, TrackSettings) == settings
-    except MsarmError:
+        if load_config(config_path, TrackSettings) != settings:
+            return False
+        metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
+        if not isinstance(metrics, dict) or "diverged" in metrics:
+            return False
+        return read_model_sha256(log_path).lower() == model_sha256.lower()
+    except (MsarmError, OSError, ValueError):
         return False
 
 

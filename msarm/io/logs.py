@@ -80,6 +80,7 @@ __all__ = [
     "TruthSidecar",
     "check_standard_units",
     "read_log",
+    "read_model_sha256",
     "read_sidecar",
     "sidecar_path",
     "split_channel",
@@ -749,6 +750,36 @@ _META_FIELDS: dict[str, bool] = {
     "controller_config": False,
     "extra": False,
 }
+
+
+def read_model_sha256(path: str | Path) -> str:
+    """The SHA-256 of the robot model a log was recorded with, from its metadata alone.
+
+    Reads the Parquet footer only (not the columns): a cheap check of whether a cached log
+    still matches the model.
+
+    Args:
+        path: The log's Parquet file.
+
+    Returns:
+        The hexadecimal SHA-256 as the log stores it.
+
+    Raises:
+        LogError: The file is missing, not Parquet, or has no (valid) ``model_sha256``.
+    """
+    path = Path(path)
+    label = str(path)
+    if not path.is_file():
+        raise LogError(f"{label}: file not found" if not path.exists() else f"{label}: not a file")
+    try:
+        raw_meta = pq.read_schema(path).metadata or {}
+    except (pa.ArrowException, OSError) as exc:
+        raise LogError(f"{label}: not a readable Parquet file: {exc}") from None
+    kv = {k.decode("utf-8", "replace"): v.decode("utf-8", "replace") for k, v in raw_meta.items()}
+    value = _decode(kv, _PREFIX + "model_sha256", label)
+    if not isinstance(value, str):
+        raise LogError(f"{label}: metadata 'model_sha256' is not a string: {value!r}")
+    return value
 
 
 def sidecar_path(log_path: str | Path) -> Path:
