@@ -107,7 +107,7 @@ def test_checkpoint_for_another_model_is_refused(trained, tmp_path):
         load_feedforward(recipe.checkpoint, other)
 
 
-def test_resumed_training_gives_the_same_compensator(trained, tmp_path):
+def test_retraining_on_the_cached_runs_gives_the_same_compensator(trained, tmp_path):
     arm, recipe, _, _ = trained
     again = replace(recipe, checkpoint=str(tmp_path / "again.pt"))
     train_compensator(arm, again, DEFAULT_PLANT)  # runs reused from the first training
@@ -208,3 +208,46 @@ def test_a_cached_run_is_reused_only_whole_undiverged_and_of_this_model(trained,
     assert not _reusable(run, settings, arm.sha256)  # a diverged run is simulated again
     (run / "metrics.json").unlink()
     assert not _reusable(run, settings, arm.sha256)  # metrics are written last: cut short
+
+
+def test_an_interrupted_training_resumes_and_a_changed_recipe_starts_over(trained, tmp_path):
+    from msarm.errors import MsarmWarning
+
+    arm, recipe, _, _ = trained
+    short = replace(recipe, data=replace(recipe.data, rounds=0))
+    short = replace(short, network=replace(short.network, max_epochs=8))
+    whole = replace(short, checkpoint=str(tmp_path / "whole.pt"))
+    train_compensator(arm, whole, DEFAULT_PLANT)
+
+    class StopTrainingError(Exception):
+        pass
+
+    def stop_at_epoch_3(epoch, *_):
+        if epoch == 3:
+            raise StopTrainingError
+
+    cut = replace(short, checkpoint=str(tmp_path / "cut.pt"))
+    with pytest.raises(StopTrainingError):
+        train_compensator(arm, cut, DEFAULT_PLANT, on_epoch=stop_at_epoch_3)
+    epochs, reused = [], []
+    train_compensator(
+        arm,
+        cut,
+        DEFAULT_PLANT,
+        on_epoch=lambda epoch, *_: epochs.append(epoch),
+        on_run=lambda done, total, was_reused: reused.append(was_reused),
+    )
+    assert epochs[0] == 4 and all(reused)  # resumed after epoch 3; no run simulated again
+    for first, second in zip(
+        Compensator.load(whole.checkpoint).layer_weights(),
+        Compensator.load(cut.checkpoint).layer_weights(),
+        strict=True,
+    ):
+        for a, b in zip(first, second, strict=True):
+            np.testing.assert_array_equal(a, b)
+    # a finished training's state, then another learning rate: the round starts over
+    other = replace(cut, network=replace(cut.network, learning_rate=cut.network.learning_rate / 2))
+    epochs.clear()
+    with pytest.warns(MsarmWarning, match="learning_rate.*round 0 of the training starts over"):
+        train_compensator(arm, other, DEFAULT_PLANT, on_epoch=lambda e, *_: epochs.append(e))
+    assert epochs[0] == 1

@@ -12,13 +12,14 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from msarm.compensation.checkpoint import Compensator
+from msarm.compensation.checkpoint import CheckpointError, Compensator
 from msarm.compensation.dataset import DataConfig, build_arrays, collect_runs, split_runs
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.feedforward import LearnedFeedforward
@@ -27,6 +28,7 @@ from msarm.compensation.network import NetworkConfig, train_network
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec
 from msarm.control import ArmControllerConfig
+from msarm.errors import MsarmWarning
 from msarm.io.config import config_to_dict
 from msarm.model import RobotModel
 from msarm.plant import PlantConfig
@@ -143,7 +145,9 @@ def train_compensator(
         model: The arm.
         recipe: The recipe.
         plant: The plant the runs are collected on (resolved from ``recipe.data.plant``).
-        resume: Continue an interrupted training from its state file, if one is there.
+        resume: Continue an interrupted training from its state file, if one is there (a
+            state left by another recipe or other runs cannot be resumed: that round
+            starts over, with a warning).
         on_run: Progress of the data collection ``(done, total, reused)``.
         on_epoch: Progress of the training ``(epoch, max_epochs, train_loss, val_loss)``.
         on_round: Called at the start of each round ``(round, rounds)``.
@@ -236,18 +240,38 @@ def train_compensator(
         x_val, y_val = build_arrays(model, val_paths, recipe.features, recipe.target)
         state_path = checkpoint.with_name(f"{checkpoint.stem}.round{round_}.training.pt")
         metadata["round"] = round_
-        result = train_network(
-            x_train,
-            y_train,
-            x_val,
-            y_val,
-            recipe.network,
-            checkpoint_path=state_path,
-            resume=resume and state_path.is_file(),
-            progress=on_epoch,
-            metadata=metadata,
-            column_names=names,
-        )
+        resume_round = resume and state_path.is_file()
+        arrays = (x_train, y_train, x_val, y_val)
+        try:
+            result = train_network(
+                *arrays,
+                recipe.network,
+                checkpoint_path=state_path,
+                resume=resume_round,
+                progress=on_epoch,
+                metadata=metadata,
+                column_names=names,
+            )
+        except CheckpointError as exc:
+            if not resume_round:
+                raise
+            # a training state left by a run of another recipe, other runs or a cut-off
+            # write: resuming it would train something else, so this round starts over
+            warnings.warn(
+                f"{exc}; round {round_} of the training starts over (it cannot resume that "
+                "state; msarm train --fresh starts every round over)",
+                MsarmWarning,
+                stacklevel=2,
+            )
+            result = train_network(
+                *arrays,
+                recipe.network,
+                checkpoint_path=state_path,
+                resume=False,
+                progress=on_epoch,
+                metadata=metadata,
+                column_names=names,
+            )
         train_time += result.train_time_s
         compensator = result.compensator
     assert compensator is not None
