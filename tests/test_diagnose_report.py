@@ -219,3 +219,31 @@ def test_example_names_the_pulley_loss_end_to_end(example, tmp_path):
     assert result.names[0] == "pulley_loss"
     assert result.selected[0].parameters[0] == pytest.approx(0.15, abs=0.01)
     assert files["html"].is_file() and files["markdown"].is_file()
+
+
+def test_a_report_replaces_the_last_one_whole_or_not_at_all(
+    diagnosis, nothing_selected, tmp_path, monkeypatch
+):
+    import msarm.diagnose.report as report
+
+    out = tmp_path / "report"
+    first = write_report(diagnosis, out, extra_files={"notes.md": b"first"})
+    (out / "where-drive.png").write_bytes(PNG)  # a map of a residual the next one lacks
+    (out / "mine.txt").write_text("the user's")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert (out / "notes.md").read_bytes() == b"first" and first["notes.md"].parent == out
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("killed while writing")
+
+    monkeypatch.setattr(report, "render_html", broken)  # fails after the plots are drawn
+    with pytest.raises(RuntimeError, match="killed"):
+        write_report(nothing_selected, out, extra_files={"notes.md": b"second"})
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing mixed, no temp
+    monkeypatch.undo()
+    second = write_report(nothing_selected, out, extra_files={"notes.md": b"second"})
+    names = {p.name for p in out.iterdir()}
+    assert names == {*REPORT_FILES.values(), "notes.md", "mine.txt"}  # stale map gone
+    assert json.loads(second["json"].read_text())["selected"] == []
+    with pytest.raises(InputError, match="extra_files"):
+        write_report(diagnosis, out, extra_files={"report.md": b"x"})

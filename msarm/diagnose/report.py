@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import base64
 import html
+import os
 import re
+import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -339,11 +341,16 @@ def write_report(
     diagnosis: Diagnosis,
     out_dir: str | Path,
     breakdowns: Mapping[str, GapBreakdown] | None = None,
+    extra_files: Mapping[str, bytes] | None = None,
 ) -> dict[str, Path]:
     """Write the diagnosis report (JSON, plots, Markdown, HTML) into ``out_dir``.
 
-    See the module docstring for the files. Every file is written atomically; the folder is
-    created if needed and files already there are replaced.
+    See the module docstring for the files. The report is written whole into a hidden
+    staging folder inside ``out_dir`` first, then its files are moved into place (the JSON
+    last), so that an interrupted run leaves the previous report as it was rather than a mix
+    of two; the folder is created if needed. A previous report's files are replaced, and its
+    heat maps of residuals this diagnosis does not have are removed (they would be mistaken
+    for this one's).
 
     Args:
         diagnosis: The diagnosis (:func:`msarm.diagnose.select.diagnose`).
@@ -351,10 +358,12 @@ def write_report(
         breakdowns: "Where" breakdowns (:func:`msarm.diagnose.where.diagnose_where`) by
             residual kind, in the order they should appear; the kind names the heat map
             ``where-<kind>.png`` (letters, digits, ``_``, ``.``, ``-``).
+        extra_files: More files of the same report, by file name (letters, digits, ``_``,
+            ``.``, ``-``), with their bytes; returned under their file names.
 
     Returns:
         The paths written, by name: ``json``, ``waterfall``, ``gap``, ``where-<kind>`` for each
-        breakdown, ``markdown`` and ``html`` (see :data:`REPORT_FILES`).
+        breakdown, ``markdown`` and ``html`` (see :data:`REPORT_FILES`), and the extra files.
 
     Raises:
         InputError: ``diagnosis`` is not a :class:`Diagnosis`; ``out_dir`` is a file; a
@@ -374,7 +383,34 @@ def write_report(
             raise InputError(
                 f"breakdowns: {kind!r} is a {type(breakdown).__name__}, not a GapBreakdown"
             )
+    extras = dict(extra_files or {})
+    taken = {*REPORT_FILES.values(), *(f"where-{kind}.png" for kind in where)}
+    for name in extras:
+        if not isinstance(name, str) or not _KIND.match(name) or name in taken:
+            raise InputError(
+                f"extra_files: {name!r} cannot name a file of the report (letters, digits, "
+                f"_ . - only, and not one of {sorted(taken)})"
+            )
     out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out, prefix=".report-") as staging:
+        staged = _write_report_files(diagnosis, Path(staging), where, extras)
+        for old in out.glob("where-*.png"):  # a previous report's maps of other residuals
+            if old.name not in taken:
+                old.unlink()
+        paths: dict[str, Path] = {}
+        for key in sorted(staged, key=lambda k: k == "json"):  # the JSON last
+            paths[key] = out / staged[key].name
+            os.replace(staged[key], paths[key])
+    return paths
+
+
+def _write_report_files(
+    diagnosis: Diagnosis,
+    out: Path,
+    where: Mapping[str, GapBreakdown],
+    extras: Mapping[str, bytes],
+) -> dict[str, Path]:
+    """Every file of the report into ``out`` (see :func:`write_report`)."""
     paths: dict[str, Path] = {}
     paths["json"] = write_json_atomic(out / REPORT_FILES["json"], diagnosis.as_dict())
     paths["waterfall"] = plot_waterfall(diagnosis, out / REPORT_FILES["waterfall"])
@@ -390,4 +426,6 @@ def write_report(
     embedded = {p.name: p.read_bytes() for p in paths.values() if p.suffix == ".png"}
     page = render_html(markdown, embedded, title="Sim-to-real gap report")
     paths["html"] = write_bytes_atomic(out / REPORT_FILES["html"], page.encode())
+    for name, data in extras.items():
+        paths[name] = write_bytes_atomic(out / name, bytes(data))
     return paths
