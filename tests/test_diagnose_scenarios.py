@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -198,6 +198,10 @@ def test_generate_logs_writes_the_runs_and_resumes(arm, tmp_path, monkeypatch):
     config.write_text(config.read_text().replace("seed:", "seed: 1 #"))
     generate_logs(arm, scenario, train, holdout, tmp_path)
     assert calls == ["holdout-0"]
+    # logs recorded with another model file (its hash differs) are all run again
+    calls.clear()
+    generate_logs(replace(arm, sha256="0" * 64), scenario, train, holdout, tmp_path)
+    assert calls == ["train-0", "holdout-0"]
 
 
 def test_a_diverged_run_raises_naming_scenario_and_run(arm, tmp_path, monkeypatch):

@@ -72,6 +72,7 @@ from msarm.diagnose.effect_classes import EFFECT_CLASSES
 from msarm.errors import InputError, MsarmError
 from msarm.io.atomic import write_json_atomic
 from msarm.io.config import config_to_dict, dump_config
+from msarm.io.logs import read_model_sha256
 from msarm.model import RobotModel
 from msarm.plant import IDEAL_PLANT, EffectsConfig, PlantConfig
 from msarm.plant.config import (
@@ -489,16 +490,23 @@ def _read_json(path: Path) -> Any:
         return None
 
 
-def _is_done(run_dir: Path, settings: TrackSettings, task_data: dict[str, Any]) -> bool:
-    """Whether ``run_dir`` holds this exact run, complete."""
+def _is_done(
+    run_dir: Path, settings: TrackSettings, task_data: dict[str, Any], model_sha256: str
+) -> bool:
+    """Whether ``run_dir`` holds this exact run, complete, recorded with this model file."""
     needed = ("log.parquet", "config.yaml", "metrics.json", "task.json")
     if not all((run_dir / name).is_file() for name in needed):
         return False
     try:
         config_text = (run_dir / "config.yaml").read_text(encoding="utf-8")
-    except OSError:
+        recorded_with = read_model_sha256(run_dir / "log.parquet")
+    except (OSError, MsarmError):
         return False
-    return config_text == dump_config(settings) and _read_json(run_dir / "task.json") == task_data
+    return (
+        config_text == dump_config(settings)
+        and _read_json(run_dir / "task.json") == task_data
+        and recorded_with.lower() == model_sha256.lower()
+    )
 
 
 def _check_diverged(scenario: Scenario, run: str, run_dir: Path) -> None:
@@ -585,7 +593,7 @@ def generate_logs(
             seed = run_seed(scenario, split, k)
             settings = TrackSettings(task.name, seed, scenario.plant, controller)
             task_data = _task_dict(task)
-            if _is_done(run_dir, settings, task_data):
+            if _is_done(run_dir, settings, task_data, model.sha256):
                 message = f"{scenario.name} {run}: cached"
             else:
                 start = time.perf_counter()
