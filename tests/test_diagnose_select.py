@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 
 import numpy as np
@@ -86,7 +87,9 @@ def test_joint_friction_is_found_and_the_gap_shrinks(arm, friction_logs):
     assert all("below zero" not in note for note in first.notes)  # a physical friction
 
 
-def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs, monkeypatch):
+def test_null_plant_names_nothing_and_never_reads_the_sidecar(
+    arm, noise_logs, monkeypatch, tmp_path
+):
     import msarm.diagnose.select as select
 
     replays = []
@@ -108,16 +111,70 @@ def test_null_plant_names_nothing_and_never_reads_the_sidecar(arm, noise_logs, m
         np.testing.assert_array_equal(result.gap_after[group], result.gap_before[group])
     assert result.total_shrink == 0.0
     assert "None: no candidate" in result.to_markdown()
-    # remove every sidecar: the same diagnosis, bit for bit
-    removed = 0
-    for path in noise_logs:
-        side = sidecar_path(path)
-        if side.exists():
-            side.unlink()
-            removed += 1
-    assert removed == len(noise_logs)
-    again = diagnose(arm, noise_logs[:-1], noise_logs[-1:], candidates=CANDIDATES, n_boot=0)
-    assert again.as_dict() == result.as_dict()
+    # remove every sidecar (of copies: the module's logs stay whole for the other tests): the
+    # same diagnosis, bit for bit
+    copies = []
+    for k, path in enumerate(noise_logs):
+        copy = tmp_path / f"run{k}" / path.name
+        copy.parent.mkdir()
+        shutil.copyfile(path, copy)
+        shutil.copyfile(sidecar_path(path), sidecar_path(copy))
+        sidecar_path(copy).unlink()
+        copies.append(copy)
+    again = diagnose(arm, copies[:-1], copies[-1:], candidates=CANDIDATES, n_boot=0)
+    assert again.train_runs == tuple(str(p) for p in copies[:-1])
+    same = {key: value for key, value in again.as_dict().items() if not key.endswith("_runs")}
+    assert same == {k: v for k, v in result.as_dict().items() if not k.endswith("_runs")}
+    assert all(sidecar_path(path).is_file() for path in noise_logs)
+
+
+def test_the_score_is_taken_on_the_held_out_runs(arm, friction_logs, noise_logs):
+    """Trained on runs with joint friction: held-out runs with friction name it, held-out runs
+    without it (the same moves, only sensor noise) leave nothing a term predicts."""
+    from msarm.diagnose.select import load_data, select_effects
+
+    train = friction_logs[:-1]
+    found = select_effects(
+        load_data(arm, train, friction_logs[-1:], candidates=["coulomb", "viscous", "inertia"]),
+        n_boot=0,
+        replay=False,
+    )
+    assert found.names and found.names[0] in ("coulomb", "viscous")
+    assert found.explained_variance[1] > 0.5
+    data = load_data(arm, train, noise_logs[-1:], candidates=CANDIDATES)
+    assert data.holdout_runs == (str(noise_logs[-1]),)
+    missed = select_effects(data, n_boot=0, replay=False)
+    # the friction fitted on the training runs predicts a torque the held-out runs lack: it
+    # adds error there, whatever it explained on the runs it was fitted on
+    assert missed.names == ()
+    assert missed.explained_variance == (0.0,)
+    assert missed.step_scores[0]["coulomb"] < 0 and missed.step_scores[0]["viscous"] < 0
+    assert max(missed.step_scores[0].values()) < DEFAULT_THRESHOLD
+
+
+def test_the_score_is_the_explained_share_of_the_held_out_residual(arm, friction_logs):
+    """Step 1's score, recomputed from the held-out log read on its own: ``1 - sum (r -
+    pred)^2 / sum r^2`` with the fitted Coulomb term's prediction, mean over the groups."""
+    from msarm.diagnose.builder import channels_from_logs
+    from msarm.diagnose.effects import CoulombFriction
+    from msarm.diagnose.select import load_data, select_effects
+
+    data = load_data(arm, friction_logs[:-1], friction_logs[-1:], candidates=["coulomb"])
+    # every held-out sample scored (no thinning), so the recomputation uses them all
+    result = select_effects(data, n_boot=0, replay=False, max_score_samples=data.hold.n_samples)
+    assert result.names == ("coulomb",)
+    signals, groups, _ = channels_from_logs(arm, friction_logs[-1:])
+    r = groups["joint"]
+    assert r.shape == (data.hold.n_samples, arm.n_joints)
+    theta = result.selected[0].parameters
+    predicted = np.asarray(CoulombFriction(n_joints=arm.n_joints).torque(signals, theta))
+    joint = 1.0 - np.sum((r - predicted) ** 2) / np.sum(r**2)
+    assert 0.3 < joint < 1.0
+    # the term acts on the joint group only: every other group explains nothing
+    expected = joint / len(result.groups)
+    assert result.explained_variance[1] == pytest.approx(expected, rel=1e-9)
+    assert result.selected[0].explained_variance == pytest.approx(expected, rel=1e-9)
+    assert result.step_scores[0]["coulomb"] == pytest.approx(joint, rel=1e-9)  # its own groups
 
 
 def test_too_few_runs_and_bad_input_are_refused(arm, noise_logs, tmp_path):

@@ -50,10 +50,24 @@ def test_ideal_plant_renders_the_command_exactly(arm):
     np.testing.assert_array_equal(readings.tension_motor, truth["tension_motor"])
 
 
-def test_sheath_friction_alone_rigid_cable(arm):
-    """Pulled in: insertion < motor side; paid out: insertion > motor side."""
-    plant = moving_plant(arm, only(sheath_friction=SheathFrictionConfig(enabled=True)))
+# the default sheath (its tanh saturated at these cable speeds), and one whose wider smoothing
+# keeps tanh(v / v_s) well inside (-1, 1), so that v_s and the velocity used both count
+@pytest.mark.parametrize(
+    "sheath",
+    [
+        SheathFrictionConfig(enabled=True),
+        SheathFrictionConfig(enabled=True, mu=0.2, smoothing_velocity=0.05),
+    ],
+    ids=["default", "wide_smoothing"],
+)
+def test_sheath_friction_alone_rigid_cable(arm, sheath):
+    """Pulled in: insertion < motor side; paid out: insertion > motor side; the smooth capstan
+    law ``T_i = T_m exp(-mu Theta tanh(v_in / v_s))``, ``v_in = -dl/dt``, exactly."""
+    assert not IDEAL_PLANT.effects.elasticity.enabled  # a rigid cable
+    plant = moving_plant(arm, only(sheath_friction=sheath))
     truth = plant.ground_truth()
+    # the plant's last step computed its tensions at MuJoCo's tendon velocities of that step
+    # (mj_step1; mj_step2 integrates the state but leaves ten_velocity as it was)
     speed = cable_speeds(arm, plant)
     pulled_in, paid_out = speed < -0.01, speed > 0.01
     assert pulled_in.any() and paid_out.any()
@@ -61,8 +75,14 @@ def test_sheath_friction_alone_rigid_cable(arm):
     assert np.all(truth["tension_insertion"][paid_out] > truth["tension_motor"][paid_out])
     # the capstan bound: at most a factor exp(mu Theta) either way
     ratio = truth["tension_insertion"] / truth["tension_motor"]
-    bound = np.exp(0.12 * truth["wrap_angle"])
+    bound = np.exp(sheath.mu * truth["wrap_angle"])
     assert np.all(ratio <= bound + 1e-12) and np.all(ratio >= 1 / bound - 1e-12)
+    # the closed form, from the configured mu and v_s
+    smooth_sign = np.tanh(-speed / sheath.smoothing_velocity)
+    if sheath.smoothing_velocity > 0.01:
+        assert np.all(np.abs(smooth_sign) < 0.95) and np.ptp(np.abs(smooth_sign)) > 0.3
+    expected = truth["tension_motor"] * np.exp(-sheath.mu * truth["wrap_angle"] * smooth_sign)
+    np.testing.assert_allclose(truth["tension_insertion"], expected, rtol=1e-12, atol=0)
     # nothing else: the motor side still renders the command
     np.testing.assert_allclose(truth["tension_motor"], 30.0, atol=1e-12)
 

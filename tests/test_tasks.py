@@ -82,9 +82,18 @@ def test_table1_tasks_reach_and_hold_their_targets(k, arm):
 
 
 def test_table1_targets_are_paper_003_table1():
+    # paper 003, Table I ("Target expectation of joint angle for the second experiment"):
+    # one row per target, columns Joint1..Joint4 [rad], typed from the paper
+    paper = np.array(
+        [
+            [0.0, 0.4363, -0.5236, -1.2217],
+            [0.0, 0.3491, -0.6109, -0.9599],
+            [0.0, 0.5236, -0.4363, -0.8727],
+            [-0.0873, 0.3491, -0.4363, -0.6109],
+        ]
+    )
     assert TABLE1_TARGETS.shape == (4, 4)
-    np.testing.assert_array_equal(TABLE1_TARGETS[3], [-0.0873, 0.3491, -0.4363, -0.6109])
-    np.testing.assert_array_equal(TABLE1_TARGETS[0], [0.0, 0.4363, -0.5236, -1.2217])
+    np.testing.assert_array_equal(TABLE1_TARGETS, paper)
 
 
 def test_task_reference_is_continuous_across_moves():
