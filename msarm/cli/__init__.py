@@ -115,14 +115,30 @@ class RepeatedWarnings:
         return lines
 
 
+class Terminated(SystemExit):
+    """SIGTERM received: unwinds the command (its ``finally`` and ``except`` blocks run)."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    import signal
+
+    # a second SIGTERM while unwinding ends the process the usual way
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    raise Terminated(128 + signum)
+
+
 def main() -> None:
     """Entry point of the ``msarm`` console script.
 
     msarm's own errors (bad input, a bad model or log file, ...) and the command line's
     (an unknown option, a value out of an option's range, ...) are printed as one line
-    naming the problem, with exit code 2; anything else keeps its traceback (a bug).
+    naming the problem, with exit code 2; anything else keeps its traceback (a bug). SIGTERM
+    ends the command as an exception would (temporary files removed, see
+    :mod:`msarm.io.atomic`), with ``msarm: terminated`` and exit code 143.
     """
+    import signal
     import sys
+    import threading
     import warnings
 
     from typer import Abort
@@ -145,6 +161,10 @@ def main() -> None:
             default_show(message, category, filename, lineno, file, line)
 
     warnings.showwarning = show
+    # signal handlers can only be set in the main thread (not when called from another one)
+    handles_sigterm = threading.current_thread() is threading.main_thread()
+    if handles_sigterm:
+        previous_sigterm = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         code = app(
             args=spread_multi_value_options(sys.argv[1:]), prog_name="msarm", standalone_mode=False
@@ -165,9 +185,14 @@ def main() -> None:
     except Abort:
         print("msarm: aborted", file=sys.stderr)
         raise SystemExit(1) from None
+    except Terminated as exc:
+        print("msarm: terminated", file=sys.stderr)
+        raise SystemExit(exc.code) from None
     else:
         if isinstance(code, int) and code != 0:  # typer.Exit(code) of a command
             raise SystemExit(code)
     finally:
+        if handles_sigterm:  # as it was (None: set outside Python, left as the default)
+            signal.signal(signal.SIGTERM, previous_sigterm or signal.SIG_DFL)
         for text in repeats.summary():
             print(f"msarm: warning: {text}", file=sys.stderr)

@@ -204,8 +204,9 @@ def diagnose_bench(
         pairs=pairs,
         sindy_threshold=sindy_threshold,
     )
+    # progress on stderr with --json too: a spinner on a terminal, else a line a step
     err = Console(stderr=True)
-    line = progress_lines("bench diagnose", enabled=not json_output)
+    line = progress_lines("bench diagnose")
     with err.status("benchmark") as status:
 
         def step(text: str) -> None:
@@ -216,7 +217,7 @@ def diagnose_bench(
             load_arm(),
             output_folder(Path(out)),
             settings,
-            progress=None if json_output else step,
+            progress=step,
             rescore=rescore,
         )
     if json_output:

@@ -11,7 +11,14 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, output_folder, progress_lines, resolve_config
+from msarm.cli.common import (
+    console,
+    output_folder,
+    progress_bar,
+    progress_lines,
+    resolve_config,
+    seed_suffix,
+)
 
 cdpr_app = typer.Typer(
     help="The IPAnema 3 Mini cable robot: hybrid position-force controllers (paper 000).",
@@ -101,6 +108,19 @@ def controller_options(items: list[str]) -> dict[str, object]:
     return options
 
 
+def default_run_folder(
+    controller: str, trajectory: str, plant_config, seed: int, options: dict[str, object]
+) -> Path:
+    """``runs/cdpr-<controller>-<trajectory>[-<plant>][-s<seed>][-KEY=VALUE...]``.
+
+    The plant is named when it is not the default, the seed when it is not 0, and each
+    controller option: runs that differ in any of them get folders of their own.
+    """
+    on = _plant_suffix(plant_config) + seed_suffix(seed)
+    on += "".join(f"-{k}={v}" for k, v in options.items())
+    return Path("runs") / f"cdpr-{controller}-{trajectory}{on}"
+
+
 @cdpr_app.command("run")
 def run_command(
     controller: Annotated[
@@ -118,8 +138,8 @@ def run_command(
         Path | None,
         typer.Option(
             help="Output folder (default runs/cdpr-<controller>-<trajectory>, with "
-            "-<plant> after it for a plant other than the default and -KEY=VALUE for each "
-            "--option)."
+            "-<plant> after it for a plant other than the default, -s<seed> for a --seed "
+            "other than 0 and -KEY=VALUE for each --option)."
         ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
@@ -134,8 +154,6 @@ def run_command(
     ] = None,
 ) -> None:
     """Run one controller along one trajectory; print its metrics; write log, config, plots."""
-    from rich.progress import Progress
-
     from msarm.cdpr.robot_model import load_cable_robot
     from msarm.io.atomic import write_json_atomic
     from msarm.io.config import config_to_dict, write_config
@@ -159,9 +177,10 @@ def run_command(
         controller_config={"name": controller, **options},
         extra={"trajectory": trajectory, "seed": seed, "plant": plant_config.name},
     )
-    on = _plant_suffix(plant_config) + "".join(f"-{k}={v}" for k, v in options.items())
-    folder = output_folder(out or Path("runs") / f"cdpr-{controller}-{trajectory}{on}")
-    with Progress(transient=True, disable=json_output) as bar:
+    folder = output_folder(
+        out or default_run_folder(controller, trajectory, plant_config, seed, options)
+    )
+    with progress_bar() as bar:  # on stderr, with --json too
         job = bar.add_task(f"{controller} on {trajectory}", total=1.0)
         run = run_cdpr(
             model,
@@ -238,10 +257,8 @@ def compare_command(
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
 ) -> None:
     """Run the Table 3 test grid: Table 4 (accuracy), Table 5 (repeatability), force bounds."""
-    from rich.progress import Progress
-
     from msarm.cdpr.robot_model import load_cable_robot
-    from msarm.tasks.cdpr_compare import _grid, compare_cdpr
+    from msarm.tasks.cdpr_compare import _grid, compare_cdpr, progress_steps
     from msarm.tasks.cdpr_runner import check_cdpr_run
     from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory
 
@@ -250,9 +267,9 @@ def compare_command(
     for _, controller, trajectory, options in _grid():  # before any folder is created
         check_cdpr_run(model, plant_config, controller, get_cdpr_trajectory(trajectory), options)
     folder = output_folder(out or Path("runs") / f"cdpr-compare{_plant_suffix(plant_config)}")
-    total = len(_grid()) + (4 * (repeats - 1) if repeats >= 2 else 0)
-    line = progress_lines("cdpr compare", total, enabled=not json_output)
-    with Progress(transient=True, disable=json_output) as bar:
+    total = progress_steps(repeats)  # the runs compare_cdpr reports, one a step
+    line = progress_lines("cdpr compare", total)
+    with progress_bar() as bar:  # on stderr, with --json too (a line a step off a terminal)
         job = bar.add_task("cdpr compare", total=total)
 
         def step(label: str) -> None:

@@ -90,12 +90,33 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
     return config
 
 
+def progress_bar(*columns, transient: bool = True):
+    """A rich progress bar drawn on stderr, and only when stderr is a terminal.
+
+    Standard output is left to the command's result (the JSON of ``--json``, a table, or a
+    file it is redirected to); where stderr is not a terminal (a log file, a CI job) the bar
+    is off and :func:`progress_lines` prints the steps instead. Shown with ``--json`` too.
+
+    Args:
+        columns: The bar's columns (rich's default ones if none).
+        transient: Remove the bar when done.
+
+    Returns:
+        A ``rich.progress.Progress`` (a context manager).
+    """
+    from rich.progress import Progress
+
+    err = Console(stderr=True)
+    return Progress(*columns, console=err, transient=transient, disable=not err.is_terminal)
+
+
 def progress_lines(what: str, total: int | None = None, enabled: bool = True):
     """A progress callback that prints one line a step to stderr when it is not a terminal.
 
     A live progress bar shows nothing in a log file or a CI job; there, each step is a line
-    (``what [k/total]: label``). On a terminal (the bar is shown) or when ``enabled`` is false
-    (``--json``) the callback does nothing.
+    (``what [k/total]: label``) on stderr, which ``--json`` leaves alone (its JSON is on
+    stdout). On a terminal (the bar of :func:`progress_bar` is shown) or when ``enabled`` is
+    false the callback does nothing.
 
     Returns:
         A function of the step's label.
@@ -112,6 +133,11 @@ def progress_lines(what: str, total: int | None = None, enabled: bool = True):
         print(f"{what} [{count}]: {label}", file=sys.stderr, flush=True)
 
     return line
+
+
+def seed_suffix(seed: int) -> str:
+    """``-s<seed>`` for a seed other than 0, else ``""`` (default run folder names)."""
+    return f"-s{seed}" if seed else ""
 
 
 def output_folder(path: Path, option: str = "--out") -> Path:

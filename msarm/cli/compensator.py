@@ -11,7 +11,13 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, output_folder, progress_lines, resolve_plant
+from msarm.cli.common import (
+    console,
+    output_folder,
+    progress_bar,
+    progress_lines,
+    resolve_plant,
+)
 
 DEFAULT_RECIPE = Path("training/compensator.yaml")
 DEFAULT_CHECKPOINT = Path("runs/compensator/compensator.pt")
@@ -29,7 +35,7 @@ def train_command(
     json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
 ) -> None:
     """Collect (or reuse) seeded runs on the plant and train the feedforward compensator."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
 
     from msarm.compensation.dataset import split_runs
     from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
@@ -50,11 +56,12 @@ def train_command(
         TextColumn("{task.fields[info]}"),
         TimeRemainingColumn(),
     )
-    with Progress(*columns, disable=json_output, transient=False) as bar:
+    # progress on stderr (a bar on a terminal, else a line a step), with --json too
+    with progress_bar(*columns, transient=False) as bar:
         runs = bar.add_task("collect runs", total=recipe.data.n_runs, info="")
         epochs = bar.add_task("train", total=recipe.network.max_epochs, info="", visible=False)
 
-        line = progress_lines("train", enabled=not json_output)
+        line = progress_lines("train")
 
         def on_run(done: int, total: int, reused: bool) -> None:
             bar.update(runs, completed=done, info=f"{done}/{total}{' (reused)' if reused else ''}")
@@ -178,8 +185,6 @@ def compare_command(
     # the summary also gives the final error of the plant's true joint angles (simulation
     # only): the table's comes from the encoders, whose noise is a good part of a final error
     # of a tenth of a millimetre
-    from rich.progress import Progress
-
     from msarm.compensation.checkpoint import CheckpointError
     from msarm.compensation.compare import SHEATH_ONLY, compare_feedforward
     from msarm.compensation.feedforward import (
@@ -221,8 +226,8 @@ def compare_command(
     held_out += [s for s in more if s not in held_out]
     gains = trained_controller(feedforward.compensator)
     n_runs = (2 + len(variants)) * (4 + len(held_out))
-    line = progress_lines("compare", n_runs, enabled=not json_output)
-    with Progress(transient=True, disable=json_output) as bar:
+    line = progress_lines("compare", n_runs)
+    with progress_bar() as bar:
         job = bar.add_task("compare", total=n_runs)
 
         def step(label: str) -> None:

@@ -24,7 +24,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, output_folder
+from msarm.cli.common import console, output_folder, progress_lines
 from msarm.errors import InputError
 
 if TYPE_CHECKING:
@@ -301,8 +301,10 @@ def diagnose_command(
     if candidates:
         options["candidates"] = list(candidates)
     options["threshold"] = threshold
+    # progress on stderr, with --json too: a spinner on a terminal, else a line a step
     err = Console(stderr=True)
-    status = nullcontext() if json_output else err.status("reading the logs", spinner="dots")
+    status = err.status("reading the logs", spinner="dots") if err.is_terminal else nullcontext()
+    line = progress_lines("diagnose")
     where_skipped: dict[str, str] = {}
     written: dict[str, Path] = {}
     with status as spinner:
@@ -310,6 +312,7 @@ def diagnose_command(
         def say(text: str) -> None:
             if spinner is not None:
                 spinner.update(text)
+            line(text)
 
         model = load_arm(model_path)
         options["progress"] = say

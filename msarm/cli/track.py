@@ -10,7 +10,14 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import PLANTS, console, output_folder, resolve_plant
+from msarm.cli.common import (
+    PLANTS,
+    console,
+    output_folder,
+    progress_bar,
+    resolve_plant,
+    seed_suffix,
+)
 
 ListOption = Annotated[
     bool, typer.Option("--list", help="List the tasks, plants and effects, and exit.")
@@ -82,6 +89,16 @@ def metrics_table(title: str, rows: dict[str, object], joint_names, cable_names)
     return table
 
 
+def default_folder(task: str, plant: str, seed: int, ff: bool) -> Path:
+    """``runs/track-<task>-<plant>[-s<seed>][-ff]``: the default output folder of a run.
+
+    The seed is named when it is not 0 (seed 0 keeps the plain name), so that runs of other
+    seeds are not written over each other; ``-ff`` keeps a run with feedforward from
+    overwriting one without.
+    """
+    return Path("runs") / f"track-{task}-{plant}{seed_suffix(seed)}{'-ff' if ff else ''}"
+
+
 def track_command(
     task: Annotated[
         str, typer.Option(help="Task name: table1-1 ... table1-4, random-<seed>.")
@@ -108,8 +125,8 @@ def track_command(
     out: Annotated[
         Path | None,
         typer.Option(
-            help="Output folder (default runs/track-<task>-<plant>, with --ff "
-            "runs/track-<task>-<plant>-ff)."
+            help="Output folder (default runs/track-<task>-<plant>, with -s<seed> after it "
+            "for a --seed other than 0, then -ff with --ff)."
         ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
@@ -119,8 +136,6 @@ def track_command(
     if list_:
         list_choices()
         return
-    from rich.progress import Progress
-
     from msarm.control import ArmControllerConfig
     from msarm.io.config import load_config
     from msarm.model import load_arm
@@ -149,11 +164,10 @@ def track_command(
         )
     gains = gains or ArmControllerConfig()
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
-    suffix = "-ff" if feedforward is not None else ""  # never over a run without it
     out_dir = output_folder(
-        out or Path("runs") / f"track-{task_obj.name}-{plant_config.name}{suffix}"
+        out or default_folder(task_obj.name, plant_config.name, seed, feedforward is not None)
     )
-    with Progress(transient=True, disable=json_output) as bar:
+    with progress_bar() as bar:  # on stderr, with --json too
         job = bar.add_task(f"{task_obj.name} on {plant_config.name}", total=1.0)
         result = track(
             arm,

@@ -31,8 +31,9 @@ Scores (each for both methods):
 
 Results are written after each scenario (atomically) to ``results.json`` in the output
 folder, with ``confusion.png`` (:func:`plot_benchmark`) at the end; a rerun with the same
-settings reuses the scenarios already scored (``rescore`` diagnoses them again from their
-cached logs).
+settings and model (its SHA-256) reuses the scenarios already scored (``rescore`` diagnoses
+them again from their cached logs; an unreadable ``results.json`` is no cache, with a
+:class:`BenchCacheWarning`).
 """
 
 from __future__ import annotations
@@ -56,13 +57,14 @@ from msarm.diagnose.scenarios import (
     scenario_tasks,
 )
 from msarm.diagnose.select import DEFAULT_THRESHOLD, load_data, select_effects
-from msarm.errors import InputError
+from msarm.errors import InputError, MsarmWarning
 from msarm.io.atomic import write_json_atomic
 from msarm.model import RobotModel
 
 __all__ = [
     "EFFECT_CANDIDATES",
     "EFFECT_GROUPS",
+    "BenchCacheWarning",
     "BenchSettings",
     "plot_benchmark",
     "run_diagnosis_benchmark",
@@ -90,6 +92,14 @@ EFFECT_GROUPS: dict[str, tuple[str, ...]] = {
     "sensor_bias": ("joint", "drive"),
     "delay": ("drive",),
 }
+
+
+class BenchCacheWarning(MsarmWarning):
+    """The cached ``results.json`` cannot be read: its scenarios are scored again.
+
+    The message names the file and what is wrong with it; the scenarios' cached logs are
+    still reused (only the diagnosis runs again), and the file is written anew.
+    """
 
 
 @dataclass(frozen=True)
@@ -257,7 +267,9 @@ def run_diagnosis_benchmark(
     Returns:
         The report: settings, one entry per scenario (effects, drawn parameters, both
         methods' answers, gaps and times, scores), the scenarios whose simulation diverged
-        (``failed``, not scored) and the summary of :func:`summarise`.
+        (``failed``, not scored), the model's SHA-256 (``model_sha256``) and the summary of
+        :func:`summarise`. An unreadable ``results.json`` is no cache
+        (:class:`BenchCacheWarning`).
 
     Raises:
         InputError: Bad settings.
@@ -270,11 +282,7 @@ def run_diagnosis_benchmark(
     settings_dict = {**asdict(settings), "effects": list(settings.effects)}
     done: dict[str, Any] = {}
     if results_path.is_file() and not rescore:
-        import json
-
-        previous = json.loads(results_path.read_text())
-        if previous.get("settings") == settings_dict:
-            done = {row["scenario"]: row for row in previous.get("scenarios", [])}
+        done = _cached_rows(results_path, settings_dict, model.sha256)
     scenarios = _scenarios(settings)
     train_tasks, held_tasks = scenario_tasks(
         model, settings.n_train, settings.n_holdout, settings.duration, settings.seed
@@ -309,13 +317,95 @@ def run_diagnosis_benchmark(
         for method in ("msarm", "sindy"):
             row[method]["score"] = _score_one(scenario, tuple(row[method]["names"]))
         rows.append(row)
-        report = {"settings": settings_dict, "scenarios": rows, "failed": failed}
+        report = {
+            "settings": settings_dict,
+            "model_sha256": model.sha256,
+            "scenarios": rows,
+            "failed": failed,
+        }
         write_json_atomic(results_path, report)
     summary = summarise(rows)
-    report = {"settings": settings_dict, "scenarios": rows, "failed": failed, "summary": summary}
+    report = {
+        "settings": settings_dict,
+        "model_sha256": model.sha256,
+        "scenarios": rows,
+        "failed": failed,
+        "summary": summary,
+    }
     write_json_atomic(results_path, report)
     plot_benchmark(report, out / "confusion.png")
     return report
+
+
+#: Keys of a scored scenario's entry in ``results.json``, and of each method's answer in it.
+_ROW_KEYS = ("scenario", "effects", "msarm", "sindy")
+_ANSWER_KEYS = ("names", "gap_before", "gap_after", "seconds", "score")
+
+
+def _row_problem(row: Any) -> str | None:
+    """What makes a cached scenario entry unusable (None if nothing)."""
+    if not isinstance(row, dict):
+        return f"a scenario entry is a {type(row).__name__}, not an object"
+    missing = [k for k in _ROW_KEYS if k not in row]
+    if missing:
+        return f"a scenario entry lacks {', '.join(missing)}"
+    if not isinstance(row["scenario"], str) or not isinstance(row["effects"], list):
+        return f"scenario entry {row['scenario']!r}: 'scenario' or 'effects' of the wrong type"
+    for method in ("msarm", "sindy"):
+        answer = row[method]
+        if not isinstance(answer, dict) or any(k not in answer for k in _ANSWER_KEYS):
+            return (
+                f"scenario {row['scenario']!r}: its {method} answer lacks one of "
+                f"{', '.join(_ANSWER_KEYS)}"
+            )
+        if not isinstance(answer["names"], list) or not isinstance(answer["score"], dict):
+            return f"scenario {row['scenario']!r}: its {method} names or score of the wrong type"
+    if not isinstance(row["msarm"].get("confidence", []), list):
+        return f"scenario {row['scenario']!r}: its msarm confidence is not a list"
+    return None
+
+
+def _cached_rows(path: Path, settings: dict[str, Any], model_sha256: str) -> dict[str, Any]:
+    """The scored scenarios of a previous ``results.json`` that can be reused, by name.
+
+    Empty when the file was written with other settings or for another model (a file
+    without ``model_sha256``, from before it was recorded, is taken as the same model's). An
+    unreadable or malformed file is no cache: :class:`BenchCacheWarning` names it, and every
+    scenario is scored again (from its cached logs).
+    """
+    import json
+
+    def unusable(why: str) -> dict[str, Any]:
+        warnings.warn(
+            f"{path}: cached results unusable ({why}); scoring every scenario again from its "
+            "cached logs, and writing the file anew",
+            BenchCacheWarning,
+            stacklevel=3,
+        )
+        return {}
+
+    try:
+        previous = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        return unusable(f"cannot read it: {exc.strerror or exc}")
+    except UnicodeDecodeError:
+        return unusable("not UTF-8 text")
+    except ValueError as exc:  # json.JSONDecodeError: truncated or not JSON
+        return unusable(f"not JSON: {exc}")
+    if not isinstance(previous, dict):
+        return unusable(f"a JSON {type(previous).__name__}, expected an object")
+    scenarios = previous.get("scenarios", [])
+    if not isinstance(scenarios, list):
+        return unusable("'scenarios' is not a list")
+    for row in scenarios:
+        problem = _row_problem(row)
+        if problem is not None:
+            return unusable(problem)
+    if previous.get("settings") != settings:
+        return {}
+    if previous.get("model_sha256", model_sha256) != model_sha256:
+        return {}  # scored against another version of the model
+    return {row["scenario"]: row for row in scenarios}
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:

@@ -4,13 +4,21 @@ Every result msarm writes (logs, sidecars, configs, metrics, checkpoints, plots)
 :func:`atomic_path`: the writer fills a temporary file in the target's folder, which is then
 flushed to disk and renamed onto the target (``os.replace``, atomic on one file system). An
 interrupted run leaves the previous file, never a truncated one.
+
+The temporary file is removed when the writer raises (``KeyboardInterrupt``, and the
+``SystemExit`` the ``msarm`` command turns SIGTERM into, included). A process killed outright
+(SIGKILL, a power cut) cannot clean up: its ``.<name>.<random>.tmp`` is removed by the next
+write of the same target once it is :data:`STALE_TEMP_AGE_S` old (never a temporary file of
+another target, nor a fresh one that a live writer may still be filling).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -18,7 +26,17 @@ from typing import Any
 
 from msarm.errors import InputError
 
-__all__ = ["atomic_path", "write_bytes_atomic", "write_json_atomic"]
+__all__ = [
+    "STALE_TEMP_AGE_S",
+    "atomic_path",
+    "remove_stale_temps",
+    "write_bytes_atomic",
+    "write_json_atomic",
+]
+
+#: Age [s] (since its last change) past which a temporary file of a target is taken as left
+#: behind by a killed writer and removed by the next write of that target.
+STALE_TEMP_AGE_S = 60.0
 
 
 def _umask() -> int:
@@ -28,13 +46,53 @@ def _umask() -> int:
     return mask
 
 
+def _temp_prefix(path: Path) -> str:
+    return f".{path.name}."
+
+
+def remove_stale_temps(path: str | Path, age_s: float = STALE_TEMP_AGE_S) -> list[Path]:
+    """Remove the temporary files of ``path`` that are older than ``age_s`` seconds.
+
+    Only ``.<name>.<random>.tmp`` siblings of ``path`` itself match (``<random>`` without a
+    dot, as :func:`atomic_path` names them), so another target's are never touched, such as
+    ``.<name>.bak.<random>.tmp`` of ``<name>.bak``. Files that cannot be examined or removed
+    are left (best effort).
+
+    Returns:
+        The files removed.
+    """
+    path = Path(path)
+    own = re.compile(re.escape(_temp_prefix(path)) + r"[A-Za-z0-9_]+\.tmp")
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    now = time.time()
+    for entry in entries:
+        if not own.fullmatch(entry.name):
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            if now - entry.stat(follow_symlinks=False).st_mtime <= age_s:
+                continue  # perhaps a live writer's
+            os.unlink(entry.path)
+        except OSError:
+            continue
+        removed.append(Path(entry.path))
+    return removed
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success move it onto ``path``.
 
     The folder is created if needed. If the body raises, the temporary file is removed and
-    ``path`` is left as it was. The file gets the permissions of a plainly created one
-    (``0o666`` less the umask), not the private ``0o600`` of a temporary file.
+    ``path`` is left as it was. Temporary files of ``path`` left by a killed writer (older
+    than :data:`STALE_TEMP_AGE_S`) are removed first (:func:`remove_stale_temps`). The file
+    gets the permissions of a plainly created one (``0o666`` less the umask), not the
+    private ``0o600`` of a temporary file.
 
     Args:
         path: The file to write.
@@ -57,7 +115,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise InputError(
             f"cannot write {path}: {blocker} is a file, not a folder (choose another path)"
         ) from None
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    remove_stale_temps(path)
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=_temp_prefix(path), suffix=".tmp")
     os.close(fd)
     tmp = Path(name)
     try:

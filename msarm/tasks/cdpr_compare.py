@@ -40,7 +40,14 @@ from msarm.plant.cdpr_config import CdprPlantConfig  # noqa: E402
 from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun, run_cdpr  # noqa: E402
 from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory  # noqa: E402
 
-__all__ = ["CONTROLLERS", "TRAJECTORIES", "CdprComparison", "compare_cdpr", "plot_forces"]
+__all__ = [
+    "CONTROLLERS",
+    "TRAJECTORIES",
+    "CdprComparison",
+    "compare_cdpr",
+    "plot_forces",
+    "progress_steps",
+]
 
 #: Table 3: controller digit -> msarm controller name.
 CONTROLLERS = {1: "ikc", 2: "hc-e", 3: "hc-f", 4: "nc"}
@@ -111,6 +118,18 @@ def _grid() -> list[tuple[str, str, str, dict]]:
     return runs
 
 
+def progress_steps(repeats: int, tests: list[str] | None = None) -> int:
+    """How many times :func:`compare_cdpr` calls its ``progress``: once per run it simulates.
+
+    That is each test of the grid (or of ``tests``), then ``repeats - 1`` runs per
+    repeatability test among them when ``repeats >= 2`` (the first of its repeats is its grid
+    run, reused: no step).
+    """
+    ids = [g[0] for g in _grid() if tests is None or g[0] in tests]
+    repeated = sum(test in ids for test in REPEATABILITY_TESTS)
+    return len(ids) + (repeated * (repeats - 1) if repeats >= 2 else 0)
+
+
 def compare_cdpr(
     model: CableRobotModel,
     plant_config: CdprPlantConfig,
@@ -128,7 +147,8 @@ def compare_cdpr(
             ``config.yaml`` (the resolved plant, repeats and tests).
         repeats: Runs per repeatability test (paper 000: 15); 0 skips Table 5.
         tests: Test ids to run (default: all of :func:`_grid`).
-        progress: Called with a label before each run.
+        progress: Called with a label before each run simulated (:func:`progress_steps`
+            times; not for the first repeat of a test, its grid run).
 
     Returns:
         The comparison.
@@ -152,13 +172,12 @@ def compare_cdpr(
         trajectory = get_cdpr_trajectory(trajectory_name)
         errors = []
         for seed in range(repeats):
-            if progress is not None:
-                progress(f"repeatability {test}: run {seed + 1}/{repeats}")
-            run = (
-                runs[test]
-                if seed == 0
-                else run_cdpr(model, plant_config, controller, trajectory, seed)
-            )
+            if seed == 0:  # the grid run (seed 0), reused: not a step of its own
+                run = runs[test]
+            else:
+                if progress is not None:
+                    progress(f"repeatability {test}: run {seed + 1}/{repeats}")
+                run = run_cdpr(model, plant_config, controller, trajectory, seed)
             marker = np.stack([run.columns[f"marker.{a}"] for a in "xyz"], axis=1)
             errors.append(np.linalg.norm(marker - trajectory.position[: len(marker)], axis=1))
         length = min(len(e) for e in errors)

@@ -1,0 +1,337 @@
+"""Progress, caches, temporary files and default folders of the long ``msarm`` commands.
+
+- progress goes to stderr (a bar on a terminal, a line a step elsewhere), ``--json`` too,
+  and stdout carries only the result;
+- ``msarm cdpr compare`` counts the steps it reports;
+- an unreadable cached ``results.json`` of ``msarm bench diagnose`` is no cache (a warning);
+- temporary files of a killed writer are removed, SIGTERM unwinds the command;
+- the default run folders name a seed other than 0.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from typer.testing import CliRunner
+
+from msarm.cli import app
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+# --- progress on stderr, with --json too ---------------------------------------------------
+
+
+def test_the_progress_bar_draws_on_stderr_and_only_on_a_terminal(monkeypatch):
+    from msarm.cli.common import progress_bar
+
+    bar = progress_bar()  # stderr captured by pytest: not a terminal, the lines show instead
+    assert bar.console.stderr and bar.disable
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # as if stderr were a terminal
+    bar = progress_bar()
+    assert bar.console.stderr and not bar.disable
+
+
+def test_bench_diagnose_json_keeps_its_progress_on_stderr(monkeypatch, tmp_path):
+    import msarm.diagnose.bench as bench_module
+
+    def fake(model, out, settings, progress=None, rescore=False):
+        progress("[1/2] null-0: simulating")
+        progress("[1/2] null-0: diagnosing")
+        return {"scenarios": [], "summary": {}}
+
+    monkeypatch.setattr(bench_module, "run_diagnosis_benchmark", fake)
+    result = CliRunner().invoke(app, ["bench", "diagnose", "--out", str(tmp_path), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout) == {"scenarios": [], "summary": {}}
+    assert result.stderr.splitlines() == [
+        "bench diagnose [1]: [1/2] null-0: simulating",
+        "bench diagnose [2]: [1/2] null-0: diagnosing",
+    ]
+
+
+def test_train_json_keeps_its_progress_on_stderr(monkeypatch):
+    import msarm.compensation.pipeline as pipeline
+
+    def fake(arm, recipe, plant, resume, on_run, on_epoch, on_round, on_sheath):
+        on_run(1, 2, False)
+        on_run(2, 2, True)
+        on_epoch(10, 20, 0.5, 0.25)
+        return pipeline.TrainingReport(
+            checkpoint=Path("runs/compensator/compensator.pt"),
+            split={"train": [0], "validation": [1], "test": [2]},
+            samples={"train": 1, "validation": 1, "test": 1},
+            collect_time_s=1.0,
+            train_time_s=2.0,
+            epochs=(20, 10),
+            test_rmse=(0.1,),
+            test_baseline_rmse=(0.2,),
+            test_r2=(0.5,),
+        )
+
+    monkeypatch.setattr(pipeline, "train_compensator", fake)
+    recipe = REPO / "training" / "compensator.yaml"
+    result = CliRunner().invoke(app, ["train", "--config", str(recipe), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["epochs_run"] == 20  # stdout: the JSON alone
+    assert result.stderr.splitlines() == [
+        "train [1]: run 1/2 collected",
+        "train [2]: run 2/2 collected (reused)",
+        "train [3]: epoch 10: train 0.5000, validation 0.2500",
+    ]
+
+
+def test_diagnose_prints_a_line_a_step_where_no_spinner_shows(monkeypatch, tmp_path):
+    import msarm.diagnose.select as select
+
+    def fake(model, train, held, progress=None, **options):
+        progress(f"reading {len(train) + len(held)} log(s)")
+        progress("step 1: screening 3 candidate(s)")
+        return SimpleNamespace(as_dict=lambda: {"selected": []})
+
+    monkeypatch.setattr(select, "diagnose", fake)
+    logs = [str(tmp_path / f"run{k}.parquet") for k in range(2)]  # never opened by the fake
+    for extra in ([], ["--json"]):
+        result = CliRunner().invoke(app, ["diagnose", *logs, *extra])
+        if extra:
+            assert result.exit_code == 0, result.output
+            assert json.loads(result.stdout) == {"selected": []}
+        assert result.stderr.splitlines()[:2] == [
+            "diagnose [1]: reading 2 log(s)",
+            "diagnose [2]: step 1: screening 3 candidate(s)",
+        ]
+
+
+# --- cdpr compare: the steps counted are the steps reported -----------------------------
+
+
+def test_cdpr_compare_counts_the_steps_it_reports():
+    from msarm.tasks.cdpr_compare import REPEATABILITY_TESTS, _grid, progress_steps
+
+    grid = len(_grid())
+    assert progress_steps(0) == progress_steps(1) == grid
+    assert progress_steps(2) == grid + len(REPEATABILITY_TESTS)
+    assert progress_steps(15) == grid + 14 * len(REPEATABILITY_TESTS)  # 81 runs, as timed
+    assert progress_steps(3, tests=["11", "12"]) == 2 + 2  # one repeated test
+
+
+def test_cdpr_compare_json_progress_ends_at_its_total(monkeypatch, tmp_path):
+    import msarm.tasks.cdpr_compare as cdpr_compare
+
+    monkeypatch.setattr(cdpr_compare, "_grid", lambda: [("11", "ikc", "triangle-12", {})])
+    monkeypatch.setattr(cdpr_compare, "plot_sensitivity", lambda model, path: path)
+    out = tmp_path / "grid"
+    args = ["cdpr", "compare", "--repeats", "3", "--out", str(out), "--json"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["repeats"] == 3
+    assert result.stderr.splitlines() == [
+        "cdpr compare [1/3]: test 11: ikc, triangle-12",
+        "cdpr compare [2/3]: repeatability 11: run 2/3",
+        "cdpr compare [3/3]: repeatability 11: run 3/3",
+    ]
+
+
+# --- bench diagnose: an unreadable cache is no cache --------------------------------------
+
+
+def _answer() -> dict:
+    gap = {"joint": 1.0}
+    return {
+        "msarm": {
+            "names": [],
+            "confidence": [],
+            "parameters": {},
+            "gap_before": gap,
+            "gap_after": gap,
+            "seconds": 0.1,
+            "selection_seconds": 0.1,
+        },
+        "sindy": {
+            "names": [],
+            "contributions": {},
+            "gap_before": gap,
+            "gap_after": gap,
+            "seconds": 0.1,
+        },
+        "load_seconds": 0.0,
+    }
+
+
+@pytest.fixture
+def fake_bench(monkeypatch):
+    """The benchmark with two null scenarios, no simulation and a counted fake diagnosis."""
+    import msarm.diagnose.bench as bench_module
+
+    scenarios = [SimpleNamespace(name=f"null-{k}", effects=(), parameters={}) for k in range(2)]
+    diagnosed: list[str] = []
+
+    def diagnose(model, train, held, settings):
+        diagnosed.append(train[0])
+        return _answer()
+
+    monkeypatch.setattr(bench_module, "_scenarios", lambda settings: scenarios)
+    monkeypatch.setattr(bench_module, "scenario_tasks", lambda *args: ([], []))
+    monkeypatch.setattr(
+        bench_module,
+        "generate_logs",
+        lambda model, scenario, train, held, root: ([scenario.name], [scenario.name]),
+    )
+    monkeypatch.setattr(bench_module, "_diagnose_scenario", diagnose)
+    monkeypatch.setattr(bench_module, "plot_benchmark", lambda report, path: path)
+    return diagnosed
+
+
+@pytest.mark.parametrize(
+    "content, why",
+    [
+        (b'{"settings": {"seed": 0}, "scenarios": [{"scen', "not JSON"),
+        (b"\xff\xfe\x00garbage", "not UTF-8"),
+        (b"[1, 2]", "a JSON list, expected an object"),
+        (b'{"scenarios": [{"scenario": "null-0"}]}', "lacks effects, msarm, sindy"),
+    ],
+)
+def test_an_unreadable_cached_result_is_scored_again_with_a_warning(
+    fake_bench, tmp_path, content, why
+):
+    from msarm.diagnose.bench import BenchCacheWarning, BenchSettings, run_diagnosis_benchmark
+
+    model = SimpleNamespace(sha256="0" * 64)
+    (tmp_path / "results.json").write_bytes(content)
+    with pytest.warns(BenchCacheWarning, match=why) as caught:
+        report = run_diagnosis_benchmark(model, tmp_path, BenchSettings())
+    assert str(tmp_path / "results.json") in str(caught[0].message)
+    assert fake_bench == ["null-0", "null-1"]  # both rescored (from their cached logs)
+    saved = json.loads((tmp_path / "results.json").read_text())  # written anew
+    assert saved["model_sha256"] == model.sha256
+    assert [r["scenario"] for r in saved["scenarios"]] == ["null-0", "null-1"]
+    assert report["summary"]["msarm"]["false_alarms"] == 0
+
+
+def test_a_cached_result_is_reused_for_the_same_model_only(fake_bench, tmp_path, recwarn):
+    from msarm.diagnose.bench import BenchSettings, run_diagnosis_benchmark
+
+    model = SimpleNamespace(sha256="0" * 64)
+    run_diagnosis_benchmark(model, tmp_path, BenchSettings())
+    assert len(fake_bench) == 2
+    run_diagnosis_benchmark(model, tmp_path, BenchSettings())
+    assert len(fake_bench) == 2  # reused
+    run_diagnosis_benchmark(SimpleNamespace(sha256="1" * 64), tmp_path, BenchSettings())
+    assert len(fake_bench) == 4  # another model: scored again
+    assert not [w for w in recwarn if "cached results" in str(w.message)]
+
+
+def test_the_cli_says_which_cache_it_ignores_in_one_line(fake_bench, tmp_path, monkeypatch, capsys):
+    from msarm.cli import main
+
+    (tmp_path / "results.json").write_text("{truncated")
+    monkeypatch.setattr(sys, "argv", ["msarm", "bench", "diagnose", "--out", str(tmp_path)])
+    main()
+    err = capsys.readouterr().err
+    warning = [line for line in err.splitlines() if line.startswith("msarm: warning:")]
+    assert len(warning) == 1
+    assert f"{tmp_path / 'results.json'}: cached results unusable (not JSON" in warning[0]
+    assert "Traceback" not in err
+
+
+# --- temporary files -----------------------------------------------------------------------
+
+
+def test_a_write_removes_stale_temp_files_of_its_own_target_only(tmp_path):
+    from msarm.io.atomic import STALE_TEMP_AGE_S, write_json_atomic
+
+    old = time.time() - STALE_TEMP_AGE_S - 5
+    names = {
+        ".a.json.k2x9_q0z.tmp": old,  # a's, left by a killed writer: removed
+        ".a.json.fresh123.tmp": time.time(),  # a's, perhaps a live writer's: kept
+        ".a.json.bak.k2x9_q0z.tmp": old,  # of a.json.bak: kept
+        ".b.json.k2x9_q0z.tmp": old,  # of b.json: kept
+        ".a.json.k2x9_q0z.tmp.keep": old,  # not a temporary file: kept
+    }
+    for name, mtime in names.items():
+        (tmp_path / name).write_text("partial")
+        os.utime(tmp_path / name, (mtime, mtime))
+    write_json_atomic(tmp_path / "a.json", {"x": 1})
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted({*names} - {".a.json.k2x9_q0z.tmp"} | {"a.json"})
+
+
+def test_sigterm_unwinds_the_command_and_removes_its_temp_file(monkeypatch, tmp_path, capsys):
+    import msarm.cli
+    from msarm.io.atomic import atomic_path
+
+    before = signal.getsignal(signal.SIGTERM)
+
+    def killed(**kwargs):
+        with atomic_path(tmp_path / "checkpoint.pt") as tmp:
+            tmp.write_bytes(b"half a checkpoint")
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(10)  # interrupted by the handler
+        raise AssertionError("not terminated")
+
+    monkeypatch.setattr(msarm.cli, "app", killed)
+    monkeypatch.setattr(sys, "argv", ["msarm", "train"])
+    start = time.perf_counter()
+    with pytest.raises(SystemExit) as exit_:
+        msarm.cli.main()
+    assert time.perf_counter() - start < 5
+    assert exit_.value.code == 128 + signal.SIGTERM
+    assert capsys.readouterr().err == "msarm: terminated\n"
+    assert list(tmp_path.iterdir()) == []  # neither the target nor its temporary file
+    assert signal.getsignal(signal.SIGTERM) == before  # the handler is given back
+
+
+# --- default folders name the seed -----------------------------------------------------------
+
+
+def test_track_s_default_folder_names_a_seed_other_than_0(monkeypatch, tmp_path):
+    import msarm.tasks.track as track_module
+    from msarm.cli.track import default_folder
+
+    assert default_folder("table1-1", "ideal", 0, False) == Path("runs/track-table1-1-ideal")
+    assert default_folder("table1-1", "ideal", 2, True) == Path("runs/track-table1-1-ideal-s2-ff")
+
+    def fake(arm, task, settings, out_dir, feedforward=None, progress=None):
+        progress(1.0)
+        return SimpleNamespace(
+            metrics=SimpleNamespace(as_dict=lambda: {"seed": settings.seed}),
+            files={"log": out_dir / "log.parquet"},
+            run=SimpleNamespace(error=None),
+        )
+
+    monkeypatch.setattr(track_module, "track", fake)
+    monkeypatch.chdir(tmp_path)
+    for seed, folder in ((0, "track-table1-1-ideal"), (1, "track-table1-1-ideal-s1")):
+        args = ["track", "--task", "table1-1", "--plant", "ideal", "--seed", str(seed), "--json"]
+        # seed 1 as on a terminal: the bar is drawn, on stderr, the JSON alone on stdout
+        result = CliRunner().invoke(app, args, env={"TTY_COMPATIBLE": "1" if seed else "0"})
+        assert result.exit_code == 0, result.output
+        payload = json.loads(result.stdout)
+        assert payload["seed"] == seed
+        assert payload["files"]["log"] == str(Path("runs") / folder / "log.parquet")
+        assert (tmp_path / "runs" / folder).is_dir()
+
+
+def test_cdpr_run_s_default_folder_names_a_seed_other_than_0(monkeypatch, tmp_path):
+    from msarm.cli.cdpr import default_run_folder
+    from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, IDEAL_CDPR_PLANT
+
+    assert default_run_folder("hc-e", "triangle-12", DEFAULT_CDPR_PLANT, 0, {}) == Path(
+        "runs/cdpr-hc-e-triangle-12"
+    )
+    assert default_run_folder(
+        "hc-e", "triangle-12", IDEAL_CDPR_PLANT, 2, {"fe_feedforward": True}
+    ) == Path("runs/cdpr-hc-e-triangle-12-ideal-s2-fe_feedforward=True")
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["cdpr", "run", "--controller", "ikc", "--seed", "1"])
+    assert result.exit_code == 0, result.output
+    folder = tmp_path / "runs" / "cdpr-ikc-triangle-12-s1"
+    assert (folder / "log.parquet").is_file()
+    assert not (tmp_path / "runs" / "cdpr-ikc-triangle-12").exists()
