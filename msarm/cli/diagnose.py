@@ -324,15 +324,13 @@ def diagnose_command(
             result = diagnose(model, train, held, **options)
         if out is not None:
             from msarm.diagnose.report import write_report
-            from msarm.io.atomic import write_bytes_atomic
 
             say("breaking the gap of the training logs down")
             breakdowns, where_skipped = where_breakdowns(model, train, result.groups, spec)
             say(f"writing the report into {out}")
-            written = write_report(result, out, breakdowns)
-            written["diagnosis_md"] = write_bytes_atomic(
-                Path(out) / "diagnosis.md", result.to_markdown().encode()
-            )
+            tables = {"diagnosis.md": result.to_markdown().encode()}
+            written = write_report(result, out, breakdowns, extra_files=tables)
+            written["diagnosis_md"] = written.pop("diagnosis.md")
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))
         for path in written.values():
