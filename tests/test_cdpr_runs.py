@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -91,6 +92,35 @@ def test_compare_writes_tables_and_repeatability(robot, triangle, tmp_path, monk
     data = json.loads((tmp_path / "cdpr_comparison.json").read_text())
     assert data["tests"]["41"]["controller"] == "nc"
     assert (tmp_path / "forces_test_41.png").is_file()
+
+    # a second call takes both runs from tmp_path/runs: no simulation, the same numbers
+    def refuse(*args, **kwargs):
+        raise AssertionError("a kept run was simulated again")
+
+    monkeypatch.setattr(cdpr_compare, "run_cdpr", refuse)
+    labels = []
+    again = compare_cdpr(
+        robot, DEFAULT_CDPR_PLANT, tmp_path, repeats=2, tests=["41"], progress=labels.append
+    )
+    assert labels == ["test 41: nc, triangle-12 (cached)", "repeatability 41: run 2/2 (cached)"]
+    assert again.repeatability == result.repeatability
+    assert [(c, t, m.as_dict()) for c, t, m in again.tests.values()] == [
+        (c, t, m.as_dict()) for c, t, m in result.tests.values()
+    ]  # (as dicts: a metric that does not apply is NaN, which equals nothing)
+    assert json.loads((tmp_path / "cdpr_comparison.json").read_text())["tests"] == data["tests"]
+    # a cut-off file, another plant or resume=False: simulated again
+    monkeypatch.setattr(cdpr_compare, "run_cdpr", recorded)
+    kept = sorted((tmp_path / "runs").glob("*.npz"))
+    assert [p.name for p in kept] == ["41-s0.npz", "41-s1.npz"]
+    kept[1].write_bytes(kept[1].read_bytes()[:100])
+    runs.clear()
+    compare_cdpr(robot, DEFAULT_CDPR_PLANT, tmp_path, repeats=2, tests=["41"])
+    assert [a[4] if len(a) > 4 else k.get("seed", 0) for a, k, _ in runs] == [1]
+    runs.clear()
+    other = replace(DEFAULT_CDPR_PLANT, name="other", timestep=0.0005)
+    compare_cdpr(robot, other, tmp_path, repeats=0, tests=["41"])
+    compare_cdpr(robot, DEFAULT_CDPR_PLANT, tmp_path, repeats=0, tests=["41"], resume=False)
+    assert len(runs) == 2
 
 
 def test_cdpr_run_command(tmp_path):

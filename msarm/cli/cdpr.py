@@ -255,6 +255,15 @@ def compare_command(
         ),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+    fresh: Annotated[
+        bool,
+        typer.Option(
+            "--fresh",
+            help="Simulate every run again (by default the runs kept in OUT/runs with the same "
+            "plant, model and settings are reused: an interrupted grid goes on where it "
+            "stopped).",
+        ),
+    ] = False,
 ) -> None:
     """Run the Table 3 test grid: Table 4 (accuracy), Table 5 (repeatability), force bounds."""
     from msarm.cdpr.robot_model import load_cable_robot
@@ -276,7 +285,9 @@ def compare_command(
             bar.update(job, advance=1, description=label)
             line(label)
 
-        result = compare_cdpr(model, plant_config, folder, repeats=repeats, progress=step)
+        result = compare_cdpr(
+            model, plant_config, folder, repeats=repeats, progress=step, resume=not fresh
+        )
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))
         return

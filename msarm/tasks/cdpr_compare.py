@@ -37,6 +37,7 @@ from msarm.cdpr.robot_model import CableRobotModel  # noqa: E402
 from msarm.io.atomic import write_json_atomic  # noqa: E402
 from msarm.io.config import config_to_dict, write_config  # noqa: E402
 from msarm.plant.cdpr_config import CdprPlantConfig  # noqa: E402
+from msarm.tasks.cdpr_run_cache import CdprRunCache  # noqa: E402
 from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun, run_cdpr  # noqa: E402
 from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory  # noqa: E402
 
@@ -67,6 +68,8 @@ DEFAULT_SWITCHING_DELTA = 0.02
 MAP_HEIGHT = 0.115
 #: Tests repeated for Table 5.
 REPEATABILITY_TESTS = ("11", "21", "31", "41")
+#: Tests whose cable forces are plotted (with the switching runs of test 25).
+PLOTTED_TESTS = ("11", "21", "31", "41", "51", "25", "hc-tau-no-friction/1")
 
 
 @dataclass(frozen=True)
@@ -137,18 +140,23 @@ def compare_cdpr(
     repeats: int = 15,
     tests: list[str] | None = None,
     progress: Callable[[str], None] | None = None,
+    resume: bool = True,
 ) -> CdprComparison:
     """Run the grid (or the ``tests`` named) and the repeatability runs; write plots, JSON.
 
     Args:
         model: The cable robot.
         plant_config: The plant.
-        out_dir: Folder for the plots, ``cdpr_comparison.json`` (results and plant) and
-            ``config.yaml`` (the resolved plant, repeats and tests).
+        out_dir: Folder for the plots, ``cdpr_comparison.json`` (results and plant),
+            ``config.yaml`` (the resolved plant, repeats and tests) and ``runs/``, the
+            finished runs (:class:`~msarm.tasks.cdpr_run_cache.CdprRunCache`).
         repeats: Runs per repeatability test (paper 000: 15); 0 skips Table 5.
         tests: Test ids to run (default: all of :func:`_grid`).
-        progress: Called with a label before each run simulated (:func:`progress_steps`
-            times; not for the first repeat of a test, its grid run).
+        progress: Called with a label before each run (:func:`progress_steps` times; not for
+            the first repeat of a test, its grid run); the label ends in ``(cached)`` for a
+            run taken from ``runs/``.
+        resume: Take the runs already in ``out_dir/runs`` with the same key instead of
+            simulating them again (an interrupted comparison goes on where it stopped).
 
     Returns:
         The comparison.
@@ -157,11 +165,27 @@ def compare_cdpr(
     grid = [g for g in _grid() if tests is None or g[0] in tests]
     results: dict[str, tuple[str, str, CdprMetrics]] = {}
     runs: dict[str, CdprRun] = {}
-    for test, controller, trajectory_name, options in grid:
+    cache = CdprRunCache(out_dir / "runs", model, plant_config)
+
+    def run_or_reuse(
+        name: str, controller: str, trajectory_name: str, seed: int, options: dict, label: str
+    ) -> CdprRun:
+        kept = cache.load(name, controller, trajectory_name, seed, options) if resume else None
         if progress is not None:
-            progress(f"test {test}: {controller}, {trajectory_name}")
+            progress(label + (" (cached)" if kept is not None else ""))
+        if kept is not None:
+            return kept
         trajectory = get_cdpr_trajectory(trajectory_name)
-        run = run_cdpr(model, plant_config, controller, trajectory, 0, options)
+        run = run_cdpr(model, plant_config, controller, trajectory, seed, options)
+        if seed == 0 and (name in PLOTTED_TESTS or name.startswith("25/")):
+            cache.save(name, run, seed, options)  # what its plots read
+        else:
+            cache.save(name, run, seed, options, quantities=("marker",), truth=False)
+        return run
+
+    for test, controller, trajectory_name, options in grid:
+        label = f"test {test}: {controller}, {trajectory_name}"
+        run = run_or_reuse(test, controller, trajectory_name, 0, options, label)
         results[test] = (controller, trajectory_name, run.metrics)
         runs[test] = run
     repeatability: dict[str, tuple[float, float]] = {}
@@ -175,16 +199,15 @@ def compare_cdpr(
             if seed == 0:  # the grid run (seed 0), reused: not a step of its own
                 run = runs[test]
             else:
-                if progress is not None:
-                    progress(f"repeatability {test}: run {seed + 1}/{repeats}")
-                run = run_cdpr(model, plant_config, controller, trajectory, seed)
+                label = f"repeatability {test}: run {seed + 1}/{repeats}"
+                run = run_or_reuse(test, controller, trajectory_name, seed, {}, label)
             marker = np.stack([run.columns[f"marker.{a}"] for a in "xyz"], axis=1)
             errors.append(np.linalg.norm(marker - trajectory.position[: len(marker)], axis=1))
         length = min(len(e) for e in errors)
         rho = np.std(np.stack([e[:length] for e in errors]), axis=0)
         repeatability[test] = (1000.0 * float(rho.max()), 1000.0 * float(rho.mean()))
     files: dict[str, Path] = {}
-    for test in ("11", "21", "31", "41", "51", "25", "hc-tau-no-friction/1"):
+    for test in PLOTTED_TESTS:
         if test in runs:
             safe = test.replace("/", "_")
             files[f"forces_{safe}"] = plot_forces(
