@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -66,19 +67,25 @@ def test_training_writes_a_checkpoint_for_this_model(trained):
     assert load_feedforward(recipe.checkpoint, arm).sheath is not None
 
 
-def test_feedforward_improves_tracking_and_final_error_on_the_held_out_tasks(trained):
+def test_feedforward_improves_tracking_and_final_error_on_the_held_out_tasks(trained, monkeypatch):
     arm, recipe, report, folder = trained
     feedforward = load_feedforward(recipe.checkpoint, arm)
     stage_alone = LearnedFeedforward(arm, None, feedforward.sheath)
-    comparison = compare_feedforward(
-        arm,
-        feedforward,
-        DEFAULT_PLANT,
-        recipe.controller,
-        report.split["test"],
-        folder / "compare",
-        parts={SHEATH_ONLY: stage_alone},
-    )
+
+    def run_comparison(feedforward_id="checkpoint-1", progress=None):
+        return compare_feedforward(
+            arm,
+            feedforward,
+            DEFAULT_PLANT,
+            recipe.controller,
+            report.split["test"],
+            folder / "compare",
+            parts={SHEATH_ONLY: stage_alone},
+            feedforward_id=feedforward_id,
+            progress=progress,
+        )
+
+    comparison = run_comparison()
     assert comparison.labels == (WITHOUT, WITH, SHEATH_ONLY)
     for task in comparison.held_out:
         without, with_ff = comparison.metrics[task][WITHOUT], comparison.metrics[task][WITH]
@@ -98,6 +105,24 @@ def test_feedforward_improves_tracking_and_final_error_on_the_held_out_tasks(tra
         for label in comparison.labels:
             assert comparison.true_min_insertion_tension[task][label] > SLACK_THRESHOLD
     assert (folder / "compare" / "error_statistics.png").is_file()
+
+    # run again: every run is taken from the folder (none simulated), the same numbers
+    import msarm.compensation.compare as compare_module
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a kept run was simulated again")
+
+    monkeypatch.setattr(compare_module, "track", refuse)
+    labels = []
+    again = run_comparison(progress=labels.append)
+    assert len(labels) == 3 * len(comparison.tasks)
+    assert all(label.endswith("(cached)") for label in labels)
+    assert json.dumps(again.as_dict()) == json.dumps(comparison.as_dict())
+    # another checkpoint: the runs without feedforward are kept, the others run again
+    labels.clear()
+    with pytest.raises(AssertionError, match="simulated again"):
+        run_comparison(feedforward_id="checkpoint-2", progress=labels.append)
+    assert labels == ["table1-1, without feedforward (cached)", "table1-1, with feedforward"]
 
 
 def test_checkpoint_for_another_model_is_refused(trained, tmp_path):
@@ -192,7 +217,7 @@ def test_a_cached_run_is_reused_only_whole_undiverged_and_of_this_model(trained,
     import json
     import shutil
 
-    from msarm.compensation.dataset import _reusable
+    from msarm.compensation.dataset import reusable_run as _reusable
     from msarm.tasks.track import TrackSettings
 
     arm, recipe, _, _ = trained

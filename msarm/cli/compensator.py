@@ -180,11 +180,22 @@ def compare_command(
         ),
     ] = False,
     json_output: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+    fresh: Annotated[
+        bool,
+        typer.Option(
+            "--fresh",
+            help="Simulate every run again (by default a run already in --out with the same "
+            "task, plant, gains, seed, checkpoint and model is reused: an interrupted "
+            "comparison goes on where it stopped).",
+        ),
+    ] = False,
 ) -> None:
     """Table I tasks and held-out random tasks, without and with feedforward: table and plots."""
     # the summary also gives the final error of the plant's true joint angles (simulation
     # only): the table's comes from the encoders, whose noise is a good part of a final error
     # of a tenth of a millimetre
+    import hashlib
+
     from msarm.compensation.checkpoint import CheckpointError
     from msarm.compensation.compare import SHEATH_ONLY, compare_feedforward
     from msarm.compensation.feedforward import (
@@ -244,6 +255,8 @@ def compare_command(
             seed=seed,
             progress=step,
             parts=variants,
+            feedforward_id=hashlib.sha256(ff.read_bytes()).hexdigest(),
+            resume=not fresh,
         )
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))

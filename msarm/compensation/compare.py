@@ -31,12 +31,19 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from msarm import plots  # noqa: E402
+from msarm.compensation.dataset import reusable_run  # noqa: E402
 from msarm.control import ArmControllerConfig  # noqa: E402
 from msarm.errors import InputError  # noqa: E402
 from msarm.io.atomic import write_json_atomic  # noqa: E402
+from msarm.io.logs import read_log, read_sidecar  # noqa: E402
 from msarm.model import RobotModel  # noqa: E402
 from msarm.plant import PlantConfig  # noqa: E402
-from msarm.tasks.evaluate import SETTLE_DELAY, TrackingMetrics, hand_position  # noqa: E402
+from msarm.tasks.evaluate import (  # noqa: E402
+    SETTLE_DELAY,
+    TrackingMetrics,
+    evaluate_run,
+    hand_position,
+)
 from msarm.tasks.registry import get_task  # noqa: E402
 from msarm.tasks.runner import Feedforward  # noqa: E402
 from msarm.tasks.track import TrackSettings, track  # noqa: E402
@@ -129,6 +136,8 @@ def compare_feedforward(
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
     parts: Mapping[str, Feedforward] | None = None,
+    feedforward_id: str = "",
+    resume: bool = True,
 ) -> Comparison:
     """Run the Table I tasks and the held-out random tasks without and with feedforward.
 
@@ -142,6 +151,13 @@ def compare_feedforward(
         seed: Seed of the plant's noise for the Table I tasks (a random task uses its own).
         progress: Called with a label before each run.
         parts: More feedforwards to run on the same tasks, by label (e.g. :data:`SHEATH_ONLY`).
+        feedforward_id: What identifies the feedforward and its parts (e.g. the checkpoint
+            file's SHA-256), recorded in each run's config; runs with feedforward are reused
+            only when it is given and the same.
+        resume: Reuse a run already in ``out_dir`` when it is this one, whole, undiverged
+            and of this model file (:func:`~msarm.compensation.dataset.reusable_run`): an
+            interrupted comparison goes on where it stopped, with the same numbers (the
+            metrics are computed again from the kept log; its label ends in ``(cached)``).
 
     Returns:
         The comparison.
@@ -167,19 +183,38 @@ def compare_feedforward(
         metrics[name], columns[name], true_final[name], lowest[name] = {}, {}, {}, {}
         target = hand_position(model, task.target)[0]
         for label, ff, folder_name in variants:
-            if progress is not None:
-                progress(f"{name}, {label}")
-            settings = TrackSettings(name, run_seed, plant, controller, folder_name if ff else "")
+            ff_name = f"{folder_name}@{feedforward_id}" if ff and feedforward_id else folder_name
+            settings = TrackSettings(name, run_seed, plant, controller, ff_name if ff else "")
             folder = out_dir / name / folder_name
-            result = track(model, task, settings, folder, feedforward=ff, plots_too=False)
-            metrics[name][label] = result.metrics
-            columns[name][label] = result.run.columns
-            q_true = np.array([result.run.truth[f"q.{j}"][-1] for j in model.joint_names])
+            kept = (
+                resume
+                and (ff is None or bool(feedforward_id))
+                and reusable_run(folder, settings, model.sha256)
+            )
+            if progress is not None:
+                progress(f"{name}, {label}" + (" (cached)" if kept else ""))
+            if kept:
+                run_columns = dict(read_log(folder / "log.parquet").columns)
+                truth = read_sidecar(folder / "log.parquet").columns
+                metrics[name][label] = evaluate_run(
+                    model,
+                    run_columns,
+                    home=task.home,
+                    target=task.target,
+                    drum_radius=plant.winch.drum_radius,
+                    min_tension=controller.min_tension,
+                )
+            else:
+                result = track(model, task, settings, folder, feedforward=ff, plots_too=False)
+                metrics[name][label] = result.metrics
+                run_columns, truth = result.run.columns, result.run.truth
+            columns[name][label] = run_columns
+            q_true = np.array([truth[f"q.{j}"][-1] for j in model.joint_names])
             true_final[name][label] = 1000.0 * float(
                 np.linalg.norm(hand_position(model, q_true)[0] - target)
             )
             lowest[name][label] = float(
-                min(np.min(result.run.truth[f"tension_insertion.{c}"]) for c in model.cable_names)
+                min(np.min(truth[f"tension_insertion.{c}"]) for c in model.cable_names)
             )
     files: dict[str, Path] = {}
     for name in tasks[:4] + list(held_out[:2]):

@@ -140,7 +140,7 @@ def collect_runs(
         run_dir = run_folder(data.folder if folder is None else folder, seed)
         settings = TrackSettings(f"random-{seed}", seed, plant, controller, feedforward_name)
         log_path = run_dir / "log.parquet"
-        reused = _reusable(run_dir, settings, model.sha256)
+        reused = reusable_run(run_dir, settings, model.sha256)
         if not reused:
             task = get_task(settings.task, model)
             result = track(model, task, settings, run_dir, feedforward=feedforward, plots_too=False)
@@ -152,7 +152,7 @@ def collect_runs(
     return paths
 
 
-def _reusable(folder: Path, settings: TrackSettings, model_sha256: str) -> bool:
+def reusable_run(folder: Path, settings: TrackSettings, model_sha256: str) -> bool:
     """Whether the run in ``folder`` is the one ``settings`` ask for, whole, on this model.
 
     A run is reused when its config is ``settings``, its metrics were written (they are
