@@ -9,6 +9,7 @@ interrupted training resumes from it.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import time
@@ -241,17 +242,21 @@ def train_compensator(
         state_path = checkpoint.with_name(f"{checkpoint.stem}.round{round_}.training.pt")
         metadata["round"] = round_
         resume_round = resume and state_path.is_file()
-        arrays = (x_train, y_train, x_val, y_val)
+
+        train = functools.partial(
+            train_network,
+            x_train,
+            y_train,
+            x_val,
+            y_val,
+            recipe.network,
+            checkpoint_path=state_path,
+            progress=on_epoch,
+            metadata=metadata,
+            column_names=names,
+        )
         try:
-            result = train_network(
-                *arrays,
-                recipe.network,
-                checkpoint_path=state_path,
-                resume=resume_round,
-                progress=on_epoch,
-                metadata=metadata,
-                column_names=names,
-            )
+            result = train(resume=resume_round)
         except CheckpointError as exc:
             if not resume_round:
                 raise
@@ -263,15 +268,7 @@ def train_compensator(
                 MsarmWarning,
                 stacklevel=2,
             )
-            result = train_network(
-                *arrays,
-                recipe.network,
-                checkpoint_path=state_path,
-                resume=False,
-                progress=on_epoch,
-                metadata=metadata,
-                column_names=names,
-            )
+            result = train(resume=False)
         train_time += result.train_time_s
         compensator = result.compensator
     assert compensator is not None
