@@ -276,3 +276,28 @@ def test_an_interrupted_training_resumes_and_a_changed_recipe_starts_over(traine
     with pytest.warns(MsarmWarning, match="learning_rate.*round 0 of the training starts over"):
         train_compensator(arm, other, DEFAULT_PLANT, on_epoch=lambda e, *_: epochs.append(e))
     assert epochs[0] == 1
+
+
+def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, trained):
+    _, recipe, report, _ = trained
+    out = tmp_path / "compare"
+    result = CliRunner().invoke(
+        app, ["compare", "--ff", recipe.checkpoint, "--out", str(out), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)  # progress went to stderr
+    assert payload["held_out"] == [f"random-{seed}" for seed in report.split["test"]]
+    assert payload["tasks"][:4] == [f"table1-{k}" for k in range(1, 5)]
+    assert payload["final_error_ratio_held_out"] > 1  # the compensator helps on held-out tasks
+    assert all(Path(path).is_file() for path in payload["files"].values())
+    assert {"error_statistics", "json", "trajectories_table1-1"} <= set(payload["files"])
+    track_out = tmp_path / "track"
+    ff = ["track", "--task", "table1-2", "--ff", recipe.checkpoint, "--out", str(track_out)]
+    result = CliRunner().invoke(app, [*ff, "--json"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads(result.stdout)
+    assert metrics["task"] == "table1-2" and metrics["final_error_mm"] < 1.0
+    names = {"log.parquet", "log.truth.parquet", "config.yaml", "metrics.json", "joints.png"}
+    assert names <= {p.name for p in track_out.iterdir()}
+    # the run records the compensator it ran with
+    assert f"feedforward: {recipe.checkpoint}" in (track_out / "config.yaml").read_text()
