@@ -117,3 +117,23 @@ def test_cdpr_force_estimation_example_matches_the_readme():
     for raw in (fe_raw, torque_raw):
         assert raw[1] > 2.0 and 0.5 < raw[2] < 1.2
     assert fe_raw[1] > 10 * fe[1] and torque_raw[1] > 4 * torque[1]
+
+
+def test_the_arm_tour_and_the_arm_command_draw_their_plots(tmp_path):
+    """``make tour`` (``examples/arm_tour.py``) and ``msarm arm --out``: tables and 3 plots."""
+    from typer.testing import CliRunner
+
+    from msarm.cli import app
+    from msarm.model import load_arm
+
+    plots = {"controllability_shoulder.png", "hill_curves.png", "moment_arms.png"}
+    out = _run_example("arm_tour.py", "--out", str(tmp_path / "tour"))
+    assert plots <= {p.name for p in (tmp_path / "tour").iterdir()}
+    arm = load_arm()
+    assert all(name in out for name in arm.cable_names)  # every muscle is listed
+    result = CliRunner().invoke(app, ["arm", "--out", str(tmp_path / "arm")])
+    assert result.exit_code == 0, result.output
+    assert plots <= {p.name for p in (tmp_path / "arm").iterdir()}
+    assert all(name in result.stdout for name in arm.joint_names)
+    for name in plots:
+        assert (tmp_path / "arm" / name).read_bytes().startswith(b"\x89PNG")
