@@ -11,7 +11,7 @@ from msarm.cli import app
 
 def test_bench_sim_reports_json():
     result = CliRunner().invoke(
-        app, ["bench", "sim", "--plant", "ideal", "--repeats", "1", "--json"]
+        app, ["bench", "sim", "--plant", "ideal", "--best-of", "1", "--json"]
     )
     assert result.exit_code == 0, result.output
     report = json.loads(result.output)

@@ -94,7 +94,9 @@ def sim(
         "--plant",
         help="default, ideal, a plant YAML file, or a run's config.yaml (its plant).",
     ),
-    repeats: int = typer.Option(3, "--repeats", min=1, help="Runs of each; the best counts."),
+    repeats: int = typer.Option(
+        3, "--best-of", "--repeats", min=1, help="Runs of each; the fastest counts."
+    ),
     json_output: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
     """Closed-loop real-time factor of a task and its ratio to bare MuJoCo stepping."""
