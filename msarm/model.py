@@ -61,6 +61,10 @@ HILL_COLUMNS = (
 _SUPPORTED_JOINTS = {mujoco.mjtJoint.mjJNT_HINGE: "hinge", mujoco.mjtJoint.mjJNT_SLIDE: "slide"}
 #: Largest allowed disagreement between the engines' body positions [m] and masses [kg].
 _ENGINE_TOLERANCE = 1e-9
+#: Relative tolerance of the engines' mass matrices and bias forces: loose enough for an
+#: orientation written to 7 digits (0.7071068), tight against a body the parser reads
+#: otherwise (differences of 1e-3 and more).
+_DYNAMICS_TOLERANCE = 1e-6
 
 
 def mujoco_model_name(mj_model: mujoco.MjModel) -> str:
@@ -236,12 +240,15 @@ def load_robot(path: str | Path) -> RobotModel:
         raise ModelError(
             f"{path}: the model has no tendons; msarm needs one <spatial> tendon per cable"
         )
+    _check_spatial_tendons(mj_model, path)
     joint_names = _joint_names(mj_model, path)
+    _check_joint_ranges(mj_model, path)
     _check_single_root(mj_model, path)
     try:
         pin_model = pinocchio.buildModelFromMJCF(str(path))
     except Exception as exc:  # the parser raises bare RuntimeErrors and ValueErrors
         raise ModelError(f"{path}: Pinocchio cannot load the file: {exc}") from exc
+    pin_model.gravity.linear = model_gravity(mj_model)  # the parser ignores <option gravity>
     pin_q_index = np.arange(mj_model.nq, dtype=np.intp)
     _check_engines_agree(mj_model, pin_model, pin_q_index, path)
     cable_names = tuple(mj_model.tendon(i).name for i in range(mj_model.ntendon))
@@ -262,15 +269,34 @@ def load_robot(path: str | Path) -> RobotModel:
     )
 
 
+def model_gravity(mj_model: mujoco.MjModel) -> NDArray[np.float64]:
+    """The gravity MuJoCo applies [m/s^2], shape ``(3,)``: zero when its flag is disabled.
+
+    Pinocchio's MJCF parser ignores ``<option gravity>`` and ``<flag gravity="disable"/>``;
+    the loaders copy this into the Pinocchio model.
+    """
+    if mj_model.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_GRAVITY):
+        return np.zeros(3)
+    return np.array(mj_model.opt.gravity, dtype=float)
+
+
 def _joint_names(mj_model: mujoco.MjModel, path: Path) -> tuple[str, ...]:
     names = []
     for j in range(mj_model.njnt):
         joint = mj_model.joint(j)
         kind = int(mj_model.jnt_type[j])
         if kind not in _SUPPORTED_JOINTS:
+            free = kind == int(mujoco.mjtJoint.mjJNT_FREE)
             raise ModelError(
                 f"{path}: joint '{joint.name}' is of type {mujoco.mjtJoint(kind).name}; msarm "
-                f"supports {' and '.join(_SUPPORTED_JOINTS.values())} joints only"
+                f"supports {' and '.join(_SUPPORTED_JOINTS.values())} joints only in a "
+                "cable-driven arm"
+                + (
+                    " (a cable-driven parallel robot, whose platform has a free joint, loads "
+                    "with msarm.cdpr.robot_model.load_cable_robot)"
+                    if free
+                    else ""
+                )
             )
         if not joint.name:
             raise ModelError(f"{path}: joint {j} has no name; every joint needs one")
@@ -278,6 +304,36 @@ def _joint_names(mj_model: mujoco.MjModel, path: Path) -> tuple[str, ...]:
     if not names:
         raise ModelError(f"{path}: the model has no joints")
     return tuple(names)
+
+
+def _check_spatial_tendons(mj_model: mujoco.MjModel, path: Path) -> None:
+    """Refuse a fixed tendon (a joint coupling): a cable is a <spatial> tendon's path."""
+    for i in range(mj_model.ntendon):
+        start, count = int(mj_model.tendon_adr[i]), int(mj_model.tendon_num[i])
+        kinds = {int(k) for k in mj_model.wrap_type[start : start + count]}
+        if int(mujoco.mjtWrap.mjWRAP_JOINT) in kinds:
+            name = mj_model.tendon(i).name or f"#{i}"
+            raise ModelError(
+                f"{path}: tendon '{name}' is a <fixed> tendon (a coupling of joints); msarm "
+                "reads every tendon as a cable, a <spatial> tendon through sites (and wrap "
+                "geoms). Remove it or model the cable as <spatial>"
+            )
+
+
+def _check_joint_ranges(mj_model: mujoco.MjModel, path: Path) -> None:
+    """Refuse a hinge range wider than a turn: degrees read as radians, most likely."""
+    for j in range(mj_model.njnt):
+        if int(mj_model.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):
+            continue
+        if not mj_model.jnt_limited[j]:
+            continue
+        low, high = (float(v) for v in mj_model.jnt_range[j])
+        if high - low > 2 * np.pi:
+            raise ModelError(
+                f"{path}: hinge '{mj_model.joint(j).name}' has the range [{low:.4g}, "
+                f"{high:.4g}] rad, wider than a turn; expected radians (a range in degrees "
+                'needs <compiler angle="degree"/>, and is then converted)'
+            )
 
 
 def _check_single_root(mj_model: mujoco.MjModel, path: Path) -> None:
@@ -324,6 +380,35 @@ def _check_engines_agree(
             raise ModelError(
                 f"{path}: body '{name}' is at {np.round(mj_data.xpos[b], 6)} in MuJoCo but at "
                 f"{np.round(pin_pos, 6)} in Pinocchio at q={np.round(q, 4)}"
+            )
+    # The dynamics must agree too (an orientation or inertia the parser reads otherwise, an
+    # armature it does not carry over, gravity): mass matrix and bias forces at that posture
+    # with a velocity.
+    v = np.linspace(-0.7, 0.7, mj_model.nv)
+    mj_data.qvel[:] = v
+    mujoco.mj_forward(mj_model, mj_data)
+    mj_mass_matrix = np.zeros((mj_model.nv, mj_model.nv))
+    mujoco.mj_fullM(mj_model, mj_data, mj_mass_matrix)
+    pin_mass_matrix = pinocchio.crba(pin_model, pin_data, q[pin_q_index])
+    pin_mass_matrix = np.triu(pin_mass_matrix) + np.triu(pin_mass_matrix, 1).T
+    pin_bias = pinocchio.rnea(pin_model, pin_data, q[pin_q_index], v[pin_q_index], 0 * v)
+    inverse = np.argsort(pin_q_index)
+    for what, mj_value, pin_value, unit in (
+        ("mass matrix", mj_mass_matrix, pin_mass_matrix[np.ix_(inverse, inverse)], "kg m^2"),
+        ("bias force (Coriolis and gravity)", mj_data.qfrc_bias, pin_bias[inverse], "N m"),
+    ):
+        gap = np.abs(mj_value - pin_value)
+        if gap.max() > _DYNAMICS_TOLERANCE * max(1.0, float(np.abs(mj_value).max())):
+            joint = mj_model.joint(
+                int(mj_model.dof_jntid[np.unravel_index(gap.argmax(), gap.shape)[0]])
+            ).name
+            raise ModelError(
+                f"{path}: the {what} differs between MuJoCo and Pinocchio by up to "
+                f"{gap.max():.3g} {unit} (joint '{joint}') at q={np.round(q, 4)}; expected "
+                "the two engines to agree. Pinocchio's MJCF parser does not read everything "
+                "MuJoCo does: check the body orientations (a non-unit axisangle axis), "
+                "<inertial> elements (give every body one), joint armature and "
+                "<option gravity>"
             )
 
 

@@ -145,3 +145,43 @@ def test_malformed_hill_parameters_are_named(tmp_path):
     path.write_text(text)
     with pytest.raises(ModelError, match="hill/triceps.*2 values"):
         load_arm(path)
+
+
+def test_gravity_switched_off_or_changed_in_the_file_reaches_pinocchio(tmp_path):
+    """Pinocchio's parser ignores <option gravity>: the loader copies MuJoCo's (zero when off)."""
+    option = '<option timestep="0.001" gravity="0 0 -9.81"/>'
+    for new, expected in (
+        ('<option timestep="0.001" gravity="0 0 -1.62"/>', [0.0, 0.0, -1.62]),
+        ('<option timestep="0.001"><flag gravity="disable"/></option>', [0.0, 0.0, 0.0]),
+    ):
+        model = load_arm(_variant(tmp_path, option, new))
+        np.testing.assert_array_equal(model.pin_model.gravity.linear, expected)
+        q = np.array([0.5, 0.5, 0.0, -1.0])
+        data = mujoco.MjData(model.mj_model)
+        data.qpos[:] = q
+        mujoco.mj_forward(model.mj_model, data)
+        pin_gravity = pinocchio.computeGeneralizedGravity(
+            model.pin_model, model.pin_model.createData(), q
+        )
+        np.testing.assert_allclose(pin_gravity, data.qfrc_bias, atol=1e-12)
+
+
+def test_a_body_pinocchio_reads_otherwise_is_caught_by_the_dynamics(tmp_path):
+    # MuJoCo normalises a body's axisangle axis; the parser takes it as written
+    path = _variant(
+        tmp_path,
+        '<body name="hand" pos="0 0 -0.2555">',
+        '<body name="hand" pos="0 0 -0.2555" axisangle="0 0 2 0.7">',
+    )
+    with pytest.raises(ModelError, match=r"mass matrix differs between MuJoCo and Pinocchio"):
+        load_robot(path)
+
+
+def test_a_fixed_tendon_and_a_range_in_degrees_are_refused(tmp_path):
+    coupling = '<fixed name="coupling"><joint joint="elbow" coef="0.02"/></fixed>\n  </tendon>'
+    with pytest.raises(ModelError, match="tendon 'coupling' is a <fixed> tendon"):
+        load_robot(_variant(tmp_path, "</tendon>", coupling))
+    degrees = '<joint name="elbow" type="hinge" axis="0 1 0" range="-132 3"/>'
+    elbow = '<joint name="elbow" type="hinge" axis="0 1 0" range="-2.3 0.05"/>'
+    with pytest.raises(ModelError, match=r"hinge 'elbow' has the range \[-132, 3\] rad"):
+        load_robot(_variant(tmp_path, elbow, degrees))

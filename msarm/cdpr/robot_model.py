@@ -55,7 +55,7 @@ from msarm.cdpr.forward_kinematics import (
 )
 from msarm.cdpr.kinematics import CableRobot
 from msarm.errors import InputError, ModelError
-from msarm.model import MODELS_DIR, RobotData, mujoco_model_name
+from msarm.model import MODELS_DIR, RobotData, model_gravity, mujoco_model_name
 
 FloatArray = NDArray[np.float64]
 
@@ -508,7 +508,7 @@ def load_cable_robot(path: str | Path | None = None) -> CableRobotModel:
         pin_model = pinocchio.buildModelFromMJCF(str(path))
     except Exception as exc:  # the parser raises bare RuntimeErrors and ValueErrors
         raise ModelError(f"{path}: Pinocchio cannot load the file: {exc}") from exc
-    pin_model.gravity.linear = np.array(mj_model.opt.gravity, dtype=float)  # parser ignores it
+    pin_model.gravity.linear = model_gravity(mj_model)  # the parser ignores <option gravity>
     model = CableRobotModel(
         path=path,
         sha256=hashlib.sha256(raw).hexdigest(),
@@ -522,7 +522,7 @@ def load_cable_robot(path: str | Path | None = None) -> CableRobotModel:
         mass=float(mj_model.body_mass[body]),
         com=np.array(mj_model.body_ipos[body], dtype=float),
         inertia=0.5 * (inertia + inertia.T),
-        gravity=np.array(mj_model.opt.gravity, dtype=float),
+        gravity=model_gravity(mj_model),
         f_min=f_min,
         f_max=f_max,
         workspace_lower=lower,
