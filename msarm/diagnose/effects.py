@@ -622,6 +622,9 @@ class DahlFriction(CandidateEffect):
 
 #: Samples (evenly spread) on which a nonlinear term's starting parameters are scanned.
 GUESS_SAMPLES = 4000
+#: Largest smoothed sign ``|tanh(qd / eps)|`` [-] of a joint said to be still in those samples
+#: (its friction columns are zero: :class:`StribeckFriction` keeps its default start there).
+STILL_SIGN = 1e-9
 
 
 @register
@@ -703,15 +706,17 @@ class StribeckFriction(CandidateEffect):
         grid = np.geomspace(float(lower[2]), self.max_stribeck_velocity, 40)
         for j in self.channels:
             best = [0.0, 0.0, float(np.sqrt(grid[0] * grid[-1]))] + [0.0] * self.viscous
-            if residual is not None:
-                w, r = signals.qd[rows, j], residual[rows, j]
-                sign = np.tanh(w / self.eps)
+            w = signals.qd[rows, j]
+            sign = np.tanh(w / self.eps)
+            # a joint that does not move (in these samples) tells nothing: the default start
+            if residual is not None and np.max(np.abs(sign), initial=0.0) > STILL_SIGN:
+                r = residual[rows, j]
                 bump = np.exp(-((w[None, :] / grid[:, None]) ** 2)) * sign
                 columns = [sign - bump, bump] + [np.broadcast_to(w, bump.shape)] * self.viscous
                 Q, R = np.linalg.qr(np.stack(columns, axis=2))
                 projected = np.einsum("vtp,t->vp", Q, r)
                 k = int(np.argmax(np.sum(projected**2, axis=1)))  # least cost: most explained
-                x = np.linalg.solve(R[k], projected[k])
+                x = np.linalg.lstsq(R[k], projected[k], rcond=None)[0]  # R may be singular
                 best = [x[0], x[1], grid[k]] + ([x[2]] if self.viscous else [])
             guess += best
         return np.asarray(guess, dtype=float)

@@ -319,6 +319,11 @@ def residuals_from_log(
     motor_all = log.matrix("motor_angle", cables) if has_motor else None
     command_all = log.matrix("tension_cmd", cables) if has_command else None
     reference_all = log.matrix("q_ref", joints) if has_reference else None
+    _warn_constant_sensors(
+        source,
+        [("q", joints, q_all), ("tension_motor", cables, tension_all)]
+        + ([("motor_angle", cables, motor_all)] if motor_all is not None else []),
+    )
     dt = 1.0 / log.metadata.sample_rate_hz
     work = _Work(model)
     anchor: tuple[FloatArray, FloatArray] | None = None
@@ -399,6 +404,32 @@ def _has_channels(log: RunLog, quantity: str, names: list[str], source: str, wit
             stacklevel=3,
         )
     return not missing
+
+
+def _warn_constant_sensors(
+    source: str, channels: list[tuple[str, list[str], FloatArray]]
+) -> None:
+    """Warn (one line) about sensor columns that hold exactly one value over the whole log.
+
+    ``channels`` holds ``(quantity, names, matrix)`` with ``matrix[:, k]`` the column
+    ``quantity.names[k]``. A still joint may be legitimate, so this is not refused. Commands
+    (``tension_cmd``) are not checked: a cable held at its least tension is commanded one value.
+    """
+    constant = [
+        f"'{quantity}.{name}'"
+        for quantity, names, matrix in channels
+        if len(matrix)
+        for name, spread in zip(names, np.ptp(matrix, axis=0), strict=True)
+        if spread == 0.0
+    ]
+    if constant:
+        warnings.warn(
+            f"{source}: column(s) {', '.join(constant)} hold one value over the whole log: a "
+            "dead or disconnected sensor, or a joint locked still? The diagnosis takes them "
+            "as logged (a dead sensor's answer is wrong: leave such a log out)",
+            DiagnosisWarning,
+            stacklevel=3,
+        )
 
 
 def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
