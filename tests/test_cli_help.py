@@ -8,6 +8,7 @@ command tree and checks that every bracketed piece of every option's help is pri
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 import typer
@@ -128,3 +129,57 @@ def test_help_and_a_commands_own_exit_code_pass_through(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["msarm", "track", "--help"])
     main()  # no SystemExit: help is a success
     assert "Usage: msarm track" in capsys.readouterr().out
+
+
+def test_a_controller_file_is_checked_up_front_and_may_be_a_section(monkeypatch, capsys, tmp_path):
+    import sys
+
+    import yaml
+
+    from msarm.cli import main
+
+    three = tmp_path / "three.yaml"
+    three.write_text("kp: [60, 60, 30]\n")
+    rate = tmp_path / "rate.yaml"
+    rate.write_text("rate_hz: 300\n")
+    for path, expected in (
+        (three, "three.yaml: controller kp needs 4 gains"),
+        (rate, "rate.yaml: rate_hz 300 gives a control period of 0.00333333 s, not a whole"),
+    ):
+        argv = ["msarm", "track", "--task", "table1-1", "--controller", str(path)]
+        monkeypatch.setattr(sys, "argv", [*argv, "--out", str(tmp_path / "run")])
+        with pytest.raises(SystemExit) as exit_info:
+            main()
+        assert exit_info.value.code == 2
+        assert expected in capsys.readouterr().err
+        assert not (tmp_path / "run").exists()  # refused before any folder was made
+    # a training recipe's controller: section is read as the gains
+    recipe = Path(__file__).resolve().parents[1] / "training" / "compensator.yaml"
+    out = tmp_path / "recipe-gains"
+    result = CliRunner().invoke(
+        app,
+        ["track", "--task", "table1-1", "--controller", str(recipe), "--out", str(out), "--json"],
+    )
+    assert result.exit_code == 0, result.output
+    ran_with = yaml.safe_load((out / "config.yaml").read_text())["controller"]
+    wanted = yaml.safe_load(recipe.read_text())["controller"]
+    assert {k: ran_with[k] for k in wanted} == wanted
+
+
+def test_a_recipes_plant_file_is_found_beside_the_recipe(monkeypatch, tmp_path):
+    import msarm.cli.compensator as compensator_cli
+
+    (tmp_path / "plant.yaml").write_text("name: mine\n")
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text("data:\n  plant: plant.yaml\n")
+    seen = []
+
+    def stop(spec):
+        seen.append(spec)
+        raise RuntimeError("stop before training")
+
+    monkeypatch.setattr(compensator_cli, "resolve_plant", stop)
+    monkeypatch.chdir(tmp_path.parent)  # plant.yaml is not in the working folder
+    with pytest.raises(RuntimeError, match="stop before training"):
+        compensator_cli.train_command(config=recipe)
+    assert seen == [str(tmp_path / "plant.yaml")]

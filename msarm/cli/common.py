@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 from rich.console import Console
 
 from msarm.errors import InputError
 from msarm.plant.config import DEFAULT_PLANT, IDEAL_PLANT, PlantConfig
+
+if TYPE_CHECKING:
+    from msarm.control import ArmControllerConfig
+    from msarm.model import RobotModel
 
 T = TypeVar("T")
 
@@ -49,27 +53,7 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
         )
     import dataclasses
 
-    import yaml
-
-    from msarm.errors import ConfigError
-    from msarm.io.config import load_config
-
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        raw = None  # load_config says what is wrong with the file
-    fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    section = raw.get(what) if isinstance(raw, dict) and what not in fields else None
-    if isinstance(section, dict) and not set(raw) <= fields:  # a run's config.yaml
-        try:
-            config = load_config(section, cls)
-        except ConfigError as exc:  # name the file and its section, not "<mapping>"
-            raise ConfigError(
-                str(exc).replace("<mapping>", f"{spec} (its '{what}' section)", 1)
-            ) from None
-        raw = section
-    else:
-        config = load_config(path, cls)
+    config, raw = read_config_section(path, cls, what)
     names = {f.name for f in dataclasses.fields(config)} if dataclasses.is_dataclass(config) else ()
     if "name" in names:
         if not (isinstance(raw, dict) and "name" in raw):  # not the preset's name: the file's
@@ -108,6 +92,76 @@ def progress_bar(*columns, transient: bool = True):
 
     err = Console(stderr=True)
     return Progress(*columns, console=err, transient=transient, disable=not err.is_terminal)
+
+
+def read_config_section(path: Path, cls: type[T], section: str) -> tuple[T, object]:
+    """A config of ``cls`` from a YAML file of it, or from the ``section`` of a bigger file.
+
+    A run's ``config.yaml`` (``msarm track``, ``msarm cdpr run``) holds the ``plant`` and the
+    ``controller`` it ran with, and a training recipe its ``controller``: a mapping whose
+    ``section`` key holds a mapping, beside keys ``cls`` does not have, is read as that
+    section; any other file as a whole.
+
+    Args:
+        path: The YAML file.
+        cls: The config's dataclass.
+        section: The key of the section (e.g. ``"plant"``).
+
+    Returns:
+        The config, and the parsed mapping it was built from (the section, or the file).
+
+    Raises:
+        ConfigError: The file or its section is not a valid config (file, section and key
+            named).
+    """
+    import dataclasses
+
+    import yaml
+
+    from msarm.errors import ConfigError
+    from msarm.io.config import load_config
+
+    try:
+        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        raw = None  # load_config says what is wrong with the file
+    fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    part = raw.get(section) if isinstance(raw, dict) and section not in fields else None
+    if isinstance(part, dict) and not set(raw) <= fields:
+        try:
+            return load_config(part, cls), part
+        except ConfigError as exc:  # name the file and its section, not "<mapping>"
+            raise ConfigError(
+                str(exc).replace("<mapping>", f"{path} (its '{section}' section)", 1)
+            ) from None
+    return load_config(path, cls), raw
+
+
+def check_controller_file(
+    model: RobotModel, gains: ArmControllerConfig, plant_config: PlantConfig, source: Path
+) -> None:
+    """Check gains read from ``source`` against the arm and the plant, naming the file.
+
+    The controller and the runner check them too, but deep in a run and without the file.
+
+    Raises:
+        InputError: Gains of the wrong count, a floor above a muscle's strength, or a
+            control period that is not a whole number of plant steps (``source`` named).
+    """
+    from msarm.control import MuscleSpaceController
+
+    try:
+        controller = MuscleSpaceController(model, gains)
+    except InputError as exc:
+        raise InputError(f"{source}: {exc}") from None
+    steps = controller.period / plant_config.timestep
+    if round(steps) < 1 or abs(round(steps) * plant_config.timestep - controller.period) > 1e-12:
+        raise InputError(
+            f"{source}: rate_hz {gains.rate_hz:g} gives a control period of "
+            f"{controller.period:.6g} s, not a whole number of the plant's steps of "
+            f"{plant_config.timestep:g} s; expected a rate that divides "
+            f"{1 / plant_config.timestep:g} Hz"
+        )
 
 
 def progress_lines(what: str, total: int | None = None, enabled: bool = True):

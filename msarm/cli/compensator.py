@@ -12,12 +12,14 @@ from rich.markup import escape
 from rich.table import Table
 
 from msarm.cli.common import (
+    PLANTS,
     console,
     output_folder,
     progress_bar,
     progress_lines,
     resolve_plant,
 )
+from msarm.errors import InputError
 
 DEFAULT_RECIPE = Path("training/compensator.yaml")
 DEFAULT_CHECKPOINT = Path("runs/compensator/compensator.pt")
@@ -48,7 +50,14 @@ def train_command(
             raise typer.BadParameter(f"recipe file not found: {config}")
         recipe = CompensatorRecipe()
     arm = load_arm()
-    plant = resolve_plant(recipe.data.plant)
+    plant_spec = recipe.data.plant
+    beside = config.parent / plant_spec
+    if plant_spec not in PLANTS and not Path(plant_spec).is_file() and beside.is_file():
+        plant_spec = str(beside)  # a plant file next to the recipe, named relative to it
+    try:
+        plant = resolve_plant(plant_spec)
+    except InputError as exc:
+        raise InputError(f"{config}: data.plant: {exc}") from None
     split = split_runs(recipe.data.seeds, recipe.data.split)
     columns = (
         TextColumn("{task.description}"),

@@ -12,9 +12,11 @@ from rich.table import Table
 
 from msarm.cli.common import (
     PLANTS,
+    check_controller_file,
     console,
     output_folder,
     progress_bar,
+    read_config_section,
     resolve_plant,
     seed_suffix,
 )
@@ -111,8 +113,9 @@ def track_command(
     controller: Annotated[
         Path | None,
         typer.Option(
-            help="YAML file of controller gains (ArmControllerConfig); default: the defaults, "
-            "or with --ff the gains the compensator was trained with."
+            help="YAML file of controller gains (ArmControllerConfig), or a file with a "
+            "controller: section (a training recipe, a run's config.yaml); default: the "
+            "defaults, or with --ff the gains the compensator was trained with."
         ),
     ] = None,
     ff: Annotated[
@@ -137,7 +140,6 @@ def track_command(
         list_choices()
         return
     from msarm.control import ArmControllerConfig
-    from msarm.io.config import load_config
     from msarm.model import load_arm
     from msarm.tasks.registry import get_task
     from msarm.tasks.track import TrackSettings, track
@@ -145,7 +147,10 @@ def track_command(
     arm = load_arm()
     task_obj = get_task(task, arm)
     plant_config = resolve_plant(plant)
-    gains = None if controller is None else load_config(controller, ArmControllerConfig)
+    gains = None
+    if controller is not None:
+        gains, _ = read_config_section(controller, ArmControllerConfig, "controller")
+        check_controller_file(arm, gains, plant_config, controller)
     feedforward = None
     if ff is not None:
         from msarm.compensation.feedforward import load_feedforward, trained_controller
@@ -159,8 +164,8 @@ def track_command(
     else:
         gains_from = (
             "ArmControllerConfig's default gains, tuned for the ideal plant (the default "
-            "plant's tuned gains: the controller: block of training/compensator.yaml, saved "
-            "as a file, to --controller)"
+            "plant's tuned gains: --controller training/compensator.yaml, its controller: "
+            "block)"
         )
     gains = gains or ArmControllerConfig()
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
