@@ -91,7 +91,8 @@ class RobotModel:
 
     Attributes:
         path: The MJCF file.
-        sha256: SHA-256 of the file's bytes (hex); logs and checkpoints carry it.
+        sha256: SHA-256 of the model's text (hex; :func:`model_sha256`); logs and
+            checkpoints carry it.
         mj_model: The MuJoCo model.
         pin_model: The Pinocchio model of the same file.
         joint_names: Names of the joints, in MuJoCo order (the order of every joint-space
@@ -231,7 +232,6 @@ def load_robot(path: str | Path) -> RobotModel:
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"model file not found: {path} (expected an MJCF .xml file)")
-    raw = path.read_bytes()
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
@@ -257,7 +257,7 @@ def load_robot(path: str | Path) -> RobotModel:
     lower, upper = _joint_limits(mj_model)
     return RobotModel(
         path=path,
-        sha256=hashlib.sha256(raw).hexdigest(),
+        sha256=model_sha256(path),
         mj_model=mj_model,
         pin_model=pin_model,
         joint_names=joint_names,
@@ -267,6 +267,53 @@ def load_robot(path: str | Path) -> RobotModel:
         pin_q_index=pin_q_index,
         muscles=_read_hill_parameters(mj_model, cable_names, path),
     )
+
+
+def model_sha256(path: str | Path) -> str:
+    r"""SHA-256 (hex) of an MJCF model's text: the file's and every file it ``<include>``s.
+
+    Line endings are taken as ``\n`` (a Windows checkout of the same file has the same hash),
+    and each included file's text is hashed after the main file's, in the order they are
+    included (depth first), so that a change in an included file (a tendon's path, say)
+    changes the hash. A file that includes nothing hashes as its bytes with ``\n`` endings.
+
+    Args:
+        path: The main MJCF file.
+
+    Returns:
+        The hexadecimal digest.
+
+    Raises:
+        ModelError: The file, or a file it includes, cannot be read or parsed.
+    """
+    import xml.etree.ElementTree as ElementTree
+
+    digest = hashlib.sha256()
+    main = Path(path)
+
+    def add(file: Path, seen: tuple[Path, ...]) -> None:
+        try:
+            raw = file.read_bytes()
+        except OSError as exc:
+            raise ModelError(f"{main}: cannot read {file}: {exc.strerror}") from None
+        digest.update(raw.replace(b"\r\n", b"\n"))
+        if b"<include" not in raw:
+            return
+        try:
+            root = ElementTree.fromstring(raw)
+        except ElementTree.ParseError as exc:
+            raise ModelError(f"{file}: not valid XML: {exc}") from None
+        for element in root.iter("include"):
+            name = element.get("file")
+            if name is None:
+                continue
+            included = (main.parent / name).resolve()  # MuJoCo: relative to the main file
+            if included in seen:
+                continue
+            add(included, (*seen, included))
+
+    add(main, (main.resolve(),))
+    return digest.hexdigest()
 
 
 def model_gravity(mj_model: mujoco.MjModel) -> NDArray[np.float64]:

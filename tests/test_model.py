@@ -185,3 +185,23 @@ def test_a_fixed_tendon_and_a_range_in_degrees_are_refused(tmp_path):
     elbow = '<joint name="elbow" type="hinge" axis="0 1 0" range="-2.3 0.05"/>'
     with pytest.raises(ModelError, match=r"hinge 'elbow' has the range \[-132, 3\] rad"):
         load_robot(_variant(tmp_path, elbow, degrees))
+
+
+def test_the_model_hash_covers_included_files_and_not_line_endings(tmp_path, arm):
+    text = ARM_MODEL_PATH.read_text()
+    crlf = tmp_path / "crlf.xml"
+    crlf.write_bytes(text.replace("\n", "\r\n").encode())
+    assert load_robot(crlf).sha256 == arm.sha256  # a Windows checkout of the same model
+    start, stop = text.index("<tendon>"), text.index("</tendon>") + len("</tendon>")
+    (tmp_path / "tendons.xml").write_text(f"<mujoco>{text[start:stop]}</mujoco>")
+    split = tmp_path / "split.xml"
+    split.write_text(text[:start] + '<include file="tendons.xml"/>' + text[stop:])
+    first = load_robot(split)
+    np.testing.assert_array_equal(first.mj_model.tendon_length0, arm.mj_model.tendon_length0)
+    # a change in the included file alone (a cable's path) changes the hash
+    tendons = (tmp_path / "tendons.xml").read_text()
+    site = re.search(r'<site site="([^"]+)"/>', tendons).group(0)
+    (tmp_path / "tendons.xml").write_text(tendons.replace(site, "", 1))
+    second = load_robot(split)
+    assert not np.array_equal(second.mj_model.tendon_length0, first.mj_model.tendon_length0)
+    assert second.sha256 != first.sha256

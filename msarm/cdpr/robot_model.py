@@ -34,7 +34,6 @@ default the platform's own wrench (weight, and inertia when the motion is given)
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,7 +54,7 @@ from msarm.cdpr.forward_kinematics import (
 )
 from msarm.cdpr.kinematics import CableRobot
 from msarm.errors import InputError, ModelError
-from msarm.model import MODELS_DIR, RobotData, model_gravity, mujoco_model_name
+from msarm.model import MODELS_DIR, RobotData, model_gravity, model_sha256, mujoco_model_name
 
 FloatArray = NDArray[np.float64]
 
@@ -490,7 +489,6 @@ def load_cable_robot(path: str | Path | None = None) -> CableRobotModel:
     path = Path(IPANEMA_MINI_PATH if path is None else path)
     if not path.is_file():
         raise ModelError(f"model file not found: {path} (expected an MJCF .xml file)")
-    raw = path.read_bytes()
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
@@ -511,7 +509,7 @@ def load_cable_robot(path: str | Path | None = None) -> CableRobotModel:
     pin_model.gravity.linear = model_gravity(mj_model)  # the parser ignores <option gravity>
     model = CableRobotModel(
         path=path,
-        sha256=hashlib.sha256(raw).hexdigest(),
+        sha256=model_sha256(path),
         mj_model=mj_model,
         pin_model=pin_model,
         robot=robot,
