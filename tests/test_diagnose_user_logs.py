@@ -225,3 +225,82 @@ def test_a_warning_about_many_logs_is_shown_once_then_summarised():
     assert repeats.summary() == [
         "the same (column 'q_ref.x' is missing: y) for 1 more log(s): b/run2.parquet"
     ]
+
+
+def _with_columns(path, out, **values):
+    """The log at ``path`` rewritten to ``out`` with columns set to constants."""
+    log = read_log(path)
+    columns = {
+        k: (np.full_like(v, values[k]) if k in values else v) for k, v in log.columns.items()
+    }
+    return _rewrite(path, out, columns)
+
+
+def test_a_joint_still_in_every_training_log_is_diagnosed_and_said(logs, arm, tmp_path):
+    still = {"q.elbow": -0.2}
+    train = [
+        _with_columns(p, tmp_path / f"still{k}.parquet", **still) for k, p in enumerate(logs[:2])
+    ]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        # the Stribeck term's start solved a singular system for the still joint
+        result = diagnose(arm, train, logs[2:], candidates=["stribeck", "coulomb"], n_boot=2)
+    assert set(result.names) <= {"stribeck", "coulomb"}
+    texts = [str(w.message) for w in caught if issubclass(w.category, DiagnosisWarning)]
+    assert any(
+        t.startswith(
+            f"{train[0]}: joint(s) 'elbow' move at most 0 mrad (less than 10 mrad) in "
+            f"this log and the other training log(s) {train[1]}:"
+        )
+        for t in texts
+    ), texts
+    assert not any("joint(s) 'shoulder" in t for t in texts)
+    # still in one training log only: no such warning, and the held-out log may be still too
+    held = _with_columns(logs[2], tmp_path / "held.parquet", **still)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_data(arm, [train[0], logs[1]], [held], candidates=["stribeck"])
+    assert not any("joint(s)" in str(w.message) for w in caught)
+
+
+def test_held_out_logs_of_another_sample_rate_are_refused(logs, arm, tmp_path):
+    log = read_log(logs[2])
+    columns = {**log.columns, "t": 2.0 * log.columns["t"]}
+    rate = log.metadata.sample_rate_hz
+    slow = _rewrite(logs[2], tmp_path / "slow.parquet", columns, sample_rate_hz=rate / 2)
+    with pytest.raises(
+        LogError,
+        match=rf"slow\.parquet: sample period {2 / rate:g} s \(held-out\) differs from "
+        rf"{1 / rate:g} s of .*run40.*\(training\); diagnose logs of one sample rate together",
+    ):
+        load_data(arm, logs[:2], [slow], candidates=["coulomb"])
+
+
+def test_a_dead_sensor_channel_is_warned_once_per_log(logs, arm, tmp_path, monkeypatch, capsys):
+    import sys
+
+    from msarm.cli import main
+
+    dead = {"tension_motor.biceps": 0.0, "motor_angle.triceps": 1.5}
+    path = _with_columns(logs[0], tmp_path / "dead.parquet", **dead)
+    with pytest.warns(
+        DiagnosisWarning,
+        match=r"^\S+dead\.parquet: column\(s\) 'tension_motor\.biceps', 'motor_angle\.triceps' "
+        r"hold one value over the whole log: a dead "
+        r"or disconnected sensor\? \(a real sensor's noise",
+    ):
+        residuals_from_log(arm, path, spec=ResidualSpec(replay=False))
+    # the same dead column in two logs: shown for the first, counted for the second
+    both = [
+        _with_columns(p, tmp_path / f"q{k}.parquet", **{"q.elbow": -0.2})
+        for k, p in enumerate(logs[:2])
+    ]
+    argv = ["msarm", "diagnose", *map(str, both), "--holdout", str(logs[2])]
+    monkeypatch.setattr(sys, "argv", [*argv, "--candidates", "coulomb", "--boot", "2"])
+    main()
+    err = capsys.readouterr().err
+    assert err.count("column(s) 'q.elbow' hold one value") == 2, err
+    assert f"msarm: warning: {both[0]}: column(s) 'q.elbow' hold one value" in err
+    summary = [line for line in err.splitlines() if line.endswith(f"1 more log(s): {both[1]}")]
+    assert len(summary) == 1, err
+    assert summary[0].startswith("msarm: warning: the same (column(s) 'q.elbow' hold one value")

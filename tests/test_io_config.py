@@ -143,6 +143,68 @@ def test_missing_file_bad_yaml_and_non_mapping(tmp_path):
         load_config(_write(tmp_path, "- 1\n- 2\n"), Experiment)
 
 
+@pytest.mark.parametrize(
+    ("text", "line", "key"),
+    [
+        ("name: a\ngains: {kp: 1}\nname: b\n", 3, "name"),
+        ("name: a\ngains:\n  kp: 1\n  kd: 0.2\n  kp: 2\n", 5, "gains.kp"),
+        (
+            "name: a\ngains: {kp: 1}\ncables:\n  biceps: {low: 0.2, low: 0.02}\n",
+            4,
+            "cables.biceps.low",
+        ),
+        ("name: a\ngains: {kp: 1}\nx:\n  - {a: 1}\n  - {a: 1, 'a': 2}\n", 5, r"x\[1\]\.a"),
+    ],
+)
+def test_a_key_given_twice_in_one_mapping_is_refused(tmp_path, text, line, key):
+    path = _write(tmp_path, text)
+    with pytest.raises(
+        ConfigError,
+        match=rf"exp\.yaml: line {line}: key '{key}' appears twice in one mapping "
+        r"\(first at line \d+\); expected each key once",
+    ):
+        load_config(path, Experiment)
+
+
+def test_merge_keys_may_be_overridden_and_anchors_still_work(tmp_path):
+    path = _write(
+        tmp_path,
+        """
+name: a
+gains: &g {kp: 1, kd: 0.1}
+cables:
+  biceps: &wide {low: 1.0, high: 20}
+  triceps:
+    <<: *wide
+    high: 5
+  deltoid:
+    <<: [*wide, {low: 2.0}]
+    low: 3.0
+limits: *wide
+""",
+    )
+    cfg = load_config(path, Experiment)
+    assert cfg.gains == Gains(kp=1.0, kd=0.1)
+    assert cfg.cables == {
+        "biceps": Limits(1.0, 20.0),
+        "triceps": Limits(1.0, 5.0),
+        "deltoid": Limits(3.0, 20.0),
+    }
+    assert cfg.limits == Limits(1.0, 20.0)
+
+
+def test_a_plant_file_with_a_repeated_effect_key_is_refused(tmp_path):
+    from msarm.plant.config import PlantConfig
+
+    path = tmp_path / "plant.yaml"
+    path.write_text("name: p\neffects:\n  sheath_friction:\n    mu: 0.2\n    mu: 0.02\n")
+    with pytest.raises(
+        ConfigError,
+        match=r"plant\.yaml: line 5: key 'effects\.sheath_friction\.mu' appears twice",
+    ):
+        load_config(path, PlantConfig)
+
+
 def test_config_error_is_msarm_and_value_error():
     assert issubclass(ConfigError, MsarmError) and issubclass(ConfigError, ValueError)
 

@@ -189,6 +189,25 @@ def test_wrong_schema_version(tmp_path):
         read_log(path)
 
 
+def test_a_schema_version_that_only_looks_like_1_is_named_as_what_it_is(tmp_path):
+    for name, stored, got in (
+        ("string", '"1"', "the string '1'"),
+        ("float", "1.0", "the number 1.0"),
+        ("bool", "true", "the boolean true"),
+    ):
+        path = _write_raw(
+            tmp_path / f"{name}.parquet", {"t": [0.0, 1.0]}, _kv(schema_version=stored)
+        )
+        with pytest.raises(
+            LogError,
+            match=rf"{name}\.parquet: log schema version: expected the JSON integer 1, got {got}$",
+        ):
+            read_log(path)
+    path = _write_raw(tmp_path / "v3.parquet", {"t": [0.0, 1.0]}, _kv(schema_version='"3"'))
+    with pytest.raises(LogError, match=r"log schema version '3' is not supported \(expected 1\)"):
+        read_log(path)
+
+
 def test_missing_t_column(tmp_path):
     path = _write_raw(tmp_path / "no_t.parquet", {"q.elbow": [0.0, 1.0]}, _kv())
     with pytest.raises(LogError, match=r"no_t\.parquet: no time column 't'; columns: q.elbow"):

@@ -119,10 +119,10 @@ def read_config_section(path: Path, cls: type[T], section: str) -> tuple[T, obje
     import yaml
 
     from msarm.errors import ConfigError
-    from msarm.io.config import load_config
+    from msarm.io.config import _load_yaml, load_config
 
-    try:
-        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    try:  # the loader of load_config: a key given twice is refused here too
+        raw = _load_yaml(Path(path).read_text(encoding="utf-8"), str(path))
     except (OSError, UnicodeDecodeError, yaml.YAMLError):
         raw = None  # load_config says what is wrong with the file
     fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]

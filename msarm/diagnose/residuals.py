@@ -406,14 +406,13 @@ def _has_channels(log: RunLog, quantity: str, names: list[str], source: str, wit
     return not missing
 
 
-def _warn_constant_sensors(
-    source: str, channels: list[tuple[str, list[str], FloatArray]]
-) -> None:
+def _warn_constant_sensors(source: str, channels: list[tuple[str, list[str], FloatArray]]) -> None:
     """Warn (one line) about sensor columns that hold exactly one value over the whole log.
 
     ``channels`` holds ``(quantity, names, matrix)`` with ``matrix[:, k]`` the column
-    ``quantity.names[k]``. A still joint may be legitimate, so this is not refused. Commands
-    (``tension_cmd``) are not checked: a cable held at its least tension is commanded one value.
+    ``quantity.names[k]``. A joint held still may be legitimate, so this is not refused.
+    Commands (``tension_cmd``) are not checked: a cable kept at its least tension is commanded
+    one value over a whole run (so msarm's own allocation does for an unused cable).
     """
     constant = [
         f"'{quantity}.{name}'"
@@ -425,8 +424,9 @@ def _warn_constant_sensors(
     if constant:
         warnings.warn(
             f"{source}: column(s) {', '.join(constant)} hold one value over the whole log: a "
-            "dead or disconnected sensor, or a joint locked still? The diagnosis takes them "
-            "as logged (a dead sensor's answer is wrong: leave such a log out)",
+            "dead or disconnected sensor? (a real sensor's noise moves its reading; a joint "
+            "held still or a noise-free simulation may not) The diagnosis uses them as "
+            "logged; leave the log out if a sensor is dead",
             DiagnosisWarning,
             stacklevel=3,
         )

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.builder import GROUPS, channels_from_logs
+from msarm.diagnose.builder import GROUPS, MIN_TRAVEL, channels_from_logs
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
@@ -98,7 +98,7 @@ from msarm.diagnose.stack import (
     own_gain,
     pooled_rmse,
 )
-from msarm.errors import InputError
+from msarm.errors import InputError, LogError
 from msarm.model import RobotModel
 
 __all__ = [
@@ -592,6 +592,28 @@ def diagnose(
     return select_effects(data, threshold, n_boot, seed, shortlist=shortlist, progress=progress)
 
 
+def _warn_still_joints(model: RobotModel, signals: Signals, names: Sequence[str]) -> None:
+    """Warn about joints that move less than :data:`MIN_TRAVEL` in every training log.
+
+    Not when no joint moves: each such log has been warned about by itself.
+    """
+    runs = [signals.run == k for k in range(len(names))] if signals.run is not None else []
+    runs = [rows for rows in runs if rows.any()] or [np.ones(signals.n_samples, dtype=bool)]
+    travel = np.max([np.ptp(signals.q[rows], axis=0) for rows in runs], axis=0)
+    still = [j for j, joint_travel in enumerate(travel) if joint_travel < MIN_TRAVEL]
+    if not still or len(still) == len(travel):
+        return
+    joints = ", ".join(f"'{model.joint_names[j]}'" for j in still)
+    others = f" and the other training log(s) {', '.join(names[1:])}" if len(names) > 1 else ""
+    warnings.warn(
+        f"{names[0]}: joint(s) {joints} move at most {1e3 * float(np.max(travel[still])):.2g} "
+        f"mrad (less than {1e3 * MIN_TRAVEL:g} mrad) in this log{others}: their friction and "
+        "inertia terms cannot be fitted; train on logs in which every joint moves",
+        DiagnosisWarning,
+        stacklevel=3,
+    )
+
+
 def load_data(
     model: RobotModel,
     train_paths: Sequence[str | Path],
@@ -642,6 +664,13 @@ def load_data(
     pool, named = _resolve(model, candidates, spec)
     train, g_train, train_names = channels_from_logs(model, train_paths, spec)
     hold, g_hold, hold_names = channels_from_logs(model, holdout_paths, spec)
+    if abs(hold.dt - train.dt) > 1e-9 * train.dt:
+        raise LogError(
+            f"{hold_names[0]}: sample period {hold.dt:g} s (held-out) differs from "
+            f"{train.dt:g} s of {train_names[0]} (training); diagnose logs of one sample rate "
+            "together"
+        )
+    _warn_still_joints(model, train, train_names)
 
     spec = spec or ResidualSpec()
     floor = {"joint": 0.0, "drive": 0.0, "length": spec.length_resolution}

@@ -147,6 +147,56 @@ _Loader.add_implicit_resolver(
 )
 
 
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+def _load_yaml(text: str, label: str) -> Any:
+    """Parse YAML text with :class:`_Loader`, refusing a key repeated in one mapping.
+
+    PyYAML keeps the last of repeated keys without a word; here the composed node tree is
+    checked first. Keys brought in by a merge key (``<<: *anchor``) may be overridden by the
+    mapping's own keys (that is what merging is for), so only explicit keys are compared.
+
+    Raises:
+        yaml.YAMLError: Not valid YAML.
+        ConfigError: A key appears twice in one mapping (file, line and dotted key path named).
+    """
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_unique_keys(node, label, "", set())
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
+def _check_unique_keys(node: yaml.Node, label: str, key: str, visited: set[int]) -> None:
+    if id(node) in visited:  # an alias of a node already checked (or a recursive one)
+        return
+    visited.add(id(node))
+    if isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _check_unique_keys(item, label, f"{key}[{i}]", visited)
+    elif isinstance(node, yaml.MappingNode):
+        first: dict[str, int] = {}
+        for key_node, value_node in node.value:
+            if key_node.tag == _MERGE_TAG:
+                _check_unique_keys(value_node, label, key, visited)
+                continue
+            if not isinstance(key_node, yaml.ScalarNode):
+                continue
+            name, line = key_node.value, key_node.start_mark.line + 1
+            if name in first:
+                raise ConfigError(
+                    f"{label}: line {line}: key '{_join(key, name)}' appears twice in one "
+                    f"mapping (first at line {first[name]}); expected each key once"
+                )
+            first[name] = line
+            _check_unique_keys(value_node, label, _join(key, name), visited)
+
+
 class _Dumper(yaml.SafeDumper):
     """Safe YAML dumper: block-style mappings, flow-style (one line) lists of scalars."""
 
@@ -191,7 +241,7 @@ def load_config(source: str | Path | Mapping[str, Any], cls: type[T]) -> T:
         except (OSError, UnicodeDecodeError) as exc:
             raise ConfigError(f"{label}: cannot read the config file: {exc}") from None
         try:
-            data = yaml.load(text, Loader=_Loader)  # a SafeLoader subclass: safe
+            data = _load_yaml(text, label)  # a SafeLoader subclass: safe
         except yaml.YAMLError as exc:
             raise ConfigError(f"{label}: not valid YAML: {yaml_problem(exc)}") from None
         if data is None:

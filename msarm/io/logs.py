@@ -694,6 +694,25 @@ def write_log(path: str | Path, log: RunLog) -> Path:
     return path
 
 
+def _check_version(version: Any, expected: int, what: str) -> None:
+    """Refuse a schema version other than the JSON integer ``expected``.
+
+    ``"1"`` (a string), ``1.0`` and ``true`` compare equal to 1 or look like it; they are
+    named as what they are.
+    """
+    if type(version) is int and version == expected:
+        return
+    if isinstance(version, str) and version.strip() == str(expected):
+        got = f"the string {version!r}"
+    elif isinstance(version, bool):
+        got = f"the boolean {json.dumps(version)}"
+    elif isinstance(version, float) and version == expected:
+        got = f"the number {version!r}"
+    else:
+        raise LogError(f"{what} {version!r} is not supported (expected {expected})")
+    raise LogError(f"{what}: expected the JSON integer {expected}, got {got}")
+
+
 def read_log(path: str | Path) -> RunLog:
     """Read and check a run log (never its sidecar).
 
@@ -715,10 +734,7 @@ def read_log(path: str | Path) -> RunLog:
     if _TRUTH_PREFIX + "schema_version" in kv:
         raise LogError(f"{label}: this is a ground-truth sidecar, not a log; read_sidecar reads it")
     version = _decode(kv, _PREFIX + "schema_version", label)
-    if version != SCHEMA_VERSION:
-        raise LogError(
-            f"{label}: log schema version {version!r} is not supported (expected {SCHEMA_VERSION})"
-        )
+    _check_version(version, SCHEMA_VERSION, f"{label}: log schema version")
     known = {_PREFIX + f for f in _META_FIELDS}
     unknown = sorted(k for k in kv if k.startswith(_PREFIX) and k not in known)
     if unknown:
@@ -845,11 +861,7 @@ def read_sidecar(log_path: str | Path) -> TruthSidecar:
     label = str(path)
     columns, kv = _read_parquet(path)
     version = _decode(kv, _TRUTH_PREFIX + "schema_version", label)
-    if version != SIDECAR_SCHEMA_VERSION:
-        raise LogError(
-            f"{label}: sidecar schema version {version!r} is not supported "
-            f"(expected {SIDECAR_SCHEMA_VERSION})"
-        )
+    _check_version(version, SIDECAR_SCHEMA_VERSION, f"{label}: sidecar schema version")
     ground_truth = _decode(kv, _TRUTH_PREFIX + "ground_truth", label)
     units = _decode(kv, _TRUTH_PREFIX + "units", label, required=False) or {}
     if not isinstance(ground_truth, dict) or not isinstance(units, dict):
