@@ -403,12 +403,21 @@ def _check_engines_agree(
             f"{path}: Pinocchio sees nq={pin_model.nq}, nv={pin_model.nv} but MuJoCo "
             f"nq={mj_model.nq}, nv={mj_model.nv}"
         )
+    for b in range(1, mj_model.nbody):  # a body the parser dropped, named before the mass
+        name = mj_model.body(b).name
+        if not pin_model.existFrame(name):
+            raise ModelError(
+                f"{path}: body '{name}' is missing from Pinocchio's model; its MJCF parser "
+                "drops bodies it cannot place (e.g. inside a <frame>, or from an <include>d "
+                "file): write the body directly in the model"
+            )
     mj_mass = float(mj_model.body_subtreemass[0])
     pin_mass = float(sum(inertia.mass for inertia in pin_model.inertias))
     if abs(mj_mass - pin_mass) > _ENGINE_TOLERANCE * max(1.0, mj_mass):
         raise ModelError(
             f"{path}: total mass differs between MuJoCo ({mj_mass:.6g} kg) and Pinocchio "
-            f"({pin_mass:.6g} kg)"
+            f"({pin_mass:.6g} kg); Pinocchio's parser takes a body's mass from its <inertial> "
+            "element only (MuJoCo infers it from the geoms otherwise): give every body one"
         )
     # Body positions at a test posture inside the joint range must agree body by body.
     lower, upper = _joint_limits(mj_model)
@@ -420,8 +429,6 @@ def _check_engines_agree(
     pinocchio.framesForwardKinematics(pin_model, pin_data, q[pin_q_index])
     for b in range(1, mj_model.nbody):
         name = mj_model.body(b).name
-        if not pin_model.existFrame(name):
-            raise ModelError(f"{path}: body '{name}' is missing from Pinocchio's model")
         pin_pos = pin_data.oMf[pin_model.getFrameId(name)].translation
         if np.abs(pin_pos - mj_data.xpos[b]).max() > _ENGINE_TOLERANCE:
             raise ModelError(

@@ -205,3 +205,19 @@ def test_the_model_hash_covers_included_files_and_not_line_endings(tmp_path, arm
     second = load_robot(split)
     assert not np.array_equal(second.mj_model.tendon_length0, first.mj_model.tendon_length0)
     assert second.sha256 != first.sha256
+
+
+def test_a_body_the_parser_drops_or_a_mass_from_geoms_is_named_with_its_cause(tmp_path):
+    hand = '<body name="hand" pos="0 0 -0.2555">'
+    text = ARM_MODEL_PATH.read_text()
+    start = text.index(hand)
+    end = text.index("</body>", start) + len("</body>")
+    framed = text[:start] + '<frame pos="0 0 0">' + text[start:end] + "</frame>" + text[end:]
+    path = tmp_path / "framed.xml"
+    path.write_text(framed)
+    with pytest.raises(ModelError, match=r"body 'hand' is missing from Pinocchio's model.*frame"):
+        load_robot(path)
+    inertial = re.search(r"<inertial[^>]*/>", text[start:end]).group(0)
+    path.write_text(text[:start] + text[start:end].replace(inertial, "", 1) + text[end:])
+    with pytest.raises(ModelError, match=r"total mass differs.*<inertial> element only"):
+        load_robot(path)
