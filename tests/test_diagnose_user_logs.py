@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import warnings
 from dataclasses import replace
 
@@ -304,3 +305,27 @@ def test_a_dead_sensor_channel_is_warned_once_per_log(logs, arm, tmp_path, monke
     summary = [line for line in err.splitlines() if line.endswith(f"1 more log(s): {both[1]}")]
     assert len(summary) == 1, err
     assert summary[0].startswith("msarm: warning: the same (column(s) 'q.elbow' hold one value")
+
+
+def test_a_model_without_muscle_parameters_is_diagnosed(logs, arm, tmp_path, monkeypatch, capsys):
+    import sys
+
+    from msarm.cli import main
+    from msarm.model import ARM_MODEL_PATH, load_robot
+
+    text = ARM_MODEL_PATH.read_text()
+    start = text.index("  <custom>\n")  # the element, not the comment that names it
+    stop = text.index("</custom>") + len("</custom>")
+    model_path = tmp_path / "no_muscles.xml"
+    model_path.write_text(text[:start] + text[stop:])
+    bare = load_robot(model_path)
+    assert bare.muscles is None
+    paths = [
+        _rewrite(p, tmp_path / f"bare-{k}.parquet", model_sha256=bare.sha256)
+        for k, p in enumerate(logs)
+    ]
+    argv = ["msarm", "diagnose", str(paths[0]), str(paths[1]), "--holdout", str(paths[2])]
+    monkeypatch.setattr(sys, "argv", [*argv, "--model", str(model_path), "--boot", "0", "--json"])
+    main()  # a success: no SystemExit
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["holdout_runs"] == [str(paths[2])]

@@ -260,7 +260,8 @@ def diagnose_command(
         typer.Option(
             "--model",
             help="The nominal model (MJCF) the logs were recorded with; default "
-            "models/msarm_arm.xml. Logs of another model are refused (hashes named).",
+            "models/msarm_arm.xml. Logs of another model are refused (hashes named). It needs "
+            "no muscle (Hill) parameters: the diagnosis uses the cables' geometry.",
         ),
     ] = None,
 ) -> None:
@@ -268,7 +269,7 @@ def diagnose_command(
     from msarm.compensation.target import TENSION_TIMINGS, TargetSpec
     from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec
     from msarm.diagnose.select import diagnose
-    from msarm.model import load_arm
+    from msarm.model import load_robot
 
     train, held = split_runs(list(logs), holdout)
     if boot < 0:
@@ -314,7 +315,7 @@ def diagnose_command(
                 spinner.update(text)
             line(text)
 
-        model = load_arm(model_path)
+        model = load_robot(model_path)  # the diagnosis needs no muscle model
         options["progress"] = say
         with warnings.catch_warnings():
             # the candidates skipped are listed in a table below
