@@ -203,8 +203,10 @@ def load_arm(path: str | Path | None = None) -> RobotModel:
         The loaded model, with :attr:`RobotModel.muscles` set.
 
     Raises:
-        ModelError: The file cannot be loaded (see :func:`load_robot`), or it has no Hill
-            parameters ``hill/<cable>`` in ``<custom>``.
+        ModelError: The file cannot be loaded (see :func:`load_robot`), it has no Hill
+            parameters ``hill/<cable>`` in ``<custom>``, or a cable's length at ``qpos0``
+            puts its fibre outside 0.25-2.5 optimal lengths (lengths and Hill parameters in
+            different units, most likely).
     """
     model = load_robot(ARM_MODEL_PATH if path is None else path)
     if model.muscles is None:
@@ -212,7 +214,44 @@ def load_arm(path: str | Path | None = None) -> RobotModel:
             f"{model.path}: an arm model needs Hill parameters 'hill/<cable>' in <custom> "
             f"for every cable ({', '.join(model.cable_names)})"
         )
+    _check_fibre_lengths(model)
     return model
+
+
+#: Normalised fibre lengths ``l_M / l_M0`` a muscle may have at the model's reference
+#: posture (``qpos0``): a Hill muscle works near 1 (0.8-1.2 on msarm's arm); far outside,
+#: the cable lengths and the Hill parameters are not in the same units.
+_FIBRE_LENGTH_RANGE = (0.25, 2.5)
+
+
+def _check_fibre_lengths(model: RobotModel) -> None:
+    """Refuse cable lengths that do not fit the Hill parameters (a unit mistake, say)."""
+    muscles = model.muscles
+    assert muscles is not None
+    data = mujoco.MjData(model.mj_model)
+    mujoco.mj_forward(model.mj_model, data)
+    length = np.array(data.ten_length, dtype=float)
+    slack = np.asarray(muscles.tendon_slack_length, dtype=float)
+    optimal = np.asarray(muscles.optimal_fiber_length, dtype=float)
+    low, high = _FIBRE_LENGTH_RANGE
+    taut = length > slack  # a fibre exists (the Hill model refuses the others)
+    fibre = muscles.fiber_state(
+        np.where(taut, length, slack + optimal), np.zeros_like(length)
+    ).length_norm
+    for i, name in enumerate(model.cable_names):
+        if taut[i] and low <= fibre[i] <= high:
+            continue
+        said = (
+            f"{fibre[i]:.3g} times its optimal length"
+            if taut[i]
+            else "shorter than its tendon slack length"
+        )
+        raise ModelError(
+            f"{model.path}: cable '{name}' is {length[i]:.4g} m long at the reference posture "
+            f"(qpos0): its fibre would be {said} (l_M0 {optimal[i]:.4g} m, l_Ts "
+            f"{slack[i]:.4g} m); expected {low:g}-{high:g} times its optimal length. Are the "
+            "model's lengths and the Hill parameters in the same unit (metres)?"
+        )
 
 
 def load_robot(path: str | Path) -> RobotModel:

@@ -221,3 +221,23 @@ def test_a_body_the_parser_drops_or_a_mass_from_geoms_is_named_with_its_cause(tm
     path.write_text(text[:start] + text[start:end].replace(inertial, "", 1) + text[end:])
     with pytest.raises(ModelError, match=r"total mass differs.*<inertial> element only"):
         load_robot(path)
+
+
+def test_cable_lengths_that_do_not_fit_the_hill_parameters_are_refused(tmp_path, arm):
+    """A model drawn in millimetres: the cables are 1000 times what the muscles can be."""
+    text = ARM_MODEL_PATH.read_text()
+    sites = re.findall(r'<site name="[^"]+" pos="([^"]+)"', text)
+    assert sites
+    scaled = text
+    for pos in sorted(set(sites), key=len, reverse=True):
+        millimetres = " ".join(f"{1000 * float(v):g}" for v in pos.split())
+        scaled = scaled.replace(f'pos="{pos}"', f'pos="{millimetres}"')
+    path = tmp_path / "millimetres.xml"
+    path.write_text(scaled)
+    with pytest.raises(ModelError, match=r"cable '.*' is .* m long at the reference posture"):
+        load_arm(path)
+    # the shipped arm sits well inside the range: 0.8-1.2 optimal lengths
+    data = mujoco.MjData(arm.mj_model)
+    mujoco.mj_forward(arm.mj_model, data)
+    fibre = arm.muscles.fiber_state(data.ten_length, np.zeros(arm.n_cables)).length_norm
+    assert np.all((fibre > 0.7) & (fibre < 1.3))
