@@ -269,7 +269,7 @@ def diagnose_command(
     from msarm.compensation.target import TENSION_TIMINGS, TargetSpec
     from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec
     from msarm.diagnose.select import diagnose
-    from msarm.model import load_robot
+    from msarm.model import ARM_MODEL_PATH, load_robot
 
     train, held = split_runs(list(logs), holdout)
     if boot < 0:
@@ -315,7 +315,8 @@ def diagnose_command(
                 spinner.update(text)
             line(text)
 
-        model = load_robot(model_path)  # the diagnosis needs no muscle model
+        # the diagnosis needs no muscle model: any cable-driven arm msarm loads
+        model = load_robot(ARM_MODEL_PATH if model_path is None else model_path)
         options["progress"] = say
         with warnings.catch_warnings():
             # the candidates skipped are listed in a table below
