@@ -329,3 +329,14 @@ def test_a_model_without_muscle_parameters_is_diagnosed(logs, arm, tmp_path, mon
     main()  # a success: no SystemExit
     payload = json.loads(capsys.readouterr().out)
     assert payload["holdout_runs"] == [str(paths[2])]
+
+
+def test_the_sheath_identification_refuses_validation_logs_of_another_rate(logs, arm, tmp_path):
+    from msarm.compensation.identify import identify_sheath
+
+    log = read_log(logs[2])
+    half = {k: v[::2] for k, v in log.columns.items()}  # every other sample: half the rate
+    rate = log.metadata.sample_rate_hz / 2
+    slow = _rewrite(logs[2], tmp_path / "slow.parquet", half, sample_rate_hz=rate)
+    with pytest.raises(LogError, match=r"slow\.parquet: sample period .* \(validation\) differs"):
+        identify_sheath(arm, logs[:2], [slow])

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from msarm.compensation.sheath import SheathParameters
-from msarm.diagnose.builder import channels_from_logs
+from msarm.diagnose.builder import channels_from_logs, check_same_rate
 from msarm.diagnose.cable_effects import CableElasticity
 from msarm.diagnose.effects import CableCapstanFriction
 from msarm.diagnose.fitting import fit
@@ -59,8 +59,9 @@ def identify_sheath(
     """
     if not train_paths or not validation_paths:
         raise InputError("identify_sheath needs training and validation logs, at least one each")
-    train, residual, _ = channels_from_logs(model, train_paths)
-    held, held_residual, _ = channels_from_logs(model, validation_paths)
+    train, residual, train_names = channels_from_logs(model, train_paths)
+    held, held_residual, held_names = channels_from_logs(model, validation_paths)
+    check_same_rate(train, train_names[0], held, held_names[0], ("training", "validation"))
     capstan = fit(
         CableCapstanFriction(n_cables=model.n_cables, n_joints=model.n_joints, fit_eps=True),
         train,

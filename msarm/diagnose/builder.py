@@ -27,7 +27,14 @@ from msarm.errors import InputError, LogError
 from msarm.io.logs import read_log
 from msarm.model import RobotModel
 
-__all__ = ["GROUPS", "GROUP_UNITS", "MIN_TRAVEL", "channels_from_logs", "signals_from_logs"]
+__all__ = [
+    "GROUPS",
+    "GROUP_UNITS",
+    "MIN_TRAVEL",
+    "channels_from_logs",
+    "check_same_rate",
+    "signals_from_logs",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -174,3 +181,26 @@ def channels_from_logs(
     present = [g for g in GROUPS if all(g in r for r in residuals)]
     groups = {g: np.concatenate([r[g] for r in residuals]) for g in present}
     return signals, groups, tuple(names)
+
+
+def check_same_rate(
+    first: Signals, first_name: str, second: Signals, second_name: str, roles: tuple[str, str]
+) -> None:
+    """Refuse two sets of logs of different sample periods (each read by its own call).
+
+    Args:
+        first: Signals of the first set (e.g. the training logs).
+        first_name: A log of the first set, for the message.
+        second: Signals of the second set (e.g. the held-out logs).
+        second_name: A log of the second set, for the message.
+        roles: What the two sets are, e.g. ``("training", "held-out")``.
+
+    Raises:
+        LogError: The periods differ (by more than 1e-9 relative), both named.
+    """
+    if abs(second.dt - first.dt) > 1e-9 * first.dt:
+        raise LogError(
+            f"{second_name}: sample period {second.dt:g} s ({roles[1]}) differs from "
+            f"{first.dt:g} s of {first_name} ({roles[0]}); diagnose logs of one sample rate "
+            "together"
+        )

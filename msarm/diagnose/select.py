@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.builder import GROUPS, MIN_TRAVEL, channels_from_logs
+from msarm.diagnose.builder import GROUPS, MIN_TRAVEL, channels_from_logs, check_same_rate
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
@@ -98,7 +98,7 @@ from msarm.diagnose.stack import (
     own_gain,
     pooled_rmse,
 )
-from msarm.errors import InputError, LogError
+from msarm.errors import InputError
 from msarm.model import RobotModel
 
 __all__ = [
@@ -664,12 +664,7 @@ def load_data(
     pool, named = _resolve(model, candidates, spec)
     train, g_train, train_names = channels_from_logs(model, train_paths, spec)
     hold, g_hold, hold_names = channels_from_logs(model, holdout_paths, spec)
-    if abs(hold.dt - train.dt) > 1e-9 * train.dt:
-        raise LogError(
-            f"{hold_names[0]}: sample period {hold.dt:g} s (held-out) differs from "
-            f"{train.dt:g} s of {train_names[0]} (training); diagnose logs of one sample rate "
-            "together"
-        )
+    check_same_rate(train, train_names[0], hold, hold_names[0], ("training", "held-out"))
     _warn_still_joints(model, train, train_names)
 
     spec = spec or ResidualSpec()
