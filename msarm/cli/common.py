@@ -149,13 +149,13 @@ def check_controller_file(
             control period that is not a whole number of plant steps (``source`` named).
     """
     from msarm.control import MuscleSpaceController
+    from msarm.tasks.runner import plant_steps_per_tick
 
     try:
         controller = MuscleSpaceController(model, gains)
     except InputError as exc:
         raise InputError(f"{source}: {exc}") from None
-    steps = controller.period / plant_config.timestep
-    if round(steps) < 1 or abs(round(steps) * plant_config.timestep - controller.period) > 1e-12:
+    if plant_steps_per_tick(controller.period, plant_config.timestep) is None:
         raise InputError(
             f"{source}: rate_hz {gains.rate_hz:g} gives a control period of "
             f"{controller.period:.6g} s, not a whole number of the plant's steps of "

@@ -27,7 +27,14 @@ from msarm.plant.effects import SensorReadings
 from msarm.tasks.compiled_loop import compiled_loop_supported, run_compiled
 from msarm.tasks.registry import check_task_against
 
-__all__ = ["LOG_UNITS", "TRUTH_UNITS", "Feedforward", "TrackingRun", "run_tracking"]
+__all__ = [
+    "LOG_UNITS",
+    "TRUTH_UNITS",
+    "Feedforward",
+    "TrackingRun",
+    "plant_steps_per_tick",
+    "run_tracking",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -123,6 +130,22 @@ def _names(prefix: str, names: tuple[str, ...]) -> list[str]:
     return [f"{prefix}.{name}" for name in names]
 
 
+def plant_steps_per_tick(period: float, timestep: float) -> int | None:
+    """Plant steps in one control period, or None when it is not a whole number of them.
+
+    Args:
+        period: The control period [s].
+        timestep: The plant's step [s].
+
+    Returns:
+        The number of plant steps (>= 1), or None.
+    """
+    steps = int(round(period / timestep))
+    if steps < 1 or abs(steps * timestep - period) > 1e-12:
+        return None
+    return steps
+
+
 def run_tracking(
     plant: ArmPlant,
     controller: MuscleSpaceController,
@@ -156,8 +179,8 @@ def run_tracking(
     """
     model = plant.model
     period = controller.period
-    substeps = int(round(period / plant.config.timestep))
-    if substeps < 1 or abs(substeps * plant.config.timestep - period) > 1e-12:
+    substeps = plant_steps_per_tick(period, plant.config.timestep)
+    if substeps is None:
         raise InputError(
             f"the control period {period} s is not a whole number of plant steps of "
             f"{plant.config.timestep} s"
