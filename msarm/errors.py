@@ -26,3 +26,7 @@ class MsarmWarning(UserWarning):
 
     The message says what limits a result and what is still done.
     """
+
+
+class ModelWarning(MsarmWarning):
+    """A robot model loads, but a value in it looks like a unit slip (named, with its file)."""

@@ -20,6 +20,7 @@ Model and data are separate, as in both engines: a :class:`RobotModel` is immuta
 from __future__ import annotations
 
 import hashlib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -29,7 +30,7 @@ import numpy as np
 import pinocchio
 from numpy.typing import NDArray
 
-from msarm.errors import ModelError
+from msarm.errors import ModelError, ModelWarning
 from msarm.muscle.hill import HillMuscles, MuscleParameters
 
 if TYPE_CHECKING:
@@ -406,20 +407,44 @@ def _check_spatial_tendons(mj_model: mujoco.MjModel, path: Path) -> None:
             )
 
 
+#: A limited hinge whose range is narrower than this [rad] (5 degrees) is warned about: most
+#: likely a range written in radians in a model that MuJoCo reads in degrees (its default).
+NARROW_HINGE_RANGE = np.deg2rad(5.0)
+
+
 def _check_joint_ranges(mj_model: mujoco.MjModel, path: Path) -> None:
-    """Refuse a hinge range wider than a turn: degrees read as radians, most likely."""
+    """Check the limited hinges' ranges for the two unit slips of MJCF angles.
+
+    A range wider than a turn is refused (degrees read as radians, most likely). A range
+    narrower than :data:`NARROW_HINGE_RANGE` is warned about (:class:`ModelWarning`): radians
+    read as degrees, most likely, as MuJoCo's ``<compiler angle>`` defaults to degrees. It
+    is not refused, as a joint may be meant to barely move.
+    """
+    narrow = []
     for j in range(mj_model.njnt):
         if int(mj_model.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):
             continue
         if not mj_model.jnt_limited[j]:
             continue
         low, high = (float(v) for v in mj_model.jnt_range[j])
+        name = mj_model.joint(j).name
         if high - low > 2 * np.pi:
             raise ModelError(
-                f"{path}: hinge '{mj_model.joint(j).name}' has the range [{low:.4g}, "
+                f"{path}: hinge '{name}' has the range [{low:.4g}, "
                 f"{high:.4g}] rad, wider than a turn; expected radians (a range in degrees "
                 'needs <compiler angle="degree"/>, and is then converted)'
             )
+        if high - low < NARROW_HINGE_RANGE:
+            narrow.append(f"'{name}' [{low:.4g}, {high:.4g}]")
+    if narrow:
+        warnings.warn(
+            f"{path}: hinge range narrower than {np.rad2deg(NARROW_HINGE_RANGE):.0f} degrees: "
+            f"{', '.join(narrow)} rad; if the file gives ranges in radians, add "
+            '<compiler angle="radian"/> (MuJoCo reads angles in degrees by default). '
+            "Loaded as it is",
+            ModelWarning,
+            stacklevel=3,
+        )
 
 
 def _check_single_root(mj_model: mujoco.MjModel, path: Path) -> None:

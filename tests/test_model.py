@@ -10,7 +10,7 @@ import numpy as np
 import pinocchio
 import pytest
 
-from msarm.errors import ModelError
+from msarm.errors import ModelError, ModelWarning
 from msarm.model import ARM_MODEL_PATH, load_arm, load_robot
 
 
@@ -185,6 +185,18 @@ def test_a_fixed_tendon_and_a_range_in_degrees_are_refused(tmp_path):
     elbow = '<joint name="elbow" type="hinge" axis="0 1 0" range="-2.3 0.05"/>'
     with pytest.raises(ModelError, match=r"hinge 'elbow' has the range \[-132, 3\] rad"):
         load_robot(_variant(tmp_path, elbow, degrees))
+
+
+def test_a_range_in_radians_read_as_degrees_is_warned_about(tmp_path, recwarn):
+    # without <compiler angle="radian">, MuJoCo reads the arm's radian ranges as degrees
+    compiler = '<compiler angle="radian" autolimits="true"/>'
+    path = _variant(tmp_path, compiler, '<compiler autolimits="true"/>')
+    with pytest.warns(ModelWarning, match=r"narrower than 5 degrees: 'shoulder_abduction'") as got:
+        model = load_robot(path)
+    assert len(got) == 1 and "'elbow' [-0.04014, 0.0008727]" in str(got[0].message)
+    assert model.joint_upper[3] - model.joint_lower[3] == pytest.approx(np.deg2rad(2.35))
+    load_robot(ARM_MODEL_PATH)  # the shipped model: no warning
+    assert not [w for w in recwarn if issubclass(w.category, ModelWarning)]
 
 
 def test_the_model_hash_covers_included_files_and_not_line_endings(tmp_path, arm):
