@@ -214,6 +214,32 @@ def test_logs_without_commands_lose_only_the_drive_terms(arm, winch_logs, tmp_pa
         diagnose(arm, stripped[:2], stripped[2:], candidates=["command_delay"], n_boot=0)
 
 
+def _play_operator(drum: np.ndarray, play: float) -> np.ndarray:
+    """Cable-end travel [m] of a cable that follows the drum's travel ``drum`` through a play."""
+    end = np.empty_like(drum)
+    end[0] = drum[0]
+    for k in range(1, len(drum)):
+        end[k] = np.clip(end[k - 1], drum[k] - play / 2, drum[k] + play / 2)
+    return end
+
+
+def test_backlash_of_a_play_operator_is_a_positive_play(signals):
+    """A real play, simulated: the cable end lags the drum, and the fitted play is that play."""
+    play = 2e-4
+    residual = np.empty_like(signals.tension)
+    for run in np.unique(signals.run):
+        rows = signals.run == run
+        # drum travel, reel-in positive; the encoder length is l0 - drum, the path l0 - end
+        drum = np.cumsum(DRUM * signals.motor_speed[rows] * signals.dt, axis=0)
+        error = np.column_stack(
+            [_play_operator(drum[:, c], play) - drum[:, c] for c in range(drum.shape[1])]
+        )
+        residual[rows] = error - error.mean(axis=0)
+    result = fit(CableBacklash(DRUM), signals, residual)
+    assert result.parameters[0] == pytest.approx(play, rel=0.05)
+    assert result.rms_after < 0.5 * result.rms_before  # the smooth state vs the sharp play
+
+
 def test_sheath_stretch_is_the_plant_s_two_segment_cable():
     """First order in mu Theta, the term is the stretch of the plant's cable in a sheath.
 

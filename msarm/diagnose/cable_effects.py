@@ -359,25 +359,26 @@ class _DrumDirectionTerm(CandidateEffect):
 class CableBacklash(_DrumDirectionTerm):
     """Backlash between winch and cable: a play that the cable takes up at each reversal.
 
-    With a play ``b`` [m] the cable end follows the drum only once the play is taken up, so
-    the encoder's length and the path length differ by ``(b / 2) z``, ``z`` the drum's
-    direction state (see :class:`_DrumDirectionTerm`). Demeaned per run like the length
-    residual; linear in ``b`` for a fixed ``w``, shared by all cables or per cable.
+    With a play ``b`` [m] the cable end follows the drum only once the play is taken up: it
+    lags the drum by ``b / 2`` about the middle of the play, so while the drum reels in
+    (``z = +1``, :class:`_DrumDirectionTerm`) the encoder's length is shorter than the path
+    length, and longer while it pays out: ``e_l = -(b / 2) z``. Demeaned per run like the
+    length residual; linear in ``b`` for a fixed ``w``, shared by all cables or per cable.
     """
 
     name = "backlash"
     parameter_units: ClassVar[Mapping[str, str]] = {"play": "m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"play"})
     description = (
-        "e_l = (b/2) (z - mean_run z), dz/dt = (v - |v| z)/w: play b [m] taken up at each "
-        "reversal of the drum (travel w to reverse)"
+        "e_l = -(b/2) (z - mean_run z), dz/dt = (v - |v| z)/w: play b [m] taken up at each "
+        "reversal of the drum (travel w to reverse; the cable end lags the drum)"
     )
     parameter_kind = "play"
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_cables(signals, self.n_cables)
         z = self.state(signals)
-        return _per_cable_or_shared([0.5 * (z - signals.run_mean(z))], self.shared)
+        return _per_cable_or_shared([-0.5 * (z - signals.run_mean(z))], self.shared)
 
 
 @register
