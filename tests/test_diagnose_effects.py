@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import casadi
 import numpy as np
 import pytest
 
+from msarm.diagnose.cable_effects import CommandDelay
 from msarm.diagnose.effects import (
     CANDIDATES,
     CableCapstanFriction,
@@ -500,7 +503,38 @@ def test_capstan_hysteresis_columns_are_kept_per_signals(signals):
     np.testing.assert_array_equal(columns, fresh)
     for k in range(10):  # a bounded cache
         effect._columns(signals.take(np.arange(k + 1)))
-    assert len(effect._columns_of) <= 4
+    assert len(effect._columns_of) <= 8
+
+
+def test_terms_with_memory_run_over_whole_runs_when_samples_are_thinned_or_masked(signals):
+    """The selection thins runs and fit() takes a mask: a state must not skip the gaps."""
+    every_other = np.arange(0, signals.n_samples, 2)
+    thinned = signals.take(every_other)
+    assert thinned.origin[0] is signals
+    twice = thinned.take(np.arange(0, thinned.n_samples, 3))  # a take of a take
+    assert twice.origin[0] is signals
+    np.testing.assert_array_equal(twice.origin[1], every_other[::3])
+    hysteresis = CableCapstanHysteresis()
+    theta = np.array([0.1, 0.3, 0.4, 0.2])
+    whole = hysteresis.torque(signals, theta)
+    np.testing.assert_array_equal(hysteresis.torque(thinned, theta), whole[every_other])
+    np.testing.assert_array_equal(hysteresis.torque(twice, theta), whole[every_other][::3])
+    # computed on the thinned samples alone, the play operators see other tensions
+    alone = CableCapstanHysteresis()._compute_columns(thinned)
+    assert not np.allclose(alone, hysteresis._columns(thinned))
+    # a linear term with memory (the delay taps) fitted on every other sample: exact
+    delay = CommandDelay()
+    truth = np.array([0.0, 1.0, 0.0, 0.0])
+    rng = np.random.default_rng(4)
+    commanded = replace(
+        signals, tension_cmd=signals.tension + rng.normal(0, 2.0, signals.tension.shape)
+    )
+    residual = np.asarray(delay.torque(commanded, truth))
+    mask = np.zeros(signals.n_samples, dtype=bool)
+    mask[::2] = True
+    result = fit(delay, commanded, residual, train_mask=mask)
+    np.testing.assert_allclose(result.parameters, truth, atol=1e-9)
+    assert result.explained_variance(commanded, residual, ~mask) == pytest.approx(1.0)
 
 
 def test_the_compiled_direction_memory_is_the_implicit_euler_loop():

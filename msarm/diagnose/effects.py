@@ -855,7 +855,7 @@ class CableCapstanFriction(CandidateEffect):
 
 
 #: How many ``Signals`` a :class:`CableCapstanHysteresis` keeps its columns for.
-_COLUMN_CACHE_SIZE = 4
+_COLUMN_CACHE_SIZE = 8
 
 #: Friction coefficients of the stick-slip elements of :class:`CableCapstanHysteresis` [-].
 CAPSTAN_STICTION_MUS = (0.03, 0.06, 0.12, 0.24)
@@ -935,13 +935,19 @@ class CableCapstanHysteresis(CandidateEffect):
     def _columns(self, signals: Signals) -> FloatArray:
         """``J_c^T (S_mu_k(F) - F)`` of every element [N m], shape ``(T, n, K)``.
 
-        Kept for the last few ``Signals`` objects (a fit predicts on the same samples many
-        times); a ``Signals`` is not to be changed in place once used.
+        The play operators have memory: on signals taken from others (thinned, or some runs'
+        samples, :meth:`Signals.take`) they run on the whole runs first, then these samples
+        are taken. Kept for the last few ``Signals`` objects (a fit predicts on the same
+        samples many times); a ``Signals`` is not to be changed in place once used.
         """
         cached = self._columns_of.get(id(signals))
         if cached is not None and cached[0] is signals:
             return cached[1]
-        columns = self._compute_columns(signals)
+        if signals.origin is None:
+            columns = self._compute_columns(signals)
+        else:
+            whole, rows = signals.origin
+            columns = self._columns(whole)[rows]
         columns.setflags(write=False)  # shared between calls
         if len(self._columns_of) >= _COLUMN_CACHE_SIZE:
             self._columns_of.pop(next(iter(self._columns_of)))

@@ -95,7 +95,7 @@ class FitResult:
         if not mask.any():
             raise InputError("mask: selects no samples")
         r = residual[mask]
-        e = r - self.predict(signals.take(mask))
+        e = r - self.predict(signals)[mask]  # terms with memory run over the whole runs
         var_r = np.sum((r - r.mean(axis=0)) ** 2, axis=0)
         var_e = np.sum((e - e.mean(axis=0)) ** 2, axis=0)
         if per_joint:
@@ -282,7 +282,9 @@ def fit(
         effect: The candidate.
         signals: Signals of ``T`` samples.
         residual: The residual ``r = tau_MS - ID`` [N m], shape ``(T, n)``.
-        train_mask: Training samples, boolean ``(T,)``; all when ``None``.
+        train_mask: Training samples, boolean ``(T,)``; all when ``None``. It may cut
+            inside runs: a term with memory (delay taps, a Dahl or direction state, per-run
+            means, play operators) is evaluated over the whole runs, then these samples taken.
         initial: Starting parameters of a nonlinear fit, ``(p,)`` (the candidate's
             :meth:`~CandidateEffect.initial_guess` when ``None``).
 
@@ -303,12 +305,12 @@ def fit(
         )
     train = signals if mask.all() else signals.take(mask)
     r = residual[mask]
-    if effect.linear:
-        parameters = _solve_linear(effect.design(train), r)
+    if effect.linear:  # the design on the whole runs (terms with memory), then the samples
+        parameters = _solve_linear(effect.design(signals)[mask], r)
         success, message = True, "least squares"
     else:
         parameters, success, message = _NonlinearProblem(effect, train, r).solve(initial)
-    error = r - np.asarray(effect.torque(train, parameters), dtype=float)
+    error = r - np.asarray(effect.torque(signals, parameters), dtype=float)[mask]
     return FitResult(
         effect=effect,
         parameters=parameters,
@@ -370,7 +372,7 @@ def bootstrap(
     position[index] = np.arange(index.size)
     train, r = signals.take(index), residual[index]
     if effect.linear:
-        design = effect.design(train)
+        design = effect.design(signals)[index]
     else:
         problem = _NonlinearProblem(effect, train, r)
         start, *_ = problem.solve(None)

@@ -10,6 +10,7 @@ while the motor pulls the cable in).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 
 import numba
@@ -166,18 +167,55 @@ class Signals:
     def take(self, index: NDArray[np.bool_] | NDArray[np.intp]) -> Signals:
         """The signals of some samples (a boolean mask of shape ``(T,)`` or an index array).
 
+        The result remembers where its samples come from (:attr:`origin`), so that a term
+        with memory can compute its state on the whole runs and then take these samples.
+
         Raises:
             InputError: A mask of the wrong length.
         """
         index = np.asarray(index)
         if index.dtype == bool and index.shape != (self.n_samples,):
             raise InputError(f"mask: expected shape ({self.n_samples},), got {index.shape}")
+        rows = np.arange(self.n_samples)[index]
         changes = {
             f.name: getattr(self, f.name)[index]
             for f in fields(self)
             if f.name != "dt" and getattr(self, f.name) is not None
         }
-        return replace(self, **changes)
+        taken = replace(self, **changes)
+        root, within = self.origin if self.origin is not None else (self, None)
+        rows = rows if within is None else within[rows]
+        rows.setflags(write=False)
+        object.__setattr__(taken, "_origin", (root, rows))
+        return taken
+
+    @property
+    def origin(self) -> tuple[Signals, NDArray[np.intp]] | None:
+        """Where the samples come from: ``(whole, rows)``, or ``None``.
+
+        For signals made by :meth:`take` (through any number of takes), ``self`` holds the
+        samples ``rows`` of ``whole``; ``None`` for signals built directly.
+        """
+        return getattr(self, "_origin", None)
+
+    def on_whole_runs(self, compute: Callable[[Signals], FloatArray]) -> FloatArray:
+        """``compute`` evaluated on the signals these samples were taken from, at these samples.
+
+        For a quantity with memory (a state integrated along each run): evaluated on the
+        samples alone, a run thinned or cut would integrate over the gaps.
+
+        Args:
+            compute: A function of a :class:`Signals` returning an array whose first axis is
+                the samples, ``(T_whole, ...)``.
+
+        Returns:
+            ``compute(whole)[rows]`` (``compute(self)`` for signals not made by :meth:`take`),
+            shape ``(T, ...)``.
+        """
+        if self.origin is None:
+            return compute(self)
+        whole, rows = self.origin
+        return compute(whole)[rows]
 
     def require(self, name: str, who: str) -> FloatArray:
         """An optional field that a term needs.
