@@ -139,8 +139,8 @@ class DriveCogging(CandidateEffect):
     name = "motor_cogging"
     parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
-        "e = A sin(N theta + phi) / (rho (1 + K)): motor cogging torque periodic in the motor "
-        "angle theta, seen as a tension error of the drive"
+        "e = (a sin(N theta) + b cos(N theta)) / (rho (1 + K)) (amplitude hypot(a, b)): motor "
+        "cogging torque periodic in the motor angle theta, seen as a tension error of the drive"
     )
     linear = True
     groups = ("drive",)

@@ -743,11 +743,11 @@ class CableCapstanFriction(CandidateEffect):
     ``r = -J_c^T F + J_c^T F exp(-mu Theta s) = J_c^T (F (exp(-mu Theta s) - 1))``
 
     (the brief's ``-J_c^T (F (exp(-mu Theta s) - 1))`` is the change of the *delivered* torque,
-    ``-r``). Parameter: one friction coefficient ``mu`` [-] shared by all cables, or one per cable
-    (``per_cable``); with ``fit_eps`` also the smoothing speed ``eps`` [m/s] of the sign, last
-    (how fast the friction turns over as a cable reverses: a property of the sheath, and of
-    how the cable speed is estimated, that a real robot does not tell). With ``linearised`` the
-    term is its first order in ``mu``, ``r = mu * J_c^T (-F Theta s)`` (``eps`` fixed), and is
+    ``-r``). Parameter: one friction coefficient ``mu`` [1/rad] shared by all cables, or one per
+    cable (``per_cable``); with ``fit_eps`` also the smoothing speed ``eps`` [m/s] of the sign, last
+    (how fast the friction turns over as a cable reverses: a property of the sheath, and of how the
+    cable speed is estimated, that a real robot does not tell). With ``linearised`` the term is its
+    first order in ``mu``, ``r = mu * J_c^T (-F Theta s)`` (``eps`` fixed), and is
     fitted by least squares.
     """
 
@@ -857,7 +857,7 @@ class CableCapstanFriction(CandidateEffect):
 #: How many ``Signals`` a :class:`CableCapstanHysteresis` keeps its columns for.
 _COLUMN_CACHE_SIZE = 8
 
-#: Friction coefficients of the stick-slip elements of :class:`CableCapstanHysteresis` [-].
+#: Friction coefficients of the stick-slip elements of :class:`CableCapstanHysteresis` [1/rad].
 CAPSTAN_STICTION_MUS = (0.03, 0.06, 0.12, 0.24)
 
 
@@ -911,7 +911,7 @@ class CableCapstanHysteresis(CandidateEffect):
         Args:
             n_cables: Number of cables ``m``.
             n_joints: Number of joints ``n``.
-            mus: Friction coefficients ``mu_k`` of the elements [-], each > 0.
+            mus: Friction coefficients ``mu_k`` of the elements [1/rad], each > 0.
             linearised: Fit the weights by plain least squares (no bounds).
             max_weight: Upper bound of each weight in the bounded fit.
         """
@@ -1000,19 +1000,20 @@ class CableCapstanHysteresis(CandidateEffect):
 class MotorCogging(CandidateEffect):
     """Motor cogging: a torque periodic in the motor angle, seen by the cable through the drum.
 
-    The motor of cable ``c`` has a cogging torque ``A_c sin(N theta_c + phi_c)`` [N m]; the
-    cable's tension differs from the logged one by ``dF_c = A_c sin(N theta_c + phi_c) / rho``
+    The motor of cable ``c`` has a cogging torque ``A_c sin(N theta_c + phi_c)`` [N m]; the logged
+    tension exceeds the one the cable delivers by ``dF_c = A_c sin(N theta_c + phi_c) / rho``
     (``rho`` the drum radius [m]), so ``r = -J_c^T dF``. Linear in ``a_c = A_c cos(phi_c)`` and
-    ``b_c = A_c sin(phi_c)`` [N m] (``dF_c = (a_c sin(N theta_c) + b_c cos(N theta_c)) / rho``)
-    for a known number ``N`` of cogging periods per motor revolution. One pair per cable, or
-    one pair shared by all motors (``shared``: identical motors mounted in phase).
+    ``b_c = A_c sin(phi_c)`` [N m] (``dF_c = (a_c sin(N theta_c) + b_c cos(N theta_c)) / rho``) for
+    a known number ``N`` of cogging periods per motor revolution. One pair per cable, or one pair
+    shared by all motors (``shared``: identical motors mounted in phase).
     """
 
     name = "cogging"
     parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
-        "r = -J_c^T dF, dF_c = A_c sin(N theta_c + phi_c) / rho: motor cogging torque "
-        "periodic in the motor angle theta_c, through the drum radius rho"
+        "r = -J_c^T dF, dF_c = (a_c sin(N theta_c) + b_c cos(N theta_c)) / rho (amplitude "
+        "hypot(a_c, b_c)): motor cogging torque periodic in the motor angle theta_c, through the "
+        "drum radius rho; dF the logged tension less the delivered one"
     )
     linear = True
 

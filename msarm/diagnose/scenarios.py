@@ -117,7 +117,7 @@ DEFAULT_PAIRS: tuple[tuple[str, str], ...] = (
 )
 
 #: Ranges of the drawn parameters, per effect class: ``(low, high)``, drawn uniformly.
-#: Units: ``mu`` [-/rad]; ``coulomb`` [N m]; ``viscous`` [N m s/rad]; ``stiffness`` [N/m];
+#: Units: ``mu`` [1/rad]; ``coulomb`` [N m]; ``viscous`` [N m s/rad]; ``stiffness`` [N/m];
 #: ``amplitude`` [N m]; ``phase`` [rad]; ``tension_bias`` [N] is the *magnitude* of the bias
 #: (its sign is drawn too); ``total_periods`` [control periods] is the sensing plus actuation
 #: delay (integers, both ends included). Cogging has 24 periods per revolution.

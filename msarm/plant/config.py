@@ -107,7 +107,7 @@ class SheathFrictionConfig:
 
     Attributes:
         enabled: Switch.
-        mu: Friction coefficient per radian of wrap [-/rad].
+        mu: Friction coefficient per radian of wrap [1/rad].
         smoothing_velocity: Cable speed over which sgn(v) is smoothed (tanh) [m/s].
     """
 
