@@ -10,7 +10,9 @@ with ``m`` actuators (cables, muscles) and ``n`` degrees of freedom. For the arm
 eq. 2) and ``b = -w`` (w the external wrench [N, N m]). ``W = diag(weights)`` with
 ``weights > 0`` and ``f_ref`` a reference force [N]: ``f_ref = 0`` gives the minimum 2-norm
 force distribution, the midpoint of the bounds Pott's choice, ``weights = 1/F_max`` the sum of
-squared activations of a muscle model.
+squared normalised forces ``(f_i / F_max,i)^2`` of a muscle model (not quite its squared
+activations, which would subtract the passive force and divide by the length- and
+velocity-dependent active capacity).
 
 An ``AllocationSpec`` is built once per robot; each tick only ``M``, ``b`` and the bounds
 change. ``validate_tick`` checks one tick's data cheaply enough for a 1 kHz loop.

@@ -9,7 +9,9 @@ At every control tick (250 Hz by default), from sensor readings only:
    ``tau = ID(q_r, qd_r, qdd_r) + Kp e + Ki int(e) + Kd de/dt + dtau`` with ``e = q_r - q``;
 3. muscle forces from the allocation core: ``-J_c(q)^T f = tau`` with each force within the
    muscle's capacity at its current length and velocity (``[max(passive, T_min),
-   full activation]``), minimising the sum of squared activations ``sum (f_i / F_max,i)^2``;
+   full activation]``), minimising the sum of squared normalised forces
+   ``sum (f_i / F_max,i)^2`` (a stand-in for squared activations: paper 003 names no
+   objective);
 4. activations from the inverse Hill model (clipped to [0, 1], flagged when out of reach),
    optionally filtered by the activation dynamics;
 5. the muscle force at that activation (forward Hill model) is the tension wanted at the

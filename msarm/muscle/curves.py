@@ -196,11 +196,11 @@ def passive_force_length(l_norm: ArrayLike) -> FloatArray:
     ``f_PE(l) = (exp(kPE * (l - 1) / e0) - 1) / (exp(kPE) - 1)`` for ``l > 1`` and
     ``f_PE(l) = 0`` for ``l <= 1``, with kPE = 4 and e0 = 0.6, so ``f_PE(1 + e0) = 1``.
 
-    Region below 1: the published formula is negative for ``l < 1`` (it tends to
-    ``-1 / (e**4 - 1)`` ≈ -0.0187 as ``l`` -> 0), i.e. a slack fibre would push. A muscle
-    cannot push, so this function returns exactly 0 at and below ``l = 1`` (the passive
-    element's slack length). The curve is continuous at 1; its slope jumps there from 0 to
-    ``kPE / (e0 * (exp(kPE) - 1))`` ≈ 0.1244.
+    Region below 1: the published formula is negative for ``l < 1`` (it tends to ``(exp(-kPE / e0) -
+    1) / (exp(kPE) - 1)`` ≈ -0.01863 as ``l`` -> 0), i.e. a slack fibre would push. A muscle cannot
+    push, so this function returns exactly 0 at and below ``l = 1`` (the passive element's slack
+    length). The curve is continuous at 1; its slope jumps there from 0 to ``kPE / (e0 * (exp(kPE) -
+    1))`` ≈ 0.1244.
 
     Args:
         l_norm: Normalised fibre length ``l_M / l_M0`` [-], scalar or array of any shape,
@@ -248,7 +248,7 @@ def force_velocity(v_norm: ArrayLike) -> FloatArray:
 
     Domain: ``v_norm >= -1``. Shortening faster than the maximum contraction velocity is
     rejected, because the formula turns negative (a pushing muscle) just below -1 (at
-    ``v_norm`` ≈ -1.0375). Lengthening faster than ``v_max`` is accepted; the curve was fitted
+    ``v_norm`` ≈ -1.0372). Lengthening faster than ``v_max`` is accepted; the curve was fitted
     on [-1, 1] and beyond +1 it keeps rising slowly (``f_v(2)`` ≈ 2.00).
 
     Args:

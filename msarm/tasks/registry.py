@@ -33,7 +33,9 @@ __all__ = [
 ]
 
 #: Joint-angle targets of paper 003, Table I [rad], one row per task ``table1-k``, columns in
-#: joint order (shoulder abduction, shoulder flexion, shoulder rotation, elbow).
+#: joint order (shoulder abduction, shoulder flexion, shoulder rotation, elbow). The paper
+#: names its columns Joint1-3 (shoulder) and Joint4 (elbow) only: this order of the shoulder
+#: joints is our reading (every target lies inside msarm's joint ranges).
 TABLE1_TARGETS: NDArray[np.float64] = np.array(
     [
         [0.0, 0.4363, -0.5236, -1.2217],
