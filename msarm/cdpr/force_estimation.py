@@ -25,7 +25,7 @@ The inversion is exact: for a fixed cable speed ``v`` every term of eq. 3 is aff
 (eq. 4 has ``c3 f``; the eq. 6 polynomial blends values of eq. 4, so it is affine in ``f``
 too), hence with ``g(f) = tau(f, v, a)`` evaluated by the forward formula,
 ``f = (tau - g(0)) / (g(1) - g(0))``. ``g(1) - g(0) = r_D + d tau_F / d f`` must be > 0
-(it is 0.0195-0.0231 m for Table 1 and ``r_D = 20 mm``).
+(it is 0.0193-0.0231 m for Table 1 and ``r_D = 20 mm``).
 
 Which force: ``f`` of eq. 3 is the tension the force distribution ``A^T f + w = 0`` refers
 to, the platform-side tension (``tau_F`` covers the drum and every pulley up to the platform).

@@ -46,7 +46,7 @@ is in the direction the arm must still move. It was the default before the sheat
 (final error on the validation tasks 0.55 -> 0.39 mm, against 0.56 mm without it); on top
 of the stage it made the final error worse (0.12 -> 0.20 mm, README). It makes the
 compensator a learned feedback on the error's sign, bounded by ``tanh``. Two
-Dahl-type direction memories (``joint_memory``, ``cable_memory``; paper 001 eq. 12-14 use the
+Dahl-type direction memories (``joint_memory``, ``cable_memory``; paper 001 eq. 14 uses the
 same idea for friction at a direction change) remember which way each joint or cable last
 moved; they were the default before ``sign_error`` and are still available. The sign
 functions are smoothed (``tanh``) so that the network's input is continuous. ``theta_0``,

@@ -1,7 +1,8 @@
 """Pott's closed-form force distributions (papers 000 and 001).
 
-Closed form (Pott, Bruckmann, Mikelsons 2009; the minimum 2-norm distribution of paper 000
-with ``f_ref = 0``): the unbounded optimum of the allocation objective::
+Closed form (Pott, Bruckmann, Mikelsons 2009): the unbounded optimum of the allocation
+objective (``f_ref = 0`` gives the unbounded minimum 2-norm forces, which may be negative;
+paper 000's distribution is the *bounded* minimum 2-norm one, the QP solvers' answer)::
 
     f = f_ref + W^-2 M^T (M W^-2 M^T)^-1 (b - M f_ref)
 
