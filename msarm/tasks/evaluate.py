@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import minimize
 
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import cable_kinematics_batch
@@ -94,15 +95,44 @@ def hand_position(model: RobotModel, q: FloatArray) -> FloatArray:
 _TRAVEL_CACHE: dict[str, FloatArray] = {}
 
 
-def cable_travel(model: RobotModel) -> FloatArray:
-    """Maximum travel of each cable over the joint range [m], shape ``(m,)`` (7^n grid).
+#: Points of the joint grid per joint that seed the search for each cable's extreme lengths.
+TRAVEL_GRID = 7
+#: Best grid points from which each extreme length is refined by a bounded local search.
+TRAVEL_STARTS = 3
 
+
+def cable_travel(model: RobotModel) -> FloatArray:
+    """Maximum travel of each cable over the joint range [m], shape ``(m,)``.
+
+    ``max l_c(q) - min l_c(q)`` over the joint-range box: a ``TRAVEL_GRID^n`` grid finds the
+    neighbourhood of each extreme, then a bounded quasi-Newton search (L-BFGS-B, gradient the
+    muscle Jacobian row) from the :data:`TRAVEL_STARTS` best grid points refines it. An
+    extreme inside the box or on a face between grid points is found (the 7^n grid alone
+    underestimated a travel by up to 0.7 %, which inflates the eq. 13 percentages as much).
     Cached by the model file's SHA-256.
     """
     if model.sha256 not in _TRAVEL_CACHE:
-        grid = joint_grid(model.joint_lower, model.joint_upper, 7)
+        grid = np.array(list(joint_grid(model.joint_lower, model.joint_upper, TRAVEL_GRID)))
         lengths = cable_kinematics_batch(model, list(grid), with_wrap_angles=False).lengths
-        _TRAVEL_CACHE[model.sha256] = lengths.max(axis=0) - lengths.min(axis=0)
+        bounds = list(zip(model.joint_lower, model.joint_upper, strict=True))
+        travel = np.empty(model.n_cables)
+        for c in range(model.n_cables):
+            extremes = []
+            for sign in (1.0, -1.0):  # the longest, then the shortest: maximise sign * l_c
+
+                def objective(q: FloatArray, c: int = c, sign: float = sign) -> tuple:
+                    geometry = model.geometry(q, with_wrap_angles=False)
+                    return -sign * geometry.lengths[c], -sign * geometry.jacobian[c]
+
+                signed = sign * lengths[:, c]
+                starts = np.argsort(-signed, kind="stable")[:TRAVEL_STARTS]
+                refined = [
+                    -minimize(objective, grid[k], jac=True, method="L-BFGS-B", bounds=bounds).fun
+                    for k in starts
+                ]
+                extremes.append(sign * max(float(signed.max()), *refined))
+            travel[c] = extremes[0] - extremes[1]
+        _TRAVEL_CACHE[model.sha256] = travel
     return _TRAVEL_CACHE[model.sha256].copy()
 
 
