@@ -47,8 +47,16 @@ __all__ = [
     "mujoco_model_name",
 ]
 
-#: Folder of the robot models shipped with msarm.
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+
+def _models_dir(package: Path) -> Path:
+    """The shipped models: inside the package in a wheel, else the repository's ``models/``."""
+    inside = package / "models"
+    return inside if inside.is_dir() else package.parent / "models"
+
+
+#: Folder of the robot models shipped with msarm (``models/`` of a source checkout or an
+#: editable install; ``msarm/models`` of an installed wheel).
+MODELS_DIR = _models_dir(Path(__file__).resolve().parent)
 #: The musculoskeletal arm of paper 003.
 ARM_MODEL_PATH = MODELS_DIR / "msarm_arm.xml"
 #: Column order of the ``hill/<cable>`` numerics in a model's ``<custom>`` section.
