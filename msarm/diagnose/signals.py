@@ -10,7 +10,6 @@ while the motor pulls the cable in).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 
 import numba
@@ -197,25 +196,6 @@ class Signals:
         samples ``rows`` of ``whole``; ``None`` for signals built directly.
         """
         return getattr(self, "_origin", None)
-
-    def on_whole_runs(self, compute: Callable[[Signals], FloatArray]) -> FloatArray:
-        """``compute`` evaluated on the signals these samples were taken from, at these samples.
-
-        For a quantity with memory (a state integrated along each run): evaluated on the
-        samples alone, a run thinned or cut would integrate over the gaps.
-
-        Args:
-            compute: A function of a :class:`Signals` returning an array whose first axis is
-                the samples, ``(T_whole, ...)``.
-
-        Returns:
-            ``compute(whole)[rows]`` (``compute(self)`` for signals not made by :meth:`take`),
-            shape ``(T, ...)``.
-        """
-        if self.origin is None:
-            return compute(self)
-        whole, rows = self.origin
-        return compute(whole)[rows]
 
     def require(self, name: str, who: str) -> FloatArray:
         """An optional field that a term needs.
