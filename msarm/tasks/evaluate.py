@@ -114,26 +114,35 @@ def cable_travel(model: RobotModel) -> FloatArray:
     if model.sha256 not in _TRAVEL_CACHE:
         grid = np.array(list(joint_grid(model.joint_lower, model.joint_upper, TRAVEL_GRID)))
         lengths = cable_kinematics_batch(model, list(grid), with_wrap_angles=False).lengths
-        bounds = list(zip(model.joint_lower, model.joint_upper, strict=True))
         travel = np.empty(model.n_cables)
         for c in range(model.n_cables):
-            extremes = []
-            for sign in (1.0, -1.0):  # the longest, then the shortest: maximise sign * l_c
-
-                def objective(q: FloatArray, c: int = c, sign: float = sign) -> tuple:
-                    geometry = model.geometry(q, with_wrap_angles=False)
-                    return -sign * geometry.lengths[c], -sign * geometry.jacobian[c]
-
-                signed = sign * lengths[:, c]
-                starts = np.argsort(-signed, kind="stable")[:TRAVEL_STARTS]
-                refined = [
-                    -minimize(objective, grid[k], jac=True, method="L-BFGS-B", bounds=bounds).fun
-                    for k in starts
-                ]
-                extremes.append(sign * max(float(signed.max()), *refined))
-            travel[c] = extremes[0] - extremes[1]
+            longest = _extreme_length(model, c, 1.0, grid, lengths[:, c])
+            shortest = _extreme_length(model, c, -1.0, grid, lengths[:, c])
+            travel[c] = longest - shortest
         _TRAVEL_CACHE[model.sha256] = travel
     return _TRAVEL_CACHE[model.sha256].copy()
+
+
+def _extreme_length(
+    model: RobotModel, cable: int, sign: float, grid: FloatArray, on_grid: FloatArray
+) -> float:
+    """The longest (``sign = 1``) or shortest (``-1``) length of a cable in the joint range [m].
+
+    ``grid`` ``(G, n)`` postures with the cable's lengths ``on_grid`` ``(G,)``; the best
+    :data:`TRAVEL_STARTS` of them start a bounded L-BFGS-B search of ``max sign * l(q)``.
+    """
+    bounds = list(zip(model.joint_lower, model.joint_upper, strict=True))
+
+    def objective(q: FloatArray) -> tuple[float, FloatArray]:
+        geometry = model.geometry(q, with_wrap_angles=False)
+        return -sign * float(geometry.lengths[cable]), -sign * geometry.jacobian[cable]
+
+    signed = sign * on_grid
+    best = float(signed.max())
+    for k in np.argsort(-signed, kind="stable")[:TRAVEL_STARTS]:
+        result = minimize(objective, grid[k], jac=True, method="L-BFGS-B", bounds=bounds)
+        best = max(best, -float(result.fun))
+    return sign * best
 
 
 def _matrix(columns: dict[str, FloatArray], quantity: str, names: tuple[str, ...]) -> FloatArray:
