@@ -836,8 +836,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     root = data_folder(args.data)
     if not data_files(root):
-        print(f"no data under {root} (set --data or ${DATA_ENV}); nothing to do")
-        return 0
+        print(
+            f"no data under {root}: expected the mis-tool CSV files there (set --data or "
+            f"${DATA_ENV}); nothing done",
+            file=sys.stderr,
+        )
+        return 2
     start = time.perf_counter()
     runs = load_runs(root)
     results = analyse(runs, n_boot=args.n_boot, seed=args.seed)

@@ -88,6 +88,27 @@ def test_train_json_keeps_its_progress_on_stderr(monkeypatch):
     ]
 
 
+def test_train_outside_the_repository_says_it_runs_the_recipe_defaults(monkeypatch, tmp_path):
+    import msarm.compensation.pipeline as pipeline
+    from msarm.compensation.pipeline import CompensatorRecipe
+
+    seen = []
+
+    def fake(arm, recipe, plant, **callbacks):
+        seen.append(recipe)
+        raise SystemExit(0)  # the recipe is all this test looks at
+
+    monkeypatch.setattr(pipeline, "train_compensator", fake)
+    monkeypatch.chdir(tmp_path)  # no training/compensator.yaml here
+    result = CliRunner().invoke(app, ["train"])
+    assert seen == [CompensatorRecipe()], result.output
+    assert "msarm train: no training/compensator.yaml here: the recipe's default values" in (
+        result.stderr
+    )
+    result = CliRunner().invoke(app, ["train", "--config", "mine.yaml"])
+    assert result.exit_code != 0 and "mine.yaml: recipe file not found" in str(result.exception)
+
+
 def test_diagnose_prints_a_line_a_step_where_no_spinner_shows(monkeypatch, tmp_path):
     import msarm.diagnose.select as select
 

@@ -340,3 +340,18 @@ def test_the_sheath_identification_refuses_validation_logs_of_another_rate(logs,
     slow = _rewrite(logs[2], tmp_path / "slow.parquet", half, sample_rate_hz=rate)
     with pytest.raises(LogError, match=r"slow\.parquet: sample period .* \(validation\) differs"):
         identify_sheath(arm, logs[:2], [slow])
+
+
+def test_one_training_run_says_why_there_is_no_confidence(logs, monkeypatch, capsys):
+    import sys
+
+    from msarm.cli import main
+
+    argv = ["msarm", "diagnose", str(logs[0]), "--holdout", str(logs[1])]
+    monkeypatch.setattr(sys, "argv", [*argv, "--candidates", "coulomb"])
+    main()
+    out = capsys.readouterr().out
+    assert "coulomb" in out  # the joint friction is named, without a spread
+    assert "no bootstrap ran (it redraws the training runs, so it needs at least 2 of them, " in (
+        " ".join(out.split())
+    )

@@ -100,7 +100,11 @@ def show_arm(model: RobotModel, out: Path | None, console: Console | None = None
 
 def arm_command(
     model: Annotated[
-        Path | None, typer.Option(help="MJCF file of the arm (default: models/msarm_arm.xml).")
+        Path | None,
+        typer.Option(
+            help="MJCF file of the arm (default: msarm's arm, models/msarm_arm.xml in the "
+            "repository)."
+        ),
     ] = None,
     out: Annotated[
         Path | None, typer.Option(help="Folder for the PNG plots; no plots if omitted.")

@@ -29,7 +29,11 @@ EXTRA_FIRST_SEED = 5000
 
 def train_command(
     config: Annotated[
-        Path, typer.Option(help="Training recipe (YAML of CompensatorRecipe).")
+        Path,
+        typer.Option(
+            help="Training recipe (YAML of CompensatorRecipe). Without the default file (outside "
+            "the repository) the recipe's default values run: the same values."
+        ),
     ] = DEFAULT_RECIPE,
     fresh: Annotated[
         bool, typer.Option("--fresh", help="Ignore an interrupted training; start over.")
@@ -47,8 +51,13 @@ def train_command(
     recipe = load_config(config, CompensatorRecipe) if config.is_file() else None
     if recipe is None:
         if config != DEFAULT_RECIPE:
-            raise typer.BadParameter(f"recipe file not found: {config}")
+            raise InputError(f"{config}: recipe file not found")
         recipe = CompensatorRecipe()
+        typer.echo(
+            f"msarm train: no {config} here: the recipe's default values (the same as the "
+            "repository's file)",
+            err=True,
+        )
     arm = load_arm()
     plant_spec = recipe.data.plant
     beside = config.parent / plant_spec
@@ -156,7 +165,8 @@ def train_command(
     )
     out.print(
         f"collected in {report.collect_time_s:.1f} s, trained in {report.train_time_s:.1f} s "
-        f"({report.epochs[0]} epochs, best {report.epochs[1]})"
+        f"(summed over the sessions that trained it; {report.epochs[0]} epochs, "
+        f"best {report.epochs[1]})"
     )
     out.print(f"checkpoint: {report.checkpoint}")
 

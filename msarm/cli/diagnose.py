@@ -137,6 +137,12 @@ def _print_diagnosis(
             confidence,
         )
     screen.print(table)
+    if any(not np.isfinite(effect.confidence) for effect in result.selected):
+        screen.print(
+            "confidence n/a and no parameter spread: no bootstrap ran (it redraws the "
+            f"training runs, so it needs at least 2 of them, here {n_train}, and --boot >= 2)",
+            highlight=False,
+        )
     for effect in result.selected:
         for note in effect.notes:
             screen.print(f"note on {escape(effect.name)}: {escape(note)}", highlight=False)
@@ -259,9 +265,10 @@ def diagnose_command(
         Path | None,
         typer.Option(
             "--model",
-            help="The nominal model (MJCF) the logs were recorded with; default "
-            "models/msarm_arm.xml. Logs of another model are refused (hashes named). It needs "
-            "no muscle (Hill) parameters: the diagnosis uses the cables' geometry.",
+            help="The nominal model (MJCF) the logs were recorded with; default msarm's "
+            "arm (models/msarm_arm.xml in the repository). Logs of another model are refused "
+            "(hashes named). It needs no muscle (Hill) parameters: the diagnosis uses the "
+            "cables' geometry.",
         ),
     ] = None,
 ) -> None:

@@ -162,10 +162,16 @@ def track_command(
     elif feedforward is not None:
         gains_from = "the gains the compensator was trained with"
     else:
+        recipe = Path("training/compensator.yaml")
+        where = (
+            f"--controller {recipe}, its controller: block"
+            if recipe.is_file()
+            else "--controller with a recipe's or a run's config.yaml, e.g. "
+            "runs/compensator/data/run-1000/config.yaml after msarm train"
+        )
         gains_from = (
             "ArmControllerConfig's default gains, tuned for the ideal plant (the default "
-            "plant's tuned gains: --controller training/compensator.yaml, its controller: "
-            "block)"
+            f"plant's tuned gains: {where})"
         )
     gains = gains or ArmControllerConfig()
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
