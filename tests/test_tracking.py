@@ -55,6 +55,25 @@ def test_same_seed_same_log_bit_for_bit(arm, tmp_path):
     assert log_a != read_log(other.files["log"])  # the noise differs
 
 
+def test_a_run_cut_off_in_an_old_run_s_folder_is_not_taken_for_whole(arm, tmp_path, monkeypatch):
+    """Killed between its config and its metrics, a rerun must not inherit the old metrics."""
+    import msarm.tasks.track as track_module
+    from msarm.compensation.dataset import reusable_run
+
+    track(arm, SHORT, settings(seed=3), tmp_path, plots_too=False)
+    assert reusable_run(tmp_path, settings(seed=3), arm.sha256)
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt  # the process dies after the log, before config and metrics
+
+    monkeypatch.setattr(track_module, "write_config", killed)
+    with pytest.raises(KeyboardInterrupt):
+        track(arm, SHORT, settings(seed=4), tmp_path, plots_too=False)
+    assert not (tmp_path / "metrics.json").exists()
+    assert not reusable_run(tmp_path, settings(seed=3), arm.sha256)  # the log is seed 4's
+    assert not reusable_run(tmp_path, settings(seed=4), arm.sha256)
+
+
 def test_log_round_trips_and_holds_no_ground_truth(arm, tmp_path):
     result = track(arm, SHORT, settings(seed=1), tmp_path, plots_too=False)
     log = read_log(result.files["log"])

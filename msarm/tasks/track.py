@@ -109,6 +109,10 @@ def track(
         return TrackResult(run, metrics, files)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # metrics.json is written last and marks a whole run (msarm compare and msarm train reuse
+    # such runs): an older run's must go before this run's files replace the others, or a run
+    # cut off between them would pair this log with that run's metrics
+    (out_dir / "metrics.json").unlink(missing_ok=True)
     metadata = LogMetadata.for_model(
         model,
         sample_rate_hz=run.control_rate_hz,
