@@ -469,3 +469,20 @@ def test_the_package_exports_its_entry_points_and_the_cli_its_default_threshold(
         package.nope  # noqa: B018
     default = inspect.signature(diagnose_command).parameters["threshold"].default
     assert default == DEFAULT_THRESHOLD
+
+
+def test_the_fits_run_with_one_blas_thread_whatever_the_settings():
+    """Multi-threaded BLAS sums in another order: answers moved in their last digits with it."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from msarm.diagnose.baseline import sindy_baseline
+    from msarm.diagnose.fitting import one_blas_thread
+    from msarm.diagnose.select import select_effects
+
+    def blas_threads() -> set[int]:
+        return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert one_blas_thread(blas_threads)() == {1}
+    for entry in (select_effects, sindy_baseline):
+        assert entry.__wrapped__ is not entry  # both entry points are wrapped

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.effects import CableCapstanFriction, CableCapstanHysteresis, CandidateEffect
+from msarm.diagnose.fitting import one_blas_thread
 from msarm.diagnose.stack import DiagnosisData, Embedded, pooled_rmse
 from msarm.errors import InputError
 
@@ -100,6 +101,7 @@ def _linear_form(term: CandidateEffect) -> CandidateEffect | None:
     return None
 
 
+@one_blas_thread
 def sindy_baseline(
     data: DiagnosisData,
     threshold: float = DEFAULT_SINDY_THRESHOLD,

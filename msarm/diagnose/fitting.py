@@ -10,17 +10,31 @@ was not fitted on; :func:`bootstrap` gives the parameters' spread by resampling 
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ParamSpec, TypeVar
 
 import casadi
 import numpy as np
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from msarm.diagnose.effects import CandidateEffect, CasadiOps
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 
-__all__ = ["BootstrapResult", "FitResult", "LinearSolver", "bootstrap", "fit"]
+__all__ = [
+    "BootstrapResult",
+    "FitResult",
+    "LinearSolver",
+    "bootstrap",
+    "fit",
+    "one_blas_thread",
+]
+
+P = ParamSpec("P")
+R = TypeVar("R")
 
 FloatArray = NDArray[np.float64]
 
@@ -152,6 +166,22 @@ def _check_mask(signals: Signals, mask: NDArray[np.bool_] | None, name: str) -> 
             f"got {mask.dtype} {mask.shape}"
         )
     return mask
+
+
+def one_blas_thread(function: Callable[P, R]) -> Callable[P, R]:
+    """Run ``function`` with BLAS on one thread: the same bits whatever the thread settings.
+
+    A multi-threaded BLAS sums in another order with another number of threads (the SVD, the
+    products of the least squares), so answers differed in their last digits (1e-13) between
+    ``OMP_NUM_THREADS=1`` and 2. The fits here are small; one thread was no slower.
+    """
+
+    @functools.wraps(function)
+    def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return function(*args, **kwargs)
+
+    return wrapped
 
 
 class LinearSolver:

@@ -79,6 +79,7 @@ from msarm.diagnose.effects import (
     ViscousFriction,
     parameter_kind,
 )
+from msarm.diagnose.fitting import one_blas_thread
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.result import Diagnosis, SelectedEffect
 from msarm.diagnose.signals import Signals
@@ -714,6 +715,7 @@ def load_data(
     )
 
 
+@one_blas_thread
 def select_effects(
     data: DiagnosisData,
     threshold: float = DEFAULT_THRESHOLD,
