@@ -162,10 +162,11 @@ def track_command(
     elif feedforward is not None:
         gains_from = "the gains the compensator was trained with"
     else:
-        recipe = Path("training/compensator.yaml")
+        from msarm.cli.compensator import DEFAULT_RECIPE
+
         where = (
-            f"--controller {recipe}, its controller: block"
-            if recipe.is_file()
+            f"--controller {DEFAULT_RECIPE}, its controller: block"
+            if DEFAULT_RECIPE.is_file()
             else "--controller with a recipe's or a run's config.yaml, e.g. "
             "runs/compensator/data/run-1000/config.yaml after msarm train"
         )

@@ -333,12 +333,12 @@ def fit(
         raise InputError(
             f"train_mask: {n_train} samples for {effect.n_parameters} parameters of {effect.name}"
         )
-    train = signals if mask.all() else signals.take(mask)
     r = residual[mask]
     if effect.linear:  # the design on the whole runs (terms with memory), then the samples
         parameters = _solve_linear(effect.design(signals)[mask], r)
         success, message = True, "least squares"
     else:
+        train = signals if mask.all() else signals.take(mask)
         parameters, success, message = _NonlinearProblem(effect, train, r).solve(initial)
     error = r - np.asarray(effect.torque(signals, parameters), dtype=float)[mask]
     return FitResult(
@@ -400,11 +400,11 @@ def bootstrap(
     index = np.flatnonzero(mask)
     position = np.full(signals.n_samples, -1)
     position[index] = np.arange(index.size)
-    train, r = signals.take(index), residual[index]
+    r = residual[index]
     if effect.linear:
         design = effect.design(signals)[index]
     else:
-        problem = _NonlinearProblem(effect, train, r)
+        problem = _NonlinearProblem(effect, signals.take(index), r)
         start, *_ = problem.solve(None)
     samples = np.empty((int(n_boot), effect.n_parameters))
     for b in range(int(n_boot)):
