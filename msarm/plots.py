@@ -7,13 +7,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from msarm.io.atomic import atomic_path  # noqa: E402
-from msarm.model import RobotModel  # noqa: E402
-from msarm.muscle import curves  # noqa: E402
-from msarm.muscle.geometry import positive_spanning_margin  # noqa: E402
+from msarm.io.atomic import atomic_path
+from msarm.model import RobotModel
+from msarm.muscle import curves
+from msarm.muscle.geometry import positive_spanning_margin
 
 __all__ = ["save_figure", "plot_controllability", "plot_hill_curves", "plot_moment_arms"]
 

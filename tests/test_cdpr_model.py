@@ -170,6 +170,25 @@ def test_rotation_vector_round_trip():
     )
 
 
+def test_rotation_maps_agree_with_pinocchio():
+    """exp and log of SO(3) against Pinocchio's exp3 / log3, small angles and near pi too."""
+    rng = np.random.default_rng(3)
+    rotvecs = np.vstack(
+        [
+            rng.uniform(-1.8, 1.8, size=(30, 3)),
+            [[1e-7, -3e-8, 2e-7], [0.0, 0.0, 0.0]],
+            [[0.0, np.pi - 1e-6, 0.0], [2.0, -1.0, 1.5]],
+        ]
+    )
+    for rotvec in rotvecs:
+        R = pinocchio.exp3(rotvec)
+        np.testing.assert_allclose(rotation_matrix(rotvec), R, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(rotation_vector(R), pinocchio.log3(R), rtol=0, atol=1e-9)
+    batch = rotation_matrix(rotvecs)
+    for R, rotvec in zip(batch, rotvecs, strict=True):
+        np.testing.assert_allclose(R, pinocchio.exp3(rotvec), rtol=0, atol=1e-14)
+
+
 # ------------------------------------------------------------------- two engines
 
 

@@ -183,3 +183,18 @@ def test_a_recipes_plant_file_is_found_beside_the_recipe(monkeypatch, tmp_path):
     with pytest.raises(RuntimeError, match="stop before training"):
         compensator_cli.train_command(config=recipe)
     assert seen == [str(tmp_path / "plant.yaml")]
+
+
+def test_cdpr_run_help_names_every_controller_and_trajectory():
+    """The help lists are written out for the CLI; they must name what the registries hold."""
+    from msarm.control.cdpr_controllers import list_cdpr_controllers
+    from msarm.tasks.cdpr_trajectories import list_cdpr_trajectories
+
+    run = typer.main.get_command(app).commands["cdpr"].commands["run"]
+    helps = {param.name: param.help for param in run.params}
+    listed = {
+        name: set(re.findall(r"[a-z0-9-]+", helps[name].rstrip(".")))
+        for name in ("controller", "trajectory")
+    }
+    assert listed["controller"] == set(list_cdpr_controllers())
+    assert listed["trajectory"] == set(list_cdpr_trajectories())

@@ -172,12 +172,6 @@ def test_winch_friction_is_named_with_its_parameters(arm, winch_logs):
     # added to the drives it follows the logged motion much closer
     replay = result.replay
     assert replay["source"] == "command"
-    print(
-        "hand drift before",
-        replay["hand_error_end_before"],
-        "after",
-        replay["hand_error_end_after"],
-    )
     assert replay["hand_error_end_after"] < 0.5 * replay["hand_error_end_before"]
 
 

@@ -58,7 +58,6 @@ def test_signals_from_logs_concatenates_runs(arm, noise_logs):
 
 def test_joint_friction_is_found_and_the_gap_shrinks(arm, friction_logs):
     result = diagnose(arm, friction_logs[:-1], friction_logs[-1:], candidates=CANDIDATES)
-    print(result.to_markdown())
     assert result.names, "nothing selected"
     assert result.names[0] in ("coulomb", "viscous")
     assert result.explained_variance[1] > 0.3

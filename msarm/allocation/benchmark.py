@@ -2,12 +2,9 @@
 
 Two robots, ``n_problems`` problems each (seeded):
 
-- ``arm`` (M = -J_c^T, 4 x 9): the real arm of ``msarm.model.load_arm`` at random postures and
-  joint velocities when that module is importable, with the bounds from the muscles' force
-  capacity; otherwise random muscle Jacobians with the arm's structure (7 shoulder muscles on
-  joints 1-3, 2 elbow muscles on joint 4, moment arms of a few cm) and random capacities.
-  Weights ``1/F_max``, ``f_ref = 0`` (sum of squared activations); torques that forces within
-  the capacity produce.
+- ``arm`` (M = -J_c^T, 4 x 9): the arm of ``msarm.model.load_arm`` at random postures and
+  joint velocities, with the bounds from the muscles' force capacity. Weights ``1/F_max``,
+  ``f_ref = 0`` (sum of squared activations); torques that forces within the capacity produce.
 - ``cdpr`` (M = A^T, 6 x 8): the WireX-like robot of the unit test (frame 4 x 3 x 2 m,
   platform 0.12 m) at random poses in the central part of the frame (rotations up to 5 deg),
   holding a 0.25 kg platform plus a random disturbance wrench, cable forces in [1, 10] N,
@@ -31,6 +28,7 @@ from numpy.typing import NDArray
 
 from msarm.allocation import make_allocator
 from msarm.cdpr import CableRobot
+from msarm.cdpr.forward_kinematics import rotation_matrix
 
 FloatArray = NDArray[np.float64]
 
@@ -84,22 +82,11 @@ def wirex_robot() -> CableRobot:
     return CableRobot(np.vstack([top, bottom]), np.vstack([plate, plate]))
 
 
-def _rotation(axis_angle: FloatArray) -> FloatArray:
-    """Rotation matrices from rotation vectors (Rodrigues), (N, 3) -> (N, 3, 3)."""
-    angle = np.linalg.norm(axis_angle, axis=1)
-    k = axis_angle / np.where(angle > 0, angle, 1.0)[:, None]
-    K = np.zeros((len(k), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K = K - K.transpose(0, 2, 1)
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
-
-
 def cdpr_problems(n_problems: int, rng: np.random.Generator) -> BenchProblems:
     """Force distribution problems of the WireX-like robot at random poses (see module doc)."""
     robot = wirex_robot()
     r = rng.uniform([-1.0, -0.75, 0.6], [1.0, 0.75, 1.4], size=(n_problems, 3))
-    R = _rotation(rng.uniform(-1.0, 1.0, size=(n_problems, 3)) * np.deg2rad(5.0) / np.sqrt(3))
+    R = rotation_matrix(rng.uniform(-1.0, 1.0, size=(n_problems, 3)) * np.deg2rad(5.0) / np.sqrt(3))
     At = robot.structure_matrix(r, R)
     w = np.zeros((n_problems, 6))
     w[:, 2] = -0.25 * 9.81
@@ -118,62 +105,33 @@ def cdpr_problems(n_problems: int, rng: np.random.Generator) -> BenchProblems:
     )
 
 
-def _random_arm(n_problems: int, rng: np.random.Generator) -> BenchProblems:
-    m, n = 9, 4
-    f_max_iso = rng.uniform(200.0, 600.0, m)
-    J = np.zeros((n_problems, m, n))
-    J[:, :7, :3] = rng.normal(0.0, 0.025, size=(n_problems, 7, 3))
-    J[:, 7, 3] = rng.uniform(0.01, 0.04, n_problems)
-    J[:, 8, 3] = -rng.uniform(0.01, 0.04, n_problems)
-    f_max = f_max_iso * rng.uniform(0.5, 1.0, size=(n_problems, m))
-    f_min = 0.02 * f_max_iso * rng.uniform(0.5, 1.0, size=(n_problems, m))
-    M = -J.transpose(0, 2, 1)
-    f0 = f_min + rng.uniform(0.0, 0.3, size=(n_problems, m)) * (f_max - f_min)
-    b = (M @ f0[..., None])[..., 0]
-    return BenchProblems(
-        "arm", "random J_c (msarm.model not available)", M, b, f_min, f_max, 1.0 / f_max_iso, None
-    )
-
-
 def arm_problems(n_problems: int, rng: np.random.Generator) -> BenchProblems:
-    """Muscle force problems of the arm (the real model when importable, see module doc)."""
-    try:
-        from msarm.model import load_arm
+    """Muscle force problems of the arm of ``msarm.model.load_arm`` (see module doc).
 
-        arm = load_arm()
-    except Exception:  # noqa: BLE001 - any failure to load the model falls back to random
-        return _random_arm(n_problems, rng)
-    if getattr(arm, "muscles", None) is None:
-        return _random_arm(n_problems, rng)
+    Args:
+        n_problems: Number of problems (postures and joint velocities).
+        rng: Generator for the postures (uniform in the joint range), the joint velocities
+            (uniform in [-1, 1] rad/s) and the forces that make the torques.
+
+    Returns:
+        The problems: ``M`` (n_problems, 4, 9), bounds (n_problems, 9) in N from the muscles'
+        force capacity, weights ``1 / F_max`` (9,) in 1/N.
+    """
+    from msarm.model import load_arm
+
+    arm = load_arm()
     m, n = arm.n_cables, arm.n_joints
     muscles = arm.muscles
-    lower = np.asarray(getattr(arm, "joint_lower", np.full(n, -0.6)), dtype=np.float64)
-    upper = np.asarray(getattr(arm, "joint_upper", np.full(n, 0.6)), dtype=np.float64)
     f_scale = np.asarray(muscles.max_isometric_force, dtype=np.float64)
     M = np.empty((n_problems, n, m))
     f_min = np.empty((n_problems, m))
     f_max = np.empty((n_problems, m))
-    count = 0
-    attempts = 0
-    while count < n_problems and attempts < 20 * n_problems:
-        if attempts >= 200 and count < attempts // 10:
-            break  # the model rejects most postures
-        attempts += 1
-        q = rng.uniform(lower, upper)
+    for k in range(n_problems):
+        q = rng.uniform(arm.joint_lower, arm.joint_upper)
         qd = rng.uniform(-1.0, 1.0, n)
-        try:
-            geo = arm.geometry(q, with_wrap_angles=False)
-            lo, hi = muscles.force_capacity(geo.lengths, geo.jacobian @ qd)
-        except Exception:  # noqa: BLE001 - a posture outside the model's range: draw again
-            continue
-        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-        if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo <= hi).all()):
-            continue
-        M[count] = -np.asarray(geo.jacobian, dtype=np.float64).T
-        f_min[count], f_max[count] = lo, hi
-        count += 1
-    if count < n_problems:  # the model rejects too many postures: use random problems
-        return _random_arm(n_problems, rng)
+        geo = arm.geometry(q, with_wrap_angles=False)
+        f_min[k], f_max[k] = muscles.force_capacity(geo.lengths, geo.jacobian @ qd)
+        M[k] = -geo.jacobian.T
     f0 = f_min + rng.uniform(0.0, 0.3, size=(n_problems, m)) * (f_max - f_min)
     b = (M @ f0[..., None])[..., 0]
     return BenchProblems("arm", "msarm.model.load_arm", M, b, f_min, f_max, 1.0 / f_scale, None)

@@ -27,26 +27,26 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from msarm import plots  # noqa: E402
-from msarm.compensation.dataset import reusable_run  # noqa: E402
-from msarm.control import ArmControllerConfig  # noqa: E402
-from msarm.errors import InputError  # noqa: E402
-from msarm.io.atomic import write_json_atomic  # noqa: E402
-from msarm.io.logs import read_log, read_sidecar  # noqa: E402
-from msarm.model import RobotModel  # noqa: E402
-from msarm.plant import PlantConfig  # noqa: E402
-from msarm.tasks.evaluate import (  # noqa: E402
+from msarm import plots
+from msarm.compensation.dataset import reusable_run
+from msarm.control import ArmControllerConfig
+from msarm.errors import InputError
+from msarm.io.atomic import write_json_atomic
+from msarm.io.logs import read_log, read_sidecar
+from msarm.model import RobotModel
+from msarm.plant import PlantConfig
+from msarm.tasks.evaluate import (
     SETTLE_DELAY,
     TrackingMetrics,
     evaluate_run,
     hand_position,
 )
-from msarm.tasks.registry import get_task  # noqa: E402
-from msarm.tasks.runner import Feedforward  # noqa: E402
-from msarm.tasks.track import TrackSettings, track  # noqa: E402
+from msarm.tasks.registry import get_task
+from msarm.tasks.runner import Feedforward
+from msarm.tasks.track import TrackSettings, track
 
 __all__ = ["SHEATH_ONLY", "Comparison", "compare_feedforward"]
 

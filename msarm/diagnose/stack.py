@@ -43,7 +43,6 @@ __all__ = [
     "channel_rmse",
     "fit_together",
     "group_scores",
-    "mean_score",
     "own_gain",
     "pooled_rmse",
 ]
@@ -536,11 +535,6 @@ class Confounding:
 def own_gain(groups: Sequence[str], before: dict[str, float], after: dict[str, float]) -> float:
     """Gain of the explained share, averaged over the groups a term acts on [-]."""
     return float(np.mean([after[g] - before[g] for g in groups]))
-
-
-def mean_score(layout: Layout, residual: FloatArray, prediction: FloatArray) -> float:
-    """The selection score: the mean over groups of their explained variance [-]."""
-    return float(np.mean(list(group_scores(layout, residual, prediction).values())))
 
 
 def channel_rmse(values: FloatArray) -> FloatArray:

@@ -142,10 +142,10 @@ STANDARD_TRUTH_UNITS: Mapping[str, str] = {
 
 class _HasNameAndHash(Protocol):
     @property
-    def name(self) -> str: ...  # noqa: D102
+    def name(self) -> str: ...
 
     @property
-    def sha256(self) -> str: ...  # noqa: D102
+    def sha256(self) -> str: ...
 
 
 def split_channel(column: str) -> tuple[str, str]:

@@ -29,17 +29,17 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from msarm import plots  # noqa: E402
-from msarm.cdpr.robot_model import CableRobotModel  # noqa: E402
-from msarm.io.atomic import write_json_atomic  # noqa: E402
-from msarm.io.config import config_to_dict, write_config  # noqa: E402
-from msarm.plant.cdpr_config import CdprPlantConfig  # noqa: E402
-from msarm.tasks.cdpr_run_cache import CdprRunCache  # noqa: E402
-from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun, run_cdpr  # noqa: E402
-from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory  # noqa: E402
+from msarm import plots
+from msarm.cdpr.robot_model import CableRobotModel
+from msarm.io.atomic import write_json_atomic
+from msarm.io.config import config_to_dict, write_config
+from msarm.plant.cdpr_config import CdprPlantConfig
+from msarm.tasks.cdpr_run_cache import CdprRunCache
+from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun, run_cdpr
+from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory
 
 __all__ = [
     "CONTROLLERS",
