@@ -347,10 +347,25 @@ def test_cdpr_run_takes_controller_options(tmp_path, monkeypatch):
     args = ["cdpr", "run", "--controller", "hc-e", "--option", "fe_feedforward=true", "--json"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
-    folder = tmp_path / "runs" / "cdpr-hc-e-triangle-12-fe_feedforward=True"
+    folder = tmp_path / "runs" / "cdpr-hc-e-triangle-12-fe_feedforward=true"
     config = yaml.safe_load((folder / "config.yaml").read_text())
     assert config["controller_options"] == {"fe_feedforward": True}
     # the feed-forward brings HC-e's mean error to HC-f's (0.26 mm on triangle-12)
     assert json.loads(result.output)["mean_position_error_mm"] < 0.35
     wrong = CliRunner().invoke(app, ["cdpr", "run", "--controller", "hc-f", "--option", "x=1"])
     assert wrong.exit_code != 0 and "invalid option" in str(wrong.exception)
+
+
+def test_the_readme_plant_file_is_the_default_plant(tmp_path):
+    """The README's "default plant, written out" YAML gives ``CdprPlantConfig()`` but its name."""
+    from pathlib import Path
+
+    from msarm.io.config import load_config
+    from msarm.plant.cdpr_config import CdprPlantConfig
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    after = readme.split("The\ndefault plant, written out", 1)[1]
+    block = after.split("```yaml\n", 1)[1].split("```", 1)[0]
+    (tmp_path / "plant.yaml").write_text(block)
+    written = load_config(tmp_path / "plant.yaml", CdprPlantConfig)
+    assert replace(written, name=CdprPlantConfig().name) == CdprPlantConfig()

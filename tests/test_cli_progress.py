@@ -349,7 +349,7 @@ def test_cdpr_run_s_default_folder_names_a_seed_other_than_0(monkeypatch, tmp_pa
     )
     assert default_run_folder(
         "hc-e", "triangle-12", IDEAL_CDPR_PLANT, 2, {"fe_feedforward": True}
-    ) == Path("runs/cdpr-hc-e-triangle-12-ideal-s2-fe_feedforward=True")
+    ) == Path("runs/cdpr-hc-e-triangle-12-ideal-s2-fe_feedforward=true")
     monkeypatch.chdir(tmp_path)
     result = CliRunner().invoke(app, ["cdpr", "run", "--controller", "ikc", "--seed", "1"])
     assert result.exit_code == 0, result.output

@@ -117,8 +117,13 @@ def default_run_folder(
     controller option: runs that differ in any of them get folders of their own.
     """
     on = _plant_suffix(plant_config) + seed_suffix(seed)
-    on += "".join(f"-{k}={v}" for k, v in options.items())
+    on += "".join(f"-{k}={_option_text(v)}" for k, v in options.items())
     return Path("runs") / f"cdpr-{controller}-{trajectory}{on}"
+
+
+def _option_text(value: object) -> str:
+    """An option's value as written on the command line (YAML): ``true``, not ``True``."""
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
 
 @cdpr_app.command("run")
