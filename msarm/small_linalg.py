@@ -10,6 +10,10 @@ import math
 
 import numba
 
+from msarm.numba_cache import drop_stale_kernels
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
+
 __all__ = ["cholesky_solve"]
 
 

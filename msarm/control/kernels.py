@@ -12,6 +12,10 @@ from __future__ import annotations
 
 import numba
 
+from msarm.numba_cache import drop_stale_kernels
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
+
 __all__ = ["activation_and_reach", "filter_and_pid", "force_bounds", "muscle_speed"]
 
 

@@ -17,6 +17,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.errors import InputError
+from msarm.numba_cache import drop_stale_kernels
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = ["Signals", "direction_memory", "stick_slip_tension"]
 

@@ -27,11 +27,15 @@ from numpy.typing import ArrayLike, NDArray
 from msarm.errors import InputError
 from msarm.mujoco_c import call_model_data, function_addresses
 from msarm.muscle.geometry import _PULLEY, cable_kinematics, wrap_angles
+from msarm.numba_cache import drop_stale_kernels
 
 if TYPE_CHECKING:
     import mujoco
 
     from msarm.model import RobotData, RobotModel
+
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = [
     "KINEMATICS_FUNCTIONS",

@@ -35,6 +35,9 @@ from msarm.muscle.curves import (
     PASSIVE_KPE,
 )
 from msarm.muscle.hill import HillMuscles
+from msarm.numba_cache import drop_stale_kernels
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = ["FastHill", "hill_parts"]
 

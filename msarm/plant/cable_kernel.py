@@ -36,6 +36,9 @@ import math
 import numba
 
 from msarm.mujoco_c import call_model_data
+from msarm.numba_cache import drop_stale_kernels
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = ["PARAMS", "step_cables", "step_plant"]
 

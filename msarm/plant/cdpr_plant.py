@@ -85,11 +85,14 @@ from msarm.cdpr.robot_model import (
     twist_from_qvel,
 )
 from msarm.errors import InputError
+from msarm.numba_cache import drop_stale_kernels
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, DRIVE_MODES, CdprPlantConfig
 from msarm.plant.instability import instability_found
 from msarm.plant.seeding import seed_generator
 from msarm.small_linalg import cholesky_solve
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = ["CdprPlant", "CdprSensorReadings", "SimulationDivergedError"]
 

@@ -47,9 +47,12 @@ from msarm.control.kernels import activation_and_reach, filter_and_pid, force_bo
 from msarm.mujoco_c import function_addresses
 from msarm.muscle.batch_kinematics import KINEMATICS_FUNCTIONS, jacobian_at, wrap_angles_into
 from msarm.muscle.fast import hill_parts
+from msarm.numba_cache import drop_stale_kernels
 from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.cable_kernel import step_plant
 from msarm.plant.effects import Delay, SensorNoise
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = [
     "Allocation",

@@ -37,7 +37,10 @@ import numpy as np
 from msarm.allocation.batched import CONV_TOL, MAX_ITER, REG
 from msarm.allocation.problem import OPTIMAL, AllocationSpec
 from msarm.allocation.solvers.base import Allocator, FloatArray, MethodOutput
+from msarm.numba_cache import drop_stale_kernels
 from msarm.small_linalg import cholesky_solve
+
+drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = ["INFEASIBLE_CODE", "NOT_CONVERGED", "NewtonAllocator", "dual_newton_tick"]
 
