@@ -1,10 +1,16 @@
-"""Shared fixtures: the arm is loaded once per test session."""
+"""Shared fixtures: the arm is loaded once per test session; property tests are seeded."""
 
 from __future__ import annotations
 
 import pytest
+from hypothesis import settings
 
 from msarm.model import load_arm
+
+# Same seed, same result: hypothesis draws the same examples on every run, and keeps no
+# example database in the checkout (a test's own @settings may still change other options).
+settings.register_profile("msarm", derandomize=True, database=None)
+settings.load_profile("msarm")
 
 
 @pytest.fixture(scope="session")

@@ -97,7 +97,8 @@ class CdprRunCache:
         if path is None or not path.is_file():
             return None
         try:
-            with np.load(path, allow_pickle=False) as stored:
+            # np.load on an open file: a file it cannot read is closed all the same
+            with path.open("rb") as file, np.load(file, allow_pickle=False) as stored:
                 if str(stored["key"]) != self._key(controller, trajectory, seed, options or {}):
                     return None
                 metrics = json.loads(str(stored["metrics"]))
