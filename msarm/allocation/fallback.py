@@ -45,6 +45,13 @@ def min_norm_lstsq(A: FloatArray, rhs: FloatArray) -> FloatArray:
 
     LAPACK's ``dgelsy`` (complete orthogonal factorisation with column pivoting, rank
     cut-off 1e-13), called directly: a quarter of the overhead of ``np.linalg.lstsq``.
+
+    Args:
+        A: Shape (n, k).
+        rhs: Shape (n,).
+
+    Returns:
+        y of least norm among the minimisers of ``|A y - rhs|``, shape (k,).
     """
     n, k = A.shape
     pad = np.zeros(max(n, k))

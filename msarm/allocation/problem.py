@@ -334,6 +334,20 @@ def check_tick(
 
     It does not check ``f_min <= f_max``: ``Allocator.solve`` calls ``check_bound_order``
     after it (a solver's answer does not prove the order).
+
+    Args:
+        spec: The problem's sizes (n_dof, n_actuators).
+        M: Structure matrix, shape (n_dof, n_actuators).
+        b: Right-hand side (wrench or joint torque), shape (n_dof,).
+        f_min: Lower force bounds [N], shape (n_actuators,) or a scalar.
+        f_max: Upper force bounds [N], shape (n_actuators,) or a scalar.
+
+    Returns:
+        ``(M, b, f_min, f_max, b @ b)`` as float64 arrays of those shapes (bounds broadcast
+        to (n_actuators,)) and the squared norm of ``b``.
+
+    Raises:
+        InputError: A wrong shape or a non-finite value, named.
     """
     n, m = spec.n_dof, spec.n_actuators
     if type(M) is not np.ndarray or M.dtype is not _F64:

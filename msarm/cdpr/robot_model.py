@@ -313,8 +313,18 @@ class CableRobotModel:
         """Wrench of the platform's weight and inertia, (force [N], moment about r [N m]) in K_0.
 
         :func:`msarm.cdpr.forward_kinematics.platform_wrench` with this file's mass,
-        inertia, centre of mass and gravity; twist and accelerations in K_0, zero if None.
-        Shape (6,) or (N, 6).
+        inertia, centre of mass and gravity.
+
+        Args:
+            r: Platform position in K_0 [m], shape (3,) or (N, 3).
+            R: Platform orientation, K_P to K_0, shape (3, 3) or (N, 3, 3).
+            v: Linear velocity in K_0 [m/s], like ``r``; zero if None.
+            omega: Angular velocity in K_0 [rad/s], like ``r``; zero if None.
+            a: Linear acceleration in K_0 [m/s^2], like ``r``; zero if None.
+            alpha: Angular acceleration in K_0 [rad/s^2], like ``r``; zero if None.
+
+        Returns:
+            (force [N], moment about r [N m]) in K_0, shape (6,) or (N, 6).
         """
         return platform_wrench(
             r,

@@ -37,6 +37,13 @@ FloatArray = NDArray[np.float64]
 def feature_spec_of(compensator: Compensator, source: str = "compensator") -> FeatureSpec:
     """The feature spec stored in a compensator's metadata.
 
+    Args:
+        compensator: A loaded compensator.
+        source: What to call it in an error (its file).
+
+    Returns:
+        The spec its network's inputs were extracted with.
+
     Raises:
         CheckpointError: The metadata has no feature spec, or not a valid one (``source``
             named).
@@ -62,6 +69,13 @@ def trained_controller(
     The feedforward learned the torque error that this controller leaves, so it is run, and
     compared, with the same gains.
 
+    Args:
+        compensator: A loaded compensator.
+        source: What to call it in an error (its file).
+
+    Returns:
+        The controller configuration of its training recipe.
+
     Raises:
         CheckpointError: The metadata records no gains, or invalid ones (``source`` named).
     """
@@ -82,6 +96,15 @@ def sheath_stage_of(
     model: RobotModel, compensator: Compensator, source: str = "compensator"
 ) -> SheathInverse | None:
     """The sheath stage a compensator was trained with, or None (a network alone).
+
+    Args:
+        model: The arm the stage runs on.
+        compensator: A loaded compensator.
+        source: What to call it in an error (its file).
+
+    Returns:
+        The stage (its identified sheath parameters, run at the trained controller's
+        period), or None when the compensator was trained without one.
 
     Raises:
         CheckpointError: The stage's settings or parameters are missing or invalid (``source``
@@ -154,6 +177,14 @@ class LearnedFeedforward:
 
 def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:
     """Load a checkpoint for ``model`` (with its sheath stage, if it was trained with one).
+
+    Args:
+        path: The checkpoint file (``msarm train`` writes ``runs/compensator/compensator.pt``).
+        model: The arm it must have been trained for (its SHA-256 is checked).
+
+    Returns:
+        The feedforward, ready for the control loop: the network, its feature extractor and
+        the sheath stage.
 
     Raises:
         CheckpointError: The file is not a compensator for ``model`` (another model, a
