@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -334,3 +335,68 @@ def test_the_controller_tells_a_feedforward_its_commands(arm):
     assert len(recorder.seen) == 2
     for seen, out in zip(recorder.seen, outputs, strict=True):
         np.testing.assert_array_equal(seen, out.tension_command)
+
+
+def _with_a_rest_sample(log: RunLog) -> RunLog:
+    """``log`` with one more sample 4 ms later: the reference at rest where it ended."""
+    columns = {}
+    for name, values in log.columns.items():
+        if name == "t":
+            extra = values[-1] + 0.004
+        elif name.startswith("qd_ref."):
+            extra = 0.0
+        else:
+            extra = values[-1]
+        columns[name] = np.append(values, extra)
+    return RunLog(columns, log.metadata)
+
+
+def test_cable_velocity_features_from_a_hand_made_log_are_the_hand_computed_values(arm):
+    """``exp_sign_ldot`` (U_E = exp(-tanh(ldot / eps_l))) and the cable direction memory.
+
+    ``ldot`` is taken here by central differences of the cable lengths along the reference
+    velocity (not from the Jacobian the extractor uses); the memory follows
+    ``m_k = m_{k-1} + (tanh(ldot / eps_l) - m_{k-1}) min(1, |ldot| dt / memory_length)``
+    from 0 at the first sample and keeps its value while the reference rests.
+    """
+    eps_l, travel = 0.2, 0.002  # m/s, m: tanh and the memory's rate away from saturation
+    spec = FeatureSpec(
+        groups=("exp_sign_ldot", "cable_memory"),
+        sign_cable_speed=eps_l,
+        memory_length=travel,
+        memory_angle=0.05,
+    )
+    log = _with_a_rest_sample(hand_log(arm))
+    x = FeatureExtractor(arm, spec).from_log(log)
+    assert x.shape == (4, 18)
+    q_ref, qd_ref, t = log.matrix("q_ref"), log.matrix("qd_ref"), log.t
+    h = 1e-6
+    ldot = []
+    for k in range(4):
+        plus = arm.geometry(q_ref[k] + h * qd_ref[k], with_wrap_angles=False).lengths
+        minus = arm.geometry(q_ref[k] - h * qd_ref[k], with_wrap_angles=False).lengths
+        ldot.append((plus - minus) / (2 * h))
+    sign = np.array([[math.tanh(v / eps_l) for v in row] for row in ldot])
+    expected = np.array([[math.exp(-s) for s in row] for row in sign])
+    np.testing.assert_allclose(x[:, 0:9], expected, rtol=0, atol=1e-8)
+    # a memory that forgets over 0.1 mm: most cables reach their sign in one tick (rate 1)
+    short = FeatureExtractor(arm, replace(spec, memory_length=1e-4)).from_log(log)
+    for features, length in ((x, travel), (short, 1e-4)):
+        memory = np.zeros(9)
+        for k in range(4):
+            dt = t[k] - t[k - 1] if k else 0.0
+            rate = np.minimum(1.0, np.abs(ldot[k]) * dt / length)
+            memory = memory + (sign[k] - memory) * rate
+            np.testing.assert_allclose(features[k, 9:18], memory, rtol=0, atol=1e-8)
+    assert abs(ldot[2][0]) * 0.004 / 1e-4 > 1.0  # cable 0 saturated: its memory is its sign
+    assert short[2, 9] == pytest.approx(sign[2, 0], abs=1e-8)
+    # the hand-made log exercises what it should: cables paid out and reeled in, a memory
+    # that moved part of the way (no rate saturated at 1), and one that rests
+    assert np.all(x[0] == [1.0] * 9 + [0.0] * 9)  # the reference at rest at the start
+    assert np.any(x[2, 0:9] > 1.05) and np.any(x[2, 0:9] < 0.95)
+    assert 0.05 < np.max(np.abs(x[2, 9:18])) < 0.95
+    np.testing.assert_array_equal(x[3, 9:18], x[2, 9:18])  # at rest the memory keeps its value
+    np.testing.assert_array_equal(x[3, 0:9], 1.0)
+    # biceps (cable 7): ldot = 0.1103 m/s at sample 2, hand-worked from its central difference
+    s = math.tanh(0.1103 / eps_l)
+    assert x[2, 7] == pytest.approx(math.exp(-s), rel=1e-3)  # ~0.60, exp(+s) ~1.65
