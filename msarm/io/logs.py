@@ -637,7 +637,10 @@ def _read_parquet(path: Path) -> tuple[dict[str, FloatArray], dict[str, str]]:
     if not path.is_file():
         raise LogError(f"{label}: file not found" if not path.exists() else f"{label}: not a file")
     try:
-        with open(path, "rb") as fh:
+        # Arrow's own file, not a Python one: a read through a Python file leaves Arrow's
+        # worker threads releasing Python buffers after it returns, and one still doing so
+        # when the interpreter exits aborts the process (seen as exit code 134 after an error)
+        with pa.OSFile(str(path), "rb") as fh:
             table = pq.ParquetFile(fh).read()
     except (pa.ArrowException, OSError) as exc:
         raise LogError(f"{label}: not a readable Parquet file: {exc}") from None
