@@ -24,6 +24,13 @@ from msarm.errors import InputError
 from msarm.plant import IDEAL_PLANT
 from msarm.plant.config import JointFrictionConfig
 
+# The noise-free simulated logs hold a cable at its floor tension over a whole run
+# ('tension_motor.teres_minor'): the dead-sensor warning is expected on them (asserted in
+# test_diagnose_where.py::test_a_noise_free_log_warns_about_the_cable_held_at_its_floor).
+pytestmark = pytest.mark.filterwarnings(
+    "ignore:.*hold one value over the whole log:msarm.diagnose.residuals.DiagnosisWarning"
+)
+
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "diagnose_custom_candidate.py"
 PNG = b"\x89PNG\r\n\x1a\n"
 CANDIDATES = ["coulomb", "viscous"]

@@ -26,6 +26,13 @@ from msarm.plant.config import JointFrictionConfig
 from msarm.tasks.track import TrackSettings, track
 from msarm.tasks.trajectories import hold_then_move
 
+# The noise-free simulated logs hold a cable at its floor tension over a whole run
+# ('tension_motor.teres_minor'): the dead-sensor warning is expected on them (asserted in
+# test_diagnose_where.py::test_a_noise_free_log_warns_about_the_cable_held_at_its_floor).
+pytestmark = pytest.mark.filterwarnings(
+    "ignore:.*hold one value over the whole log:msarm.diagnose.residuals.DiagnosisWarning"
+)
+
 HOME = np.array([0.0, 0.0, 0.0, -0.2])
 SHORT = hold_then_move(
     "short", HOME, [0.15, 0.4, -0.3, -0.9], wait=0.5, move_time=1.5, duration=3.0
@@ -227,6 +234,25 @@ def test_a_missing_channel_is_named(arm, logs, tmp_path):
     with pytest.warns(DiagnosisWarning, match="motor_angle"):
         result = residuals_from_log(arm, path)
     assert result.cable_length is None and result.kinds() == ["joint_torque", "drive", "replay"]
+
+
+def test_a_noise_free_log_warns_about_the_cable_held_at_its_floor(arm, logs):
+    """The noise-free simulation keeps teres_minor at its floor tension over the whole run:
+    the log is diagnosed as it is, with the dead-sensor warning (the one this module's
+    ``pytestmark`` hides in the other tests)."""
+    import re
+
+    from msarm.diagnose.residuals import ResidualSpec
+
+    for path in logs.values():
+        assert np.ptp(read_log(path).columns["tension_motor.teres_minor"]) == 0.0
+        with pytest.warns(
+            DiagnosisWarning,
+            match=rf"^{re.escape(str(path))}: column\(s\) .*'tension_motor\.teres_minor'.* "
+            r"hold one value over the whole log: a dead or disconnected sensor\?",
+        ):
+            result = residuals_from_log(arm, path, spec=ResidualSpec(replay=False))
+        assert result.valid.all()
 
 
 def test_time_gaps_split_the_log_and_warn(arm, logs, residuals, tmp_path):

@@ -344,9 +344,18 @@ def test_read_log_never_opens_the_sidecar(tmp_path, monkeypatch):
             raise AssertionError("read_log opened the sidecar with pyarrow")
         return real_parquet_file(source, *args, **kwargs)
 
+    real_os_file = logs.pa.OSFile
+
+    def guarded_os_file(file, *args, **kwargs):
+        opened.append(str(file))
+        if Path(str(file)).resolve() == side.resolve():
+            raise AssertionError("read_log opened the sidecar with pyarrow's OSFile")
+        return real_os_file(file, *args, **kwargs)
+
     monkeypatch.setattr(builtins, "open", guarded_open)
     monkeypatch.setattr(logs, "read_sidecar", no_sidecar)
     monkeypatch.setattr(logs.pq, "ParquetFile", guarded_parquet_file)
+    monkeypatch.setattr(logs.pa, "OSFile", guarded_os_file)
     assert read_log(log_path) == _log()
     assert str(log_path) in opened
     monkeypatch.undo()
