@@ -16,6 +16,7 @@ from msarm.cli.cdpr import cdpr_app
 from msarm.cli.compensator import compare_command, train_command
 from msarm.cli.diagnose import diagnose_command
 from msarm.cli.track import track_command
+from msarm.errors import InputError
 
 app = typer.Typer(
     name="msarm",
@@ -65,6 +66,9 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
     out: list[str] = []
     current: str | None = None
     for k, arg in enumerate(args):
+        if current is not None and out[-1] == current and (arg == "--" or arg.startswith("-")):
+            # click would take the next option itself as the value (--candidates --boot 0)
+            raise InputError(f"{current}: expected at least one value after it, got {arg}")
         if arg == "--":
             out.extend(args[k:])
             return out

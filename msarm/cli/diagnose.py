@@ -46,9 +46,16 @@ def split_runs(logs: list[Path], holdout: list[Path] | None) -> tuple[list[Path]
     ``max(1, len(logs) // 4)`` are held out, the rest trained on.
 
     Raises:
-        InputError: Fewer than 2 logs without ``holdout``, no training log left, or a log
-            both trained on and held out.
+        InputError: A log given twice, fewer than 2 logs without ``holdout``, or no training
+            log left.
     """
+    resolved = [p.resolve() for p in logs]
+    twice = sorted({str(p) for p in resolved if resolved.count(p) > 1})
+    if twice:
+        raise InputError(
+            f"logs: {', '.join(twice)} given more than once; expected each run once (a "
+            "repeated run would weigh twice in the fits, or be scored on itself)"
+        )
     if holdout:
         held = {p.resolve() for p in holdout}
         train = [p for p in logs if p.resolve() not in held]

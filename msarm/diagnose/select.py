@@ -45,6 +45,7 @@ waterfall of :mod:`msarm.diagnose.report`).
 
 from __future__ import annotations
 
+import hashlib
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -615,6 +616,28 @@ def _warn_still_joints(model: RobotModel, signals: Signals, names: Sequence[str]
     )
 
 
+def _refuse_copies(paths: Sequence[str | Path]) -> None:
+    """Refuse two log files with the same bytes: one run under two names.
+
+    A copy of a training log held out would score the terms on the data they were fitted
+    on; two copies in training would weigh that run twice. Files that cannot be read are
+    left to the log reader, which names what is wrong with them.
+    """
+    seen: dict[str, str] = {}
+    for path in paths:
+        try:
+            digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        except OSError:
+            continue
+        if digest in seen:
+            raise InputError(
+                f"logs: {path} has the same contents as {seen[digest]}: one run under two "
+                "names; expected each run once (a copy held out would score the terms on the "
+                "data they were fitted on)"
+            )
+        seen[digest] = str(path)
+
+
 def load_data(
     model: RobotModel,
     train_paths: Sequence[str | Path],
@@ -658,6 +681,7 @@ def load_data(
             f"holdout_paths (the held-out logs, --holdout): logs also used for training: "
             f"{sorted(both)}"
         )
+    _refuse_copies([*train_paths, *holdout_paths])
     wanted = tuple(GROUPS if groups is None else groups)
     unknown = [g for g in wanted if g not in GROUPS]
     if unknown or not wanted:

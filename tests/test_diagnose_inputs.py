@@ -1,0 +1,57 @@
+"""The diagnosis refuses one run given twice: by the same path, or as a byte copy."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from msarm.cli import spread_multi_value_options
+from msarm.cli.diagnose import split_runs
+from msarm.diagnose.select import load_data
+from msarm.errors import InputError
+
+
+def test_a_multi_value_option_followed_by_another_option_is_refused():
+    with pytest.raises(InputError, match="--candidates: expected at least one value.*--boot"):
+        spread_multi_value_options(["diagnose", "a", "b", "--candidates", "--boot", "0"])
+    with pytest.raises(InputError, match="--holdout: expected at least one value"):
+        spread_multi_value_options(["diagnose", "a", "--holdout", "--", "b"])
+    assert spread_multi_value_options(["diagnose", "a", "--holdout", "b", "c", "--boot", "0"]) == [
+        *("diagnose", "a", "--holdout", "b", "--holdout", "c", "--boot", "0")
+    ]
+
+
+def test_a_log_named_twice_is_refused_before_the_split(tmp_path):
+    log = tmp_path / "r1.parquet"
+    with pytest.raises(InputError, match=r"r1\.parquet given more than once"):
+        split_runs([log, tmp_path / "." / "r1.parquet"], None)
+    assert split_runs([log, tmp_path / "r2.parquet"], None) == (
+        [log],
+        [tmp_path / "r2.parquet"],
+    )
+
+
+def test_a_copy_of_a_training_log_is_not_taken_as_a_held_out_run(arm, tmp_path):
+    # refused from the bytes alone, before any log is parsed
+    first, second, copy = (tmp_path / f"{name}.parquet" for name in ("a", "b", "copy_of_a"))
+    first.write_bytes(b"run a")
+    second.write_bytes(b"run b")
+    copy.write_bytes(first.read_bytes())
+    with pytest.raises(
+        InputError, match=r"copy_of_a\.parquet has the same contents as \S*a\.parquet"
+    ):
+        load_data(arm, [first, second], [copy])
+    with pytest.raises(InputError, match="same contents"):
+        load_data(arm, [first, copy], [second])
+
+
+def test_distinct_logs_pass_the_copy_check_and_reach_the_log_reader(arm, tmp_path):
+    paths = [tmp_path / f"{name}.parquet" for name in ("a", "b")]
+    for path in paths:
+        path.write_bytes(path.name.encode())
+    with pytest.raises(Exception) as raised:
+        load_data(arm, paths[:1], paths[1:])
+    assert "same contents" not in str(raised.value)
+    assert "not a readable Parquet file" in str(raised.value)
+    assert Path(paths[0]).name in str(raised.value)
