@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,10 @@ from msarm.cli import spread_multi_value_options
 from msarm.cli.diagnose import split_runs
 from msarm.diagnose.select import load_data
 from msarm.errors import InputError
+
+pytestmark = pytest.mark.filterwarnings(
+    "ignore:.*hold one value over the whole log:msarm.diagnose.residuals.DiagnosisWarning"
+)
 
 
 def test_a_multi_value_option_followed_by_another_option_is_refused():
@@ -55,3 +60,29 @@ def test_distinct_logs_pass_the_copy_check_and_reach_the_log_reader(arm, tmp_pat
     assert "same contents" not in str(raised.value)
     assert "not a readable Parquet file" in str(raised.value)
     assert Path(paths[0]).name in str(raised.value)
+
+
+def test_a_gap_at_numerical_precision_is_called_so(arm, tmp_path):
+    """Noise-free logs of the nominal model itself: whatever is named fits numerical error."""
+    from dataclasses import replace
+
+    from conftest import short_move_logs
+
+    from msarm.diagnose.residuals import DiagnosisWarning
+    from msarm.plant import IDEAL_PLANT
+    from msarm.plant.config import JointFrictionConfig
+
+    ideal = short_move_logs(arm, tmp_path / "ideal", IDEAL_PLANT, 2)
+    with pytest.warns(DiagnosisWarning, match=r"numerical precision") as caught:
+        load_data(arm, ideal[:1], ideal[1:], candidates=["coulomb"])
+    assert any("% of the torque the cables deliver" in str(w.message) for w in caught)
+    friction = replace(
+        IDEAL_PLANT,
+        name="friction",
+        effects=replace(IDEAL_PLANT.effects, joint_friction=JointFrictionConfig(enabled=True)),
+    )
+    rubbing = short_move_logs(arm, tmp_path / "friction", friction, 2)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_data(arm, rubbing[:1], rubbing[1:], candidates=["coulomb"])
+    assert not [w for w in caught if "numerical precision" in str(w.message)]
