@@ -279,7 +279,10 @@ def load_robot(path: str | Path) -> RobotModel:
     """
     path = Path(path)
     if not path.is_file():
-        raise ModelError(f"model file not found: {path} (expected an MJCF .xml file)")
+        from msarm.io.config import folder_instead_of_file
+
+        folder = folder_instead_of_file(path, "an MJCF .xml model file")
+        raise ModelError(folder or f"model file not found: {path} (expected an MJCF .xml file)")
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:

@@ -510,3 +510,71 @@ def test_trajectories_inside_the_workspace_and_their_pairs_region(model, traject
             expected = (0, 1) if tr.position[:, 1].min() > 0 else (2, 3)
             assert pair == expected
         assert sigma.max() < 1.5, name  # Fig. 7: sigma_ij < 1.5 N
+
+
+# --------------------------------------------------------------------------- options
+
+
+def test_the_option_table_covers_every_constructor_parameter():
+    """Every keyword option of every controller has a plain type (or none: an object)."""
+    import inspect
+
+    from msarm.control.cdpr_controllers import _OPTION_TYPES, _OPTIONS
+
+    plain = {"float": (float,), "bool": (bool,), "str": (str,), "float | None": (float, type(None))}
+    for name, cls in CDPR_CONTROLLERS.items():
+        params = {}
+        for klass in cls.__mro__:
+            if "__init__" in vars(klass) and klass is not object:
+                for p in inspect.signature(klass.__init__).parameters.values():
+                    if p.kind is inspect.Parameter.KEYWORD_ONLY:
+                        params.setdefault(p.name, p.annotation)
+        assert set(_OPTIONS[name]) <= set(params), name
+        for key, annotation in params.items():
+            if key in ("feedback", "all_cables"):  # fixed by the controller's class
+                continue
+            types = _OPTION_TYPES[key]
+            if annotation in plain:
+                assert types == plain[annotation], key
+            elif "str" in annotation.split(" | "):  # pair_selector: a word, or an object
+                assert types == (str,), key
+            else:  # an object only
+                assert types == (), key
+
+
+def test_object_options_of_the_wrong_type_are_refused_by_name(model):
+    with pytest.raises(InputError, match="gains must be a PIDGains .*got str 'foo'"):
+        make_cdpr_controller("hc-e", model, gains="foo")
+    with pytest.raises(InputError, match="winch must be a WinchParameters .*got int 1"):
+        make_cdpr_controller("ikc", model, winch=1)
+    with pytest.raises(InputError, match=r"invalid option value .*'f_max': '1e9'"):
+        make_cdpr_controller("hc-e", model, f_max="1e9")
+
+
+def test_plain_options_are_checked_against_their_type():
+    from msarm.control.cdpr_controllers import check_plain_options
+
+    check_plain_options("nc", {"f_max": 40, "k_i": 1e-3, "friction_model": False})
+    check_plain_options("hc-e", {"delta_l_limit": None, "pair_selector": "sensitivity"})
+    for name, options, message in (
+        (
+            "hc-e",
+            {"fe_feedforward": "flase"},
+            "'fe_feedforward' .* expects true or false, got 'flase'",
+        ),
+        ("hc-e", {"start_active": "maybe"}, "'start_active' .* expects true or false, got 'maybe'"),
+        ("ikc", {"velocity_feedforward": 2}, "'velocity_feedforward' .* true or false, got 2"),
+        ("hc-f", {"f_max": True}, "'f_max' .* expects a number, got True"),
+        ("nc", {"delta_l_limit": "none"}, "'delta_l_limit' .* a number or null, got 'none'"),
+        ("hc-e", {"pair_selector": [0, 1]}, "expects a word, got \\[0, 1\\]; a fixed cable pair"),
+        ("hc-e", {"gains": 1}, "'gains' .* cannot be set from the command line"),
+        ("nc", {"winch": "foo"}, "'winch' .* cannot be set from the command line"),
+    ):
+        with pytest.raises(InputError, match=message):
+            check_plain_options(name, options)
+    with pytest.raises(InputError, match="valid options: ") as info:
+        check_plain_options("hc-e", {"gain": 1.0})
+    listed = str(info.value).split("valid options: ")[1].split(", ")
+    assert "gains" not in listed and "winch" not in listed and "fe_feedforward" in listed
+    with pytest.raises(InputError, match="invalid option .*'all_cables'"):
+        check_plain_options("hc-f", {"all_cables": True})

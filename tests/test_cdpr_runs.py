@@ -356,6 +356,107 @@ def test_cdpr_run_takes_controller_options(tmp_path, monkeypatch):
     assert wrong.exit_code != 0 and "invalid option" in str(wrong.exception)
 
 
+def _cdpr_error(monkeypatch, capsys, tmp_path, *args: str) -> str:
+    """``msarm cdpr run ARGS`` through the console script: exit code 2, one line, no folder."""
+    import sys
+
+    from msarm.cli import main
+
+    out = tmp_path / "run"
+    monkeypatch.setattr(sys, "argv", ["msarm", "cdpr", "run", *args, "--out", str(out)])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2, err
+    assert err.startswith("msarm: error: ") and err.count("\n") == 1, err
+    assert not out.exists()  # refused before any folder was made
+    return err
+
+
+def test_an_object_option_is_refused_on_the_command_line(monkeypatch, capsys, tmp_path):
+    for controller, item in (("hc-e", "gains=foo"), ("hc-f", "gains=1"), ("ikc", "winch=foo")):
+        key = item.split("=")[0]
+        err = _cdpr_error(
+            monkeypatch, capsys, tmp_path, "--controller", controller, "--option", item
+        )
+        assert f"option '{key}' of CDPR controller '{controller}'" in err
+        assert "cannot be set from the command line" in err and "make_cdpr_controller" in err
+    err = _cdpr_error(monkeypatch, capsys, tmp_path, "--option", "gain=1")
+    assert "invalid option for CDPR controller 'hc-e': 'gain'" in err
+    listed = err.split("valid options: ")[1].strip().split(", ")
+    assert "gains" not in listed and "winch" not in listed and "delta" in listed
+
+
+def test_an_option_value_of_the_wrong_type_is_refused(monkeypatch, capsys, tmp_path):
+    for item, expected in (
+        (
+            "fe_feedforward=flase",
+            "'fe_feedforward' of CDPR controller 'hc-e' expects true or false",
+        ),
+        ("start_active=maybe", "'start_active' of CDPR controller 'hc-e' expects true or false"),
+        ("velocity_feedforward=2", "'velocity_feedforward' of CDPR controller 'hc-e' expects true"),
+        ("delta=fast", "'delta' of CDPR controller 'hc-e' expects a number, got 'fast'"),
+    ):
+        err = _cdpr_error(monkeypatch, capsys, tmp_path, "--option", item)
+        assert expected in err and repr(yaml.safe_load(item.split("=")[1])) in err
+
+
+def test_option_numbers_in_exponent_form_are_floats():
+    from msarm.cli.cdpr import controller_options
+    from msarm.tasks.cdpr_runner import check_cdpr_run
+
+    options = controller_options(["f_max=4e1", "dt=1e-3", "f_min=5e0"])
+    assert options == {"f_max": 40.0, "dt": 0.001, "f_min": 5.0}
+    assert controller_options(["f_max=4e1", "dt=1e-3", "f_min=5e0"], "hc-e") == options
+    robot = load_cable_robot()
+    ctrl = check_cdpr_run(
+        robot, DEFAULT_CDPR_PLANT, "hc-e", get_cdpr_trajectory("triangle-12"), options
+    )
+    assert (ctrl.f_min, ctrl.f_max, ctrl.dt) == (5.0, 40.0, 0.001)
+    assert controller_options(["delta_l_limit=null"], "nc") == {"delta_l_limit": None}
+
+
+def test_an_option_that_is_no_yaml_is_one_line(monkeypatch, capsys, tmp_path):
+    err = _cdpr_error(monkeypatch, capsys, tmp_path, "--option", "fe_feedforward=[1")
+    assert "--option fe_feedforward: '[1' is not a YAML value: column 3: expected ','" in err
+
+
+def test_plant_file_friction_speeds_are_refused_in_the_files_unit(tmp_path):
+    from msarm.errors import ConfigError
+    from msarm.io.config import load_config
+    from msarm.plant.cdpr_config import CdprPlantConfig
+
+    (tmp_path / "plant.yaml").write_text("friction: {v_low: 10, v_high: 1}\n")
+    with pytest.raises(ConfigError, match=r"key 'friction'.*\[m/min\], got v_low=10, v_high=1$"):
+        load_config(tmp_path / "plant.yaml", CdprPlantConfig)
+
+
+def test_a_plant_file_of_the_other_robot_gets_a_hint(tmp_path):
+    from msarm.cli.cdpr import _plant
+    from msarm.cli.common import resolve_plant
+    from msarm.errors import ConfigError
+    from msarm.io.config import write_config
+    from msarm.plant.config import DEFAULT_PLANT
+
+    arm = write_config(DEFAULT_PLANT, tmp_path / "arm.yaml")
+    arm_run = write_config({"task": "table1-1", "plant": DEFAULT_PLANT}, tmp_path / "config.yaml")
+    for path in (arm, arm_run):
+        with pytest.raises(ConfigError, match="unknown key 'effects'") as info:
+            _plant(str(path))
+        assert str(info.value).endswith(
+            "; this looks like an arm plant (key 'effects'; for msarm track --plant), not a "
+            "cable robot's plant"
+        )
+    cdpr = write_config(DEFAULT_CDPR_PLANT, tmp_path / "cdpr.yaml")
+    with pytest.raises(ConfigError, match="this looks like a cable robot's plant .*'drive'"):
+        resolve_plant(str(cdpr))
+    (tmp_path / "typo.yaml").write_text("winch: {drum_radiu: 0.02}\n")  # no hint for a typo
+    for resolve in (_plant, resolve_plant):
+        with pytest.raises(ConfigError) as info:
+            resolve(str(tmp_path / "typo.yaml"))
+        assert "looks like" not in str(info.value)
+
+
 def test_the_readme_plant_file_is_the_default_plant(tmp_path):
     """The README's "default plant, written out" YAML gives ``CdprPlantConfig()`` but its name."""
     from pathlib import Path

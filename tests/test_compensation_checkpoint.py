@@ -132,7 +132,9 @@ def test_load_refuses_missing_corrupt_and_foreign_files(compensator, tmp_path):
 
     other = tmp_path / "other.pt"
     torch.save({"weights": torch.zeros(3)}, other)
-    with pytest.raises(CheckpointError, match="not a compensator file .format None"):
+    with pytest.raises(
+        CheckpointError, match="not an msarm compensator checkpoint .a dict with no 'format' tag"
+    ):
         Compensator.load(other)
     plain = compensator.to_dict()
     del plain["state_dict"], plain["metadata"]

@@ -13,6 +13,7 @@ from rich.table import Table
 
 from msarm.cli.common import (
     console,
+    other_plant_keys,
     output_folder,
     progress_bar,
     progress_lines,
@@ -45,11 +46,24 @@ def _plant(name: str):
         InputError: Not a preset nor a readable plant file; or the file's plant is named
             like a preset (its runs would overwrite the preset's), or, without a ``name``
             key, the file's stem is not a simple identifier.
+        ConfigError: The file is not a valid plant file (with a hint when it looks like an
+            arm plant).
     """
+    from msarm.errors import ConfigError
     from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, IDEAL_CDPR_PLANT, CdprPlantConfig
+    from msarm.plant.config import PlantConfig
 
     presets = {"default": DEFAULT_CDPR_PLANT, "ideal": IDEAL_CDPR_PLANT}
-    return resolve_config(name, presets, CdprPlantConfig, "plant")
+    try:
+        return resolve_config(name, presets, CdprPlantConfig, "plant")
+    except ConfigError as exc:
+        keys = other_plant_keys(name, CdprPlantConfig, PlantConfig)
+        if not keys:
+            raise
+        raise ConfigError(
+            f"{exc}; this looks like an arm plant ({keys}; for msarm track --plant), not a "
+            "cable robot's plant"
+        ) from None
 
 
 def _plant_suffix(config) -> str:
@@ -77,16 +91,27 @@ _METRIC_COLUMNS = (
 )
 
 
-def controller_options(items: list[str]) -> dict[str, object]:
+def controller_options(items: list[str], controller: str | None = None) -> dict[str, object]:
     """``KEY=VALUE`` texts as controller keyword options (values read as YAML scalars).
+
+    Values are read as in a config file: ``1e-3`` (an exponent without a dot) is a float.
+
+    Args:
+        items: The ``KEY=VALUE`` texts.
+        controller: The controller they are for: each option is then checked against it
+            (:func:`msarm.control.cdpr_controllers.check_plain_options`); None: not checked.
 
     Raises:
         InputError: An item without ``=``, a key that is not an identifier, a key given
-            twice, or a value that is not a YAML number, boolean or string.
+            twice, a value that is not valid YAML or not a YAML number, boolean, null or
+            string; with ``controller``, an option it does not take, one that takes an object
+            (Python API only) or a value not of the option's type.
     """
     import yaml
 
+    from msarm.control.cdpr_controllers import check_plain_options
     from msarm.errors import InputError
+    from msarm.io.config import _load_yaml, yaml_problem
 
     options: dict[str, object] = {}
     for item in items:
@@ -96,15 +121,18 @@ def controller_options(items: list[str]) -> dict[str, object]:
             raise InputError(f"--option: expected KEY=VALUE with KEY an identifier, got {item!r}")
         if key in options:
             raise InputError(f"--option: {key} given twice")
-        try:
-            value = yaml.safe_load(text)
+        try:  # config files' loader: 1e-3 is a float, not YAML 1.1's string
+            value = _load_yaml(text, f"--option {key}")
         except yaml.YAMLError as exc:
-            raise InputError(f"--option {key}: {text!r} is not a YAML value ({exc})") from None
-        if not isinstance(value, (bool, int, float, str)):
+            problem = yaml_problem(exc).removeprefix("line 1, ")
+            raise InputError(f"--option {key}: {text!r} is not a YAML value: {problem}") from None
+        if controller is None and not isinstance(value, (bool, int, float, str)):
             raise InputError(
                 f"--option {key}: expected a number, true/false or a word, got {text!r}"
             )
         options[key] = value
+    if controller is not None:
+        check_plain_options(controller, options)
     return options
 
 
@@ -123,6 +151,8 @@ def default_run_folder(
 
 def _option_text(value: object) -> str:
     """An option's value as written on the command line (YAML): ``true``, not ``True``."""
+    if value is None:
+        return "null"
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
@@ -154,7 +184,8 @@ def run_command(
             "--option",
             metavar="KEY=VALUE",
             help="A keyword option of the controller (repeat for several), e.g. "
-            "fe_feedforward=true (HC-e) or friction_model=false; values are read as YAML.",
+            "fe_feedforward=true (HC-e) or friction_model=false; values are read as YAML "
+            "and checked against the option's type (gains and winch: Python only).",
         ),
     ] = None,
 ) -> None:
@@ -170,7 +201,7 @@ def run_command(
     model = load_cable_robot()
     path = get_cdpr_trajectory(trajectory)
     plant_config = _plant(plant)
-    options = controller_options(option or [])
+    options = controller_options(option or [], controller)
     # before any folder is created
     check_cdpr_run(model, plant_config, controller, path, options)
     # the log's metadata too (standard JSON: an option of .inf is refused now, not after)

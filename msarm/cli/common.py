@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 from rich.console import Console
 
 from msarm.errors import InputError
+from msarm.io.config import folder_instead_of_file
 from msarm.plant.config import DEFAULT_PLANT, IDEAL_PLANT, PlantConfig
 
 if TYPE_CHECKING:
@@ -37,13 +39,17 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
     exactly (then it is the preset).
 
     Raises:
-        InputError: ``spec`` is neither a preset nor an existing file; the file's config is
-            named like a preset but differs from it; or, without a ``name`` key, the file's
-            stem is not a name the config takes (it names run folders).
+        InputError: ``spec`` is neither a preset nor an existing file (a folder is said to
+            be one); the file's config is named like a preset but differs from it; or,
+            without a ``name`` key, the file's stem is not a name the config takes (it names
+            run folders).
     """
     if spec in presets:
         return presets[spec]
     path = Path(spec)
+    folder = folder_instead_of_file(path, f"a {what} YAML file (or one of {', '.join(presets)})")
+    if folder is not None:
+        raise InputError(folder)
     if not path.is_file():
         looks_like_a_file = path.suffix in (".yaml", ".yml") or len(path.parts) > 1
         raise InputError(
@@ -138,30 +144,92 @@ def read_config_section(path: Path, cls: type[T], section: str) -> tuple[T, obje
 
 
 def check_controller_file(
-    model: RobotModel, gains: ArmControllerConfig, plant_config: PlantConfig, source: Path
+    model: RobotModel,
+    gains: ArmControllerConfig,
+    plant_config: PlantConfig,
+    source: Path,
+    plant_source: str | None = None,
 ) -> None:
     """Check gains read from ``source`` against the arm and the plant, naming the file.
 
     The controller and the runner check them too, but deep in a run and without the file.
+    ``plant_source`` is the plant's file (None for a preset).
 
     Raises:
         InputError: Gains of the wrong count, a floor above a muscle's strength, or a
-            control period that is not a whole number of plant steps (``source`` named).
+            control period that is not a whole number of plant steps (``source`` named, or
+            the plant's file when its step is the odd one, see :func:`check_control_period`).
     """
     from msarm.control import MuscleSpaceController
-    from msarm.tasks.runner import plant_steps_per_tick
 
     try:
-        controller = MuscleSpaceController(model, gains)
+        MuscleSpaceController(model, gains)
     except InputError as exc:
         raise InputError(f"{source}: {exc}") from None
-    if plant_steps_per_tick(controller.period, plant_config.timestep) is None:
+    check_control_period(gains, plant_config, f"{source}: rate_hz", plant_source)
+
+
+def check_control_period(
+    gains: ArmControllerConfig,
+    plant_config: PlantConfig,
+    rate_source: str,
+    plant_source: str | None = None,
+) -> None:
+    """Check that the control period is a whole number of plant steps, before a run.
+
+    The runner refuses such a pair at the start of a run, but without the file that set
+    either, and after the output folder is made. Here the message names the one that is odd:
+    the plant's file when its step is not the default (1 ms) and the default step would fit
+    the rate, else the rate.
+
+    Args:
+        gains: The controller's gains (``rate_hz``).
+        plant_config: The plant (``timestep``).
+        rate_source: Where the rate comes from, e.g. ``"recipe.yaml: controller.rate_hz"``.
+        plant_source: The plant's file, or None for a preset.
+
+    Raises:
+        InputError: The plant's step does not divide the control period (the file and the
+            key named, with the values that would fit).
+    """
+    from msarm.tasks.runner import plant_steps_per_tick
+
+    period, step = 1.0 / gains.rate_hz, plant_config.timestep
+    if plant_steps_per_tick(period, step) is not None:
+        return
+    default_step = DEFAULT_PLANT.timestep
+    if (
+        plant_source is not None
+        and step != default_step
+        and plant_steps_per_tick(period, default_step) is not None
+    ):
+        first = max(1, math.ceil(period / default_step - 1e-9))  # steps <= the default step
+        fits = []
+        for k in range(first, first + 100):
+            text = f"{period / k:.3g}"
+            if plant_steps_per_tick(period, float(text)) is not None:
+                fits.append(text)
+            if len(fits) == 4:
+                break
         raise InputError(
-            f"{source}: rate_hz {gains.rate_hz:g} gives a control period of "
-            f"{controller.period:.6g} s, not a whole number of the plant's steps of "
-            f"{plant_config.timestep:g} s; expected a rate that divides "
-            f"{1 / plant_config.timestep:g} Hz"
+            f"{plant_source}: the plant's timestep {step:g} s does not divide the control "
+            f"period {period:.6g} s ({rate_source} {gains.rate_hz:g}); expected a step that "
+            f"does, {period:.6g} s / k for a whole number k >= {first}, e.g. "
+            f"{', '.join(fits)} s"
         )
+    where = "" if plant_source is None else f" (the timestep of {plant_source})"
+    rates = []  # rates that fit, as they would be written
+    for k in range(1, 1000):
+        text = f"{1 / (k * step):.6g}"
+        if plant_steps_per_tick(1 / float(text), step) is not None:
+            rates.append(float(text))
+    near = sorted(sorted(rates, key=lambda r: abs(r - gains.rate_hz))[:2])
+    example = f", e.g. {' or '.join(f'{r:g}' for r in near)} Hz" if near else ""
+    raise InputError(
+        f"{rate_source} {gains.rate_hz:g} gives a control period of {period:.6g} s, not a "
+        f"whole number of the plant's steps of {step:g} s{where}; expected a rate that "
+        f"divides {1 / step:g} Hz{example}"
+    )
 
 
 def progress_lines(what: str, total: int | None = None, enabled: bool = True):
@@ -212,8 +280,61 @@ def output_folder(path: Path, option: str = "--out") -> Path:
 
 
 def resolve_plant(spec: str) -> PlantConfig:
-    """The arm plant from a preset name (``default``, ``ideal``) or a YAML file."""
-    return resolve_config(spec, PLANTS, PlantConfig, "plant")
+    """The arm plant from a preset name (``default``, ``ideal``) or a YAML file.
+
+    Raises:
+        InputError: As :func:`resolve_config`.
+        ConfigError: The file is not a valid arm plant (with a hint when it looks like a cable
+            robot's plant).
+    """
+    from msarm.errors import ConfigError
+    from msarm.plant.cdpr_config import CdprPlantConfig
+
+    try:
+        return resolve_config(spec, PLANTS, PlantConfig, "plant")
+    except ConfigError as exc:
+        keys = other_plant_keys(spec, PlantConfig, CdprPlantConfig)
+        if not keys:
+            raise
+        raise ConfigError(
+            f"{exc}; this looks like a cable robot's plant ({keys}; for msarm cdpr run "
+            "--plant), not an arm plant"
+        ) from None
+
+
+def other_plant_keys(spec: str, cls: type, other: type) -> str:
+    """The keys of a plant file that only the other robot's plant has, as ``key 'a', 'b'``.
+
+    Args:
+        spec: The plant file (a run's ``config.yaml``: its ``plant`` section).
+        cls: The plant config class expected.
+        other: The other robot's plant config class.
+
+    Returns:
+        The keys that ``other`` has and ``cls`` has not, for a hint that the file is the other
+        robot's plant; ``""`` when the file has none of them (or cannot be read).
+    """
+    import dataclasses
+
+    import yaml
+
+    from msarm.errors import ConfigError
+    from msarm.io.config import _load_yaml
+
+    try:
+        raw = _load_yaml(Path(spec).read_text(encoding="utf-8"), spec)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ConfigError):
+        return ""
+    if isinstance(raw, dict) and isinstance(raw.get("plant"), dict):
+        raw = raw["plant"]  # a run's config.yaml
+    if not isinstance(raw, dict):
+        return ""
+    own = {f.name for f in dataclasses.fields(cls)}
+    theirs = {f.name for f in dataclasses.fields(other)} - own
+    keys = [repr(k) for k in raw if k in theirs]
+    if not keys:
+        return ""
+    return ("key " if len(keys) == 1 else "keys ") + ", ".join(keys)
 
 
 def console() -> Console:

@@ -13,6 +13,7 @@ from rich.table import Table
 
 from msarm.cli.common import (
     PLANTS,
+    check_control_period,
     console,
     output_folder,
     progress_bar,
@@ -44,15 +45,24 @@ def train_command(
     from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
 
     from msarm.compensation.dataset import split_runs
-    from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
-    from msarm.io.config import load_config
+    from msarm.compensation.pipeline import (
+        CompensatorRecipe,
+        check_recipe_paths,
+        train_compensator,
+    )
+    from msarm.io.config import folder_instead_of_file, load_config
     from msarm.model import load_arm
 
+    folder = folder_instead_of_file(config, "a training recipe file (YAML of CompensatorRecipe)")
+    if folder is not None:
+        raise InputError(f"--config: {folder}")
     recipe = load_config(config, CompensatorRecipe) if config.is_file() else None
+    source = str(config)
     if recipe is None:
         if config != DEFAULT_RECIPE:
             raise InputError(f"{config}: recipe file not found")
         recipe = CompensatorRecipe()
+        source = "the default recipe"
         typer.echo(
             f"msarm train: no {config} here: the recipe's default values (the same as the "
             "repository's file)",
@@ -67,6 +77,14 @@ def train_command(
         plant = resolve_plant(plant_spec)
     except InputError as exc:
         raise InputError(f"{config}: data.plant: {exc}") from None
+    # up front: found after collecting, these would lose the runs' minutes
+    check_recipe_paths(recipe, source)
+    check_control_period(
+        recipe.controller,
+        plant,
+        f"{source}: controller.rate_hz",
+        None if plant_spec in PLANTS else plant_spec,
+    )
     split = split_runs(recipe.data.seeds, recipe.data.split)
     columns = (
         TextColumn("{task.description}"),
@@ -222,8 +240,15 @@ def compare_command(
         load_feedforward,
         trained_controller,
     )
+    from msarm.io.config import folder_instead_of_file
     from msarm.model import load_arm
 
+    folder = folder_instead_of_file(
+        ff,
+        f"a compensator checkpoint file (what msarm train writes, by default {DEFAULT_CHECKPOINT})",
+    )
+    if folder is not None:
+        raise CheckpointError(f"--ff: {folder}")
     if not ff.is_file():
         raise CheckpointError(f"--ff: no checkpoint at {ff}; run `msarm train` first, or give --ff")
     arm = load_arm()
@@ -255,6 +280,15 @@ def compare_command(
         )
     held_out += [s for s in more if s not in held_out]
     gains = trained_controller(feedforward.compensator)
+    plant_config = resolve_plant(plant)
+    # before the output folder is made: the runner would refuse it at the start of a run
+    check_control_period(
+        gains,
+        plant_config,
+        f"the gains recorded in {ff}: rate_hz",
+        None if plant in PLANTS else plant,
+    )
+    out_dir = output_folder(out)
     n_runs = (2 + len(variants)) * (4 + len(held_out))
     line = progress_lines("compare", n_runs)
     with progress_bar() as bar:
@@ -267,10 +301,10 @@ def compare_command(
         result = compare_feedforward(
             arm,
             feedforward,
-            resolve_plant(plant),
+            plant_config,
             gains,
             held_out,
-            output_folder(out),
+            out_dir,
             seed=seed,
             progress=step,
             parts=variants,

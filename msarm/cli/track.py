@@ -12,6 +12,7 @@ from rich.table import Table
 
 from msarm.cli.common import (
     PLANTS,
+    check_control_period,
     check_controller_file,
     console,
     output_folder,
@@ -140,6 +141,8 @@ def track_command(
         list_choices()
         return
     from msarm.control import ArmControllerConfig
+    from msarm.errors import InputError
+    from msarm.io.config import folder_instead_of_file
     from msarm.model import load_arm
     from msarm.tasks.registry import get_task
     from msarm.tasks.track import TrackSettings, track
@@ -149,8 +152,14 @@ def track_command(
     plant_config = resolve_plant(plant)
     gains = None
     if controller is not None:
+        folder = folder_instead_of_file(
+            controller, "a YAML file of controller gains, or one with a controller: section"
+        )
+        if folder is not None:
+            raise InputError(f"--controller: {folder}")
         gains, _ = read_config_section(controller, ArmControllerConfig, "controller")
-        check_controller_file(arm, gains, plant_config, controller)
+        plant_file = None if plant in PLANTS else plant
+        check_controller_file(arm, gains, plant_config, controller, plant_file)
     feedforward = None
     if ff is not None:
         from msarm.compensation.feedforward import load_feedforward, trained_controller
@@ -175,6 +184,14 @@ def track_command(
             f"plant's tuned gains: {where})"
         )
     gains = gains or ArmControllerConfig()
+    if controller is not None:
+        rate_source = f"{controller}: rate_hz"
+    elif feedforward is not None:
+        rate_source = f"the gains recorded in {ff}: rate_hz"
+    else:
+        rate_source = "ArmControllerConfig's default rate_hz"
+    # before the output folder is made: the runner would refuse it at the start of the run
+    check_control_period(gains, plant_config, rate_source, None if plant in PLANTS else plant)
     settings = TrackSettings(task_obj.name, seed, plant_config, gains, str(ff or ""))
     out_dir = output_folder(
         out or default_folder(task_obj.name, plant_config.name, seed, feedforward is not None)

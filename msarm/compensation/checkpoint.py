@@ -19,6 +19,7 @@ hashes shown) or another feature spec (the differing keys shown).
 
 from __future__ import annotations
 
+import pickle
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -39,7 +40,7 @@ from msarm.compensation.network import (
     check_finite,
 )
 from msarm.errors import ConfigError, InputError, MsarmError
-from msarm.io.config import config_to_dict, load_config
+from msarm.io.config import config_to_dict, folder_instead_of_file, load_config
 
 __all__ = ["COMPENSATOR_FORMAT", "COMPENSATOR_VERSION", "CheckpointError", "Compensator"]
 
@@ -58,6 +59,11 @@ _KEYS = (
     "input_normalizer",
     "output_normalizer",
     "metadata",
+)
+#: What a compensator file is, for the error messages of files that are not one.
+_EXPECTED = (
+    "the compensator checkpoint file that msarm train writes (Compensator.save), by default "
+    "runs/compensator/compensator.pt"
 )
 #: Most differences listed when a feature spec does not match.
 _MAX_DIFFERENCES = 10
@@ -261,22 +267,34 @@ class Compensator:
         """
         path = Path(path)
         if not path.is_file():
-            raise CheckpointError(f"{path}: compensator file not found")
+            folder = folder_instead_of_file(path, _EXPECTED)
+            raise CheckpointError(folder or f"{path}: compensator file not found")
         if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
             raise CheckpointError(
                 f"{path}: not a readable compensator file (not the zip archive that "
                 "Compensator.save writes: corrupt, truncated, or another kind of file); "
-                "expected the checkpoint of msarm train, by default "
-                "runs/compensator/compensator.pt"
+                f"expected {_EXPECTED}"
             )
         try:
             saved = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # any failure to unpickle means an unusable file
-            text = str(exc).strip()
-            reason = text.split(". ")[0] if text else type(exc).__name__
+        except pickle.UnpicklingError as exc:
+            if "weights only" not in str(exc).lower():
+                raise CheckpointError(
+                    f"{path}: not a readable compensator file (a torch file whose contents "
+                    "cannot be read: corrupt or truncated), so it is not a usable msarm "
+                    f"compensator checkpoint; expected {_EXPECTED}"
+                ) from None
+            # objects that weights_only refuses to build: not what Compensator.save writes
             raise CheckpointError(
-                f"{path}: not a readable compensator file (corrupt, truncated, or not written "
-                f"by Compensator.save): {reason}"
+                f"{path}: not a readable compensator file: it holds objects other than plain "
+                "data (refused without unpickling them), so it is not an msarm compensator "
+                f"checkpoint; expected {_EXPECTED}"
+            ) from None
+        except Exception:  # a zip that torch cannot read: its reason is about torch's internals
+            raise CheckpointError(
+                f"{path}: not a readable compensator file (a zip archive, but not one that "
+                "torch.save wrote in full: another kind of zip file, or a corrupt one), so it is "
+                f"not an msarm compensator checkpoint; expected {_EXPECTED}"
             ) from None
         compensator = cls.from_dict(saved, source=str(path))
         compensator.check_compatible(expected_model_sha256, expected_feature_spec, str(path))
@@ -298,8 +316,9 @@ class Compensator:
         """
         if not isinstance(saved, Mapping):
             raise CheckpointError(
-                f"{source}: not a compensator file (holds a {type(saved).__name__}, expected "
-                "a dict)"
+                f"{source}: not an msarm compensator checkpoint (holds a "
+                f"{type(saved).__name__}, not the dict Compensator.save writes); expected "
+                f"{_EXPECTED}"
             )
         fmt = saved.get("format")
         if fmt == TRAINING_CHECKPOINT_FORMAT:
@@ -309,9 +328,15 @@ class Compensator:
                 "wrote (the recipe's checkpoint, by default runs/compensator/compensator.pt)"
             )
         if fmt != COMPENSATOR_FORMAT:
+            keys = ", ".join(repr(k) for k in list(saved)[:5]) + (", ..." if len(saved) > 5 else "")
+            tag = (
+                "no 'format' tag"
+                if fmt is None
+                else f"the format tag {fmt!r}, not {COMPENSATOR_FORMAT!r}"
+            )
             raise CheckpointError(
-                f"{source}: not a compensator file (format {fmt!r}, expected "
-                f"{COMPENSATOR_FORMAT!r})"
+                f"{source}: not an msarm compensator checkpoint (a dict with {tag}; its keys: "
+                f"{keys or 'none'}); expected {_EXPECTED}"
             )
         version = saved.get("format_version")
         if version != COMPENSATOR_VERSION:

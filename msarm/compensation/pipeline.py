@@ -29,12 +29,18 @@ from msarm.compensation.network import NetworkConfig, train_network
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec
 from msarm.control import ArmControllerConfig
-from msarm.errors import MsarmWarning
+from msarm.errors import ConfigError, MsarmWarning
 from msarm.io.config import config_to_dict
 from msarm.model import RobotModel
 from msarm.plant import PlantConfig
 
-__all__ = ["TUNED_CONTROLLER", "CompensatorRecipe", "TrainingReport", "train_compensator"]
+__all__ = [
+    "TUNED_CONTROLLER",
+    "CompensatorRecipe",
+    "TrainingReport",
+    "check_recipe_paths",
+    "train_compensator",
+]
 
 #: The controller gains of the shipped recipe, tuned on the default plant without feedforward
 #: (tasks ``random-3000`` ... ``random-3011``: the smallest mean final error with no slack
@@ -73,6 +79,64 @@ class CompensatorRecipe:
     controller: ArmControllerConfig = TUNED_CONTROLLER
     sheath: SheathSpec = field(default_factory=SheathSpec)
     checkpoint: str = "runs/compensator/compensator.pt"
+
+    def __post_init__(self) -> None:
+        # the checks its parts cannot make alone (a config file's loader adds the file)
+        seed = self.data.first_seed
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(
+                f"key 'data.first_seed' must be an integer >= 0 (run i is the task "
+                f"random-<first_seed + i>, whose seed is >= 0), got {seed!r}"
+            )
+        order = self.target.polyorder
+        if isinstance(order, bool) or not isinstance(order, int) or order < 0:
+            raise ValueError(
+                f"key 'target.polyorder' must be an integer >= 0 (a Savitzky-Golay "
+                f"polynomial order), got {order!r}"
+            )
+
+
+def check_recipe_paths(recipe: CompensatorRecipe, source: str = "the recipe") -> None:
+    """Refuse a recipe whose folders cannot be written, before any run is collected.
+
+    ``data.folder`` must be a folder, or a path whose nearest existing part is one (it is
+    created); ``checkpoint`` must be a file path, not a folder, in such a folder. Found only
+    at the end of a training, either would lose its minutes of work.
+
+    Args:
+        recipe: The recipe.
+        source: Its file, for the messages (``"the recipe"`` when it has none).
+
+    Raises:
+        ConfigError: A path that cannot be written (the file, the key and the path named).
+    """
+
+    def blocked(folder: Path) -> Path | None:  # the file in the way of creating ``folder``
+        for part in (folder, *folder.parents):
+            if part.exists():
+                return None if part.is_dir() else part
+        return None
+
+    folder = Path(recipe.data.folder)
+    block = blocked(folder)
+    if block is not None:
+        where = "" if block == folder else f"{folder}: "
+        raise ConfigError(
+            f"{source}: key 'data.folder': {where}{block} is a file; expected a folder "
+            "(created if missing) for the runs' logs"
+        )
+    checkpoint = Path(recipe.checkpoint)
+    if checkpoint.is_dir():
+        raise ConfigError(
+            f"{source}: key 'checkpoint': {checkpoint} is a folder; expected the path of the "
+            f"compensator file to write, e.g. {checkpoint / 'compensator.pt'}"
+        )
+    block = blocked(checkpoint.parent)
+    if block is not None:
+        raise ConfigError(
+            f"{source}: key 'checkpoint': {checkpoint}: {block} is a file; expected a file "
+            "path in a folder (created if missing)"
+        )
 
 
 @dataclass(frozen=True)
@@ -157,7 +221,12 @@ def train_compensator(
 
     Returns:
         The report; the checkpoint is written to ``recipe.checkpoint``.
+
+    Raises:
+        ConfigError: The recipe's ``data.folder`` or ``checkpoint`` cannot be written (see
+            :func:`check_recipe_paths`), found before any run is collected.
     """
+    check_recipe_paths(recipe)
     data = recipe.data
     collect_time = train_time = 0.0
     start = time.perf_counter()

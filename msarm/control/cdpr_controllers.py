@@ -146,6 +146,7 @@ __all__ = [
     "SensitivityPairSelector",
     "WinchParameters",
     "cable_motion",
+    "check_plain_options",
     "list_cdpr_controllers",
     "make_cdpr_controller",
 ]
@@ -434,7 +435,7 @@ class CdprController(ABC):
             ``c_v v``, the velocity term of eq. 9).
 
     Raises:
-        InputError: On invalid bounds or cycle time.
+        InputError: On invalid bounds or cycle time, or a winch that is no WinchParameters.
     """
 
     name: ClassVar[str] = "base"
@@ -459,6 +460,10 @@ class CdprController(ABC):
             raise InputError(f"need finite 0 <= f_min < f_max [N], got {f_min}, {f_max}")
         if not (math.isfinite(dt) and dt > 0.0):
             raise InputError(f"dt must be finite and > 0 s, got {dt}")
+        if winch is not None and not isinstance(winch, WinchParameters):
+            raise InputError(
+                f"winch must be a WinchParameters (or None), got {type(winch).__name__} {winch!r}"
+            )
         self.robot = robot
         self.platform = platform
         self.winch = winch if winch is not None else WinchParameters()
@@ -779,7 +784,7 @@ def _selector(spec: PairSelector | str | ArrayLike) -> PairSelector:
         if spec == "sensitivity":
             return SensitivityPairSelector()
         raise InputError(
-            f"pair selector must be 'region', 'sensitivity', a cable pair or a PairSelector, "
+            f"pair_selector must be 'region', 'sensitivity', a cable pair or a PairSelector, "
             f"got {spec!r}"
         )
     return FixedPair(spec)
@@ -873,6 +878,10 @@ class HybridController(CdprController):
         if feedback not in _DEFAULT_GAINS:
             raise InputError(f"feedback must be one of {sorted(_DEFAULT_GAINS)}, got {feedback!r}")
         self.feedback = feedback
+        if gains is not None and not isinstance(gains, PIDGains):
+            raise InputError(
+                f"gains must be a PIDGains (or None), got {type(gains).__name__} {gains!r}"
+            )
         self.gains = gains if gains is not None else _DEFAULT_GAINS[feedback]
         self.all_cables = bool(all_cables)
         self.friction_model = bool(friction_model)
@@ -1283,6 +1292,102 @@ _OPTIONS: dict[str, tuple[str, ...]] = {
 }
 
 
+_OPTION_TYPES: dict[str, tuple[type, ...]] = {
+    "winch": (),
+    "f_min": (float,),
+    "f_max": (float,),
+    "dt": (float,),
+    "solver": (str,),
+    "velocity_feedforward": (bool,),
+    "gains": (),
+    "pair_selector": (str,),
+    "delta": (float,),
+    "start_active": (bool,),
+    "friction_model": (bool,),
+    "delta_l_limit": (float, type(None)),
+    "filter_time": (float,),
+    "fe_feedforward": (bool,),
+    "mean_force": (float,),
+    "low_force": (float,),
+    "low_weight": (float,),
+    "k_i": (float,),
+    "k_p": (float,),
+}
+"""Plain value types of every option (what ``KEY=VALUE`` text gives); () for an object only."""
+_OPTION_OBJECTS: dict[str, str] = {
+    "winch": "a WinchParameters (msarm.cdpr.force_estimation)",
+    "gains": "a PIDGains (msarm.control.pid)",
+    "pair_selector": "a fixed cable pair such as (0, 1) or a PairSelector",
+}
+"""What the Python API takes for an option that plain text cannot give (wholly or in part)."""
+_TYPE_TEXT = {
+    bool: "true or false",
+    int: "an integer",
+    float: "a number",
+    str: "a word",
+    type(None): "null",
+}
+
+
+def _plain_type_of(value: object, types: tuple[type, ...]) -> bool:
+    """Whether ``value`` is of one of ``types`` (a bool is no number, an int is a float)."""
+    if isinstance(value, bool):
+        return bool in types
+    if isinstance(value, int):
+        return int in types or float in types
+    return any(isinstance(value, t) for t in types if t not in (bool, int))
+
+
+def check_plain_options(name: str, options: dict[str, object]) -> None:
+    """Check options given as plain values (``msarm cdpr run --option KEY=VALUE``).
+
+    Each option must be one the controller takes, with a plain value (true/false, a number, a
+    word, null) of its type: a bool option needs true or false, a float option a number (an
+    integer too), an int option an integer. An option whose value is an object (``winch``,
+    ``gains``) is refused, with the Python call that sets it.
+
+    Args:
+        name: The controller, one of :func:`list_cdpr_controllers`.
+        options: Option name to value (as read from YAML text).
+
+    Raises:
+        InputError: An unknown controller; an option the controller does not take (the
+            options plain values can set listed); an object option; or a value of the wrong
+            type (the option, the expected type and the value named).
+    """
+    if name not in CDPR_CONTROLLERS:
+        raise InputError(
+            f"unknown CDPR controller {name!r}; valid names: {', '.join(CDPR_CONTROLLERS)}"
+        )
+    settable = sorted(k for k in _OPTIONS[name] if _OPTION_TYPES[k])
+    for key, value in options.items():
+        if key not in _OPTIONS[name]:
+            raise InputError(
+                f"invalid option for CDPR controller {name!r}: {key!r}; valid options: "
+                f"{', '.join(settable)}"
+            )
+        types = _OPTION_TYPES[key]
+        if not types:
+            raise InputError(
+                f"option {key!r} of CDPR controller {name!r} takes {_OPTION_OBJECTS[key]}: it "
+                f"cannot be set from the command line (KEY=VALUE); set it in Python, "
+                f"make_cdpr_controller({name!r}, model, {key}=...)"
+            )
+        if not _plain_type_of(value, types):
+            expected = " or ".join(_TYPE_TEXT[t] for t in types)
+            given = "null" if value is None else repr(value)
+            python = ""
+            if key in _OPTION_OBJECTS:
+                python = (
+                    f"; {_OPTION_OBJECTS[key]} can be set in Python only, "
+                    f"make_cdpr_controller({name!r}, model, {key}=...)"
+                )
+            raise InputError(
+                f"option {key!r} of CDPR controller {name!r} expects {expected}, got "
+                f"{given}{python}"
+            )
+
+
 def list_cdpr_controllers() -> list[str]:
     """Names accepted by :func:`make_cdpr_controller`."""
     return list(CDPR_CONTROLLERS)
@@ -1324,7 +1429,12 @@ def make_cdpr_controller(
         if platform is None:
             return cls.from_model(robot, **options)
         return cls(robot, platform, **options)
-    except TypeError as exc:  # an unknown keyword
+    except TypeError as exc:  # an unknown keyword, or a value of the wrong type
+        if "keyword argument" not in str(exc):
+            raise InputError(
+                f"invalid option value for CDPR controller {name!r}: {exc}; options given: "
+                f"{options}"
+            ) from exc
         valid = sorted(_OPTIONS.get(name, ()))
         raise InputError(
             f"invalid option for CDPR controller {name!r}: {exc}; valid options: {valid}"

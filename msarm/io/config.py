@@ -45,6 +45,7 @@ __all__ = [
     "check_plant_name",
     "config_to_dict",
     "dump_config",
+    "folder_instead_of_file",
     "load_config",
     "write_config",
     "yaml_problem",
@@ -85,6 +86,24 @@ def check_numbers(
                 raise ValueError(f"{name} must be a number, got {value!r}")
             if not (math.isfinite(value) and ok(value)):
                 raise ValueError(f"{name} must be {expected}, got {value}")
+
+
+def folder_instead_of_file(path: str | Path, expected: str) -> str | None:
+    """The message for a folder given where a file is expected, or None.
+
+    A folder is not "not found": it is there, but is not what was asked for. Callers raise
+    their own error class with the message (the file named, and what was expected).
+
+    Args:
+        path: The path given.
+        expected: What was expected, e.g. ``"an MJCF .xml file"``.
+
+    Returns:
+        ``"<path> is a folder, expected <expected>"`` when ``path`` is a folder, else None.
+    """
+    if Path(path).is_dir():
+        return f"{path} is a folder, expected {expected}"
+    return None
 
 
 _PLANT_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+=-]*")
@@ -221,8 +240,9 @@ def load_config(source: str | Path | Mapping[str, Any], cls: type[T]) -> T:
         An instance of ``cls``; fields missing from ``source`` take their defaults.
 
     Raises:
-        ConfigError: The file is missing or not valid YAML, or a key is unknown, missing or
-            has a value of the wrong type (the file and the dotted key path are named).
+        ConfigError: The file is missing, a folder or not valid YAML, or a key is unknown,
+            missing or has a value of the wrong type (the file and the dotted key path are
+            named).
         TypeError: ``cls`` is not a dataclass, or has a field type this loader does not
             support (a programming error, not a config error).
     """
@@ -234,6 +254,9 @@ def load_config(source: str | Path | Mapping[str, Any], cls: type[T]) -> T:
     elif isinstance(source, str | Path):
         path = Path(source)
         label = str(path)
+        folder = folder_instead_of_file(path, "a config file (YAML)")
+        if folder is not None:
+            raise ConfigError(folder)
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:

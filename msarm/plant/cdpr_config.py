@@ -198,7 +198,12 @@ class CdprFrictionConfig:
                 f"friction.beyond_v_high must be 'clamp' or 'extrapolate', got "
                 f"{self.beyond_v_high!r}"
             )
-        self.model()  # validates the coefficients and speeds
+        check_numbers(self, positive=("v_low", "v_high"))
+        if not self.v_low < self.v_high:  # in the file's unit, before model() converts to m/s
+            raise ValueError(
+                f"need v_low < v_high [m/min], got v_low={self.v_low:g}, v_high={self.v_high:g}"
+            )
+        self.model()  # validates the coefficients
 
     def model(self) -> WinchFrictionModel:
         """The friction model in SI (``msarm.cdpr.winch_friction``)."""

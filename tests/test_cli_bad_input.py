@@ -1,0 +1,185 @@
+"""Bad input to ``msarm train``, ``track``, ``compare`` and ``arm``: one line, exit code 2.
+
+Each mistake is refused up front (before any run is collected or any output folder made),
+with the file and the key named and what was expected, not as a traceback or after minutes
+of work.
+"""
+
+from __future__ import annotations
+
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+import torch
+
+from msarm.compensation.checkpoint import CheckpointError, Compensator
+
+#: A small recipe: three short runs, no further round, no sheath stage.
+TINY = """\
+name: tiny
+data:
+  n_runs: 3
+  rounds: 0
+  folder: {folder}
+  first_seed: {first_seed}
+network:
+  max_epochs: 2
+sheath:
+  enabled: false
+checkpoint: {checkpoint}
+"""
+
+
+def _error(monkeypatch, capsys, *args: str) -> str:
+    """Run ``msarm ARGS`` through the console entry point; the error line (exit code 2)."""
+    from msarm.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["msarm", *args])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 2, err
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("msarm: error: "), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.fixture
+def no_training(monkeypatch):
+    """Fail the test if ``msarm train`` gets as far as training (collecting runs)."""
+    import msarm.compensation.pipeline as pipeline
+
+    def fake(*args, **kwargs):
+        raise AssertionError("train_compensator was called: the recipe was not checked first")
+
+    monkeypatch.setattr(pipeline, "train_compensator", fake)
+
+
+def _recipe(tmp_path: Path, extra: str = "", **values) -> Path:
+    fields = {
+        "folder": tmp_path / "data",
+        "first_seed": 1000,
+        "checkpoint": tmp_path / "out" / "c.pt",
+        **values,
+    }
+    path = tmp_path / "recipe.yaml"
+    path.write_text(TINY.format(**fields) + extra)
+    return path
+
+
+def test_train_refuses_a_data_folder_that_is_a_file(monkeypatch, capsys, tmp_path, no_training):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    recipe = _recipe(tmp_path, folder=blocker)
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'data.folder': {blocker} is a file; expected a folder" in line
+    recipe = _recipe(tmp_path, folder=blocker / "runs")  # a file on the way
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'data.folder'" in line and f"{blocker} is a file" in line
+
+
+def test_train_refuses_a_checkpoint_in_a_file(monkeypatch, capsys, tmp_path, no_training):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    recipe = _recipe(tmp_path, checkpoint=blocker / "c.pt")
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'checkpoint': {blocker / 'c.pt'}: {blocker} is a file" in line
+    assert not (tmp_path / "data").exists()
+
+
+def test_train_refuses_a_checkpoint_that_is_a_folder(monkeypatch, capsys, tmp_path, no_training):
+    folder = tmp_path / "a_folder"
+    folder.mkdir()
+    recipe = _recipe(tmp_path, checkpoint=folder)
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'checkpoint': {folder} is a folder; expected the path of" in line
+    assert str(folder / "compensator.pt") in line
+
+
+def test_train_compensator_checks_its_paths_before_collecting(arm, monkeypatch, tmp_path):
+    import msarm.compensation.pipeline as pipeline
+    from msarm.errors import ConfigError
+    from msarm.io.config import load_config
+    from msarm.plant.config import DEFAULT_PLANT
+
+    def collect(*args, **kwargs):
+        raise AssertionError("runs collected before the recipe's paths were checked")
+
+    monkeypatch.setattr(pipeline, "collect_runs", collect)
+    (tmp_path / "a_folder").mkdir()
+    recipe = load_config(
+        _recipe(tmp_path, checkpoint=tmp_path / "a_folder"), pipeline.CompensatorRecipe
+    )
+    with pytest.raises(ConfigError, match="the recipe: key 'checkpoint': .* is a folder"):
+        pipeline.train_compensator(arm, recipe, DEFAULT_PLANT)
+
+
+@pytest.mark.parametrize(
+    "extra,first_seed,expected",
+    [
+        ("", -5, "key 'data.first_seed' must be an integer >= 0"),
+        ("target:\n  window: 1\n  polyorder: -1\n", 1000, "key 'target.polyorder' must be"),
+    ],
+)
+def test_train_refuses_negative_seeds_and_orders(
+    monkeypatch, capsys, tmp_path, no_training, extra, first_seed, expected
+):
+    recipe = _recipe(tmp_path, extra, first_seed=first_seed)
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert str(recipe) in line and expected in line
+    assert "unknown task" not in line
+
+
+def test_train_names_the_recipes_control_rate(monkeypatch, capsys, tmp_path, no_training):
+    recipe = _recipe(tmp_path, "controller:\n  rate_hz: 333\n")
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: controller.rate_hz 333 gives a control period of 0.003003 s" in line
+    assert "expected a rate that divides 1000 Hz" in line
+
+
+def test_track_names_a_plant_step_that_does_not_fit_before_making_the_folder(
+    monkeypatch, capsys, tmp_path
+):
+    plant = tmp_path / "fine.yaml"
+    plant.write_text("timestep: 0.0007\n")
+    out = tmp_path / "run"
+    line = _error(monkeypatch, capsys, "track", "--plant", str(plant), "--out", str(out))
+    assert f"{plant}: the plant's timestep 0.0007 s does not divide the control period" in line
+    assert "e.g. 0.001, 0.0008, 0.0005" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args,expected",
+    [
+        (("track", "--plant"), "is a folder, expected a plant YAML file"),
+        (("track", "--ff"), "is a folder, expected the compensator checkpoint file"),
+        (("track", "--controller"), "--controller: {} is a folder, expected a YAML file"),
+        (("arm", "--model"), "is a folder, expected an MJCF .xml model file"),
+        (("train", "--config"), "--config: {} is a folder, expected a training recipe file"),
+        (("compare", "--ff"), "--ff: {} is a folder, expected a compensator checkpoint file"),
+    ],
+)
+def test_a_folder_given_for_a_file_is_said_to_be_one(monkeypatch, capsys, tmp_path, args, expected):
+    line = _error(monkeypatch, capsys, *args, str(tmp_path))
+    assert expected.format(tmp_path) in line and str(tmp_path) in line
+    assert "not found" not in line
+
+
+def test_a_file_that_is_not_a_checkpoint_is_said_to_be_not_one(monkeypatch, capsys, tmp_path):
+    archive = tmp_path / "archive.pt"
+    with zipfile.ZipFile(archive, "w") as z:
+        z.writestr("hello.txt", "hi")
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(3)}, other)
+    for path in (archive, other):
+        line = _error(monkeypatch, capsys, "track", "--ff", str(path))
+        assert f"{path}: not " in line and "not an msarm compensator checkpoint" in line
+        assert "expected the compensator checkpoint file that msarm train writes" in line
+        assert "enforce" not in line and "inline_container" not in line
+        assert "format None" not in line
+    with pytest.raises(CheckpointError, match="no 'format' tag; its keys: 'weights'"):
+        Compensator.load(other)
