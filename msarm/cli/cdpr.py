@@ -13,11 +13,10 @@ from rich.table import Table
 
 from msarm.cli.common import (
     console,
-    other_plant_keys,
     output_folder,
     progress_bar,
     progress_lines,
-    resolve_config,
+    resolve_plant_of,
     seed_suffix,
 )
 
@@ -49,21 +48,11 @@ def _plant(name: str):
         ConfigError: The file is not a valid plant file (with a hint when it looks like an
             arm plant).
     """
-    from msarm.errors import ConfigError
     from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, IDEAL_CDPR_PLANT, CdprPlantConfig
     from msarm.plant.config import PlantConfig
 
     presets = {"default": DEFAULT_CDPR_PLANT, "ideal": IDEAL_CDPR_PLANT}
-    try:
-        return resolve_config(name, presets, CdprPlantConfig, "plant")
-    except ConfigError as exc:
-        keys = other_plant_keys(name, CdprPlantConfig, PlantConfig)
-        if not keys:
-            raise
-        raise ConfigError(
-            f"{exc}; this looks like an arm plant ({keys}; for msarm track --plant), not a "
-            "cable robot's plant"
-        ) from None
+    return resolve_plant_of(name, presets, CdprPlantConfig, PlantConfig)
 
 
 def _plant_suffix(config) -> str:

@@ -287,18 +287,39 @@ def resolve_plant(spec: str) -> PlantConfig:
         ConfigError: The file is not a valid arm plant (with a hint when it looks like a cable
             robot's plant).
     """
-    from msarm.errors import ConfigError
     from msarm.plant.cdpr_config import CdprPlantConfig
 
+    return resolve_plant_of(spec, PLANTS, PlantConfig, CdprPlantConfig)
+
+
+#: What to call each robot's plant in a hint, and the command that takes it.
+_PLANT_KINDS = {
+    "PlantConfig": ("an arm plant", "msarm track --plant"),
+    "CdprPlantConfig": ("a cable robot's plant", "msarm cdpr run --plant"),
+}
+
+
+def resolve_plant_of(spec: str, presets: dict[str, T], cls: type[T], other: type) -> T:
+    """A plant of class ``cls`` as :func:`resolve_config` reads it, with a hint on a refusal.
+
+    When the file is refused and has keys only ``other``'s plant has (an arm plant given to
+    the cable robot, or the reverse), the error says so and names the command for it.
+
+    Raises:
+        InputError: As :func:`resolve_config`.
+        ConfigError: The file is not a valid plant of ``cls``.
+    """
+    from msarm.errors import ConfigError
+
     try:
-        return resolve_config(spec, PLANTS, PlantConfig, "plant")
+        return resolve_config(spec, presets, cls, "plant")
     except ConfigError as exc:
-        keys = other_plant_keys(spec, PlantConfig, CdprPlantConfig)
+        keys = other_plant_keys(spec, cls, other)
         if not keys:
             raise
+        (own, _), (theirs, command) = _PLANT_KINDS[cls.__name__], _PLANT_KINDS[other.__name__]
         raise ConfigError(
-            f"{exc}; this looks like a cable robot's plant ({keys}; for msarm cdpr run "
-            "--plant), not an arm plant"
+            f"{exc}; this looks like {theirs} ({keys}; for {command}), not {own}"
         ) from None
 
 
