@@ -36,6 +36,27 @@ def test_feasibility_matches_the_allocator():
     assert 0 < flags.sum() < 300
 
 
+def test_feasibility_holds_at_any_force_scale():
+    """Bounds scaled by 1e6 (and the wrench with them) change nothing: the tolerance scales.
+
+    With a tolerance on the wrench alone, the rounding of ``A^T f`` at 1e7 N exceeded it and
+    feasible poses were refused (``msarm cdpr run --option f_max=1e9`` was refused).
+    """
+    robot = wirex_robot()
+    rng = np.random.default_rng(32)
+    r = rng.uniform([-1.9, -1.4, 0.1], [1.9, 1.4, 1.9], size=(200, 3))
+    flags = wrench_feasible_poses(robot, r, np.eye(3), GRAVITY, 1.0, 10.0)
+    assert 0 < flags.sum() < 200
+    for scale in (1e3, 1e6, 1e9):
+        scaled = wrench_feasible_poses(robot, r, np.eye(3), scale * GRAVITY, scale, 10.0 * scale)
+        np.testing.assert_array_equal(scaled, flags)
+    # a huge upper bound: the lower bound and the geometry still decide
+    wide = wrench_feasible_poses(robot, r, np.eye(3), GRAVITY, 1.0, 1e12)
+    assert wide[flags].all()
+    outside = np.array([[0.0, 0.0, 2.5], [2.5, 0.0, 1.0]])  # above and beside the frame
+    assert not wrench_feasible_poses(robot, outside, np.eye(3), GRAVITY, 1.0, 1e12).any()
+
+
 def test_grid():
     robot = wirex_robot()
     x = np.linspace(-1.5, 1.5, 7)

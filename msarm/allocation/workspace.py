@@ -65,7 +65,7 @@ def feasibility_batch(
     c = b_arr - (M_arr @ ref[..., None])[..., 0]
     x, converged, _, _, infeasible = dual_newton(M_arr, c, lo - ref, hi - ref)
     r = (M_arr @ x[..., None])[..., 0] - c
-    limit = tol * (1.0 + np.sqrt((b_arr * b_arr).sum(axis=1)))
+    limit = _residual_limit(M_arr, b_arr, x + ref, tol)
     feasible = converged & (np.sqrt((r * r).sum(axis=1)) <= limit)
     rest = np.flatnonzero(~feasible & ~infeasible)  # certified infeasible ones stay False
     if rest.size:
@@ -73,8 +73,19 @@ def feasibility_batch(
             M_arr[rest], b_arr[rest], lo[rest], hi[rest], ref[rest]
         )
         e = (M_arr[rest] @ f[..., None])[..., 0] - b_arr[rest]
-        feasible[rest] = solved & (np.sqrt((e * e).sum(axis=1)) <= limit[rest])
+        limit_rest = _residual_limit(M_arr[rest], b_arr[rest], f, tol)
+        feasible[rest] = solved & (np.sqrt((e * e).sum(axis=1)) <= limit_rest)
     return feasible
+
+
+def _residual_limit(M: FloatArray, b: FloatArray, f: FloatArray, tol: float) -> FloatArray:
+    """``tol`` times the size of the terms of ``M f = b``: ``1 + |b| + | |M| |f| |``, (N,).
+
+    With the size of ``M f`` in it, the test holds at any force scale: with bounds of 1e7 N
+    the rounding of ``M f`` alone exceeded ``tol (1 + |b|)`` and feasible poses were refused.
+    """
+    terms = (np.abs(M) @ np.abs(f)[..., None])[..., 0]
+    return tol * (1.0 + np.sqrt((b * b).sum(axis=1)) + np.sqrt((terms * terms).sum(axis=1)))
 
 
 def _wrench_array(wrenches: ArrayLike, n: int) -> FloatArray:
