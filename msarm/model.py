@@ -559,6 +559,16 @@ def _read_hill_parameters(
     missing = [key for key in wanted.values() if key not in numerics]
     if missing:
         raise ModelError(f"{path}: Hill parameters missing in <custom>: {', '.join(missing)}")
+    strays = sorted(
+        key for key in numerics if key.startswith("hill/") and key not in wanted.values()
+    )
+    if strays:
+        warnings.warn(
+            f"{path}: <custom> numeric(s) {', '.join(strays)} name no cable of the model (its "
+            f"cables: {', '.join(cable_names)}); they are not used (a misspelt or removed cable?)",
+            ModelWarning,
+            stacklevel=2,
+        )
     params = []
     for name, key in wanted.items():
         values = np.asarray(mj_model.numeric(numerics[key]).data, dtype=float)

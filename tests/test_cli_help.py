@@ -198,3 +198,19 @@ def test_cdpr_run_help_names_every_controller_and_trajectory():
     }
     assert listed["controller"] == set(list_cdpr_controllers())
     assert listed["trajectory"] == set(list_cdpr_trajectories())
+
+
+def test_track_list_prints_json_with_json(monkeypatch, capsys):
+    import json
+    import sys
+
+    from msarm.cli import main
+    from msarm.plant.config import EFFECT_NAMES
+
+    monkeypatch.setattr(sys, "argv", ["msarm", "track", "--list", "--json"])
+    main()
+    choices = json.loads(capsys.readouterr().out)
+    assert "table1-1" in choices["tasks"]
+    assert choices["plants"]["ideal"] == []
+    assert set(choices["effects"]) == set(EFFECT_NAMES)
+    assert choices["effects"]["sheath_friction"]["default_plant"] is True

@@ -135,6 +135,17 @@ def test_missing_hill_parameters_are_named(tmp_path):
         load_arm(path)
 
 
+def test_hill_parameters_of_no_cable_are_warned_about(tmp_path):
+    text = ARM_MODEL_PATH.read_text()
+    biceps = re.search(r'<numeric name="hill/biceps" data="[^"]*"/>', text).group(0)
+    text = text.replace(biceps, biceps + biceps.replace("hill/biceps", "hill/bicep"))
+    path = tmp_path / "stray_hill.xml"
+    path.write_text(text)
+    with pytest.warns(ModelWarning, match=r"hill/bicep name no cable of the model .*biceps"):
+        arm = load_arm(path)
+    assert arm.cable_names == load_arm().cable_names
+
+
 def test_malformed_hill_parameters_are_named(tmp_path):
     text = re.sub(
         r'<numeric name="hill/triceps" data="[^"]*"/>',

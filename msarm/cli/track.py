@@ -23,16 +23,35 @@ from msarm.cli.common import (
 )
 
 ListOption = Annotated[
-    bool, typer.Option("--list", help="List the tasks, plants and effects, and exit.")
+    bool,
+    typer.Option(
+        "--list", help="List the tasks, plants and effects (with --json: as JSON), and exit."
+    ),
 ]
 
 
-def list_choices() -> None:
-    """Print the tasks, plants and effects a user can choose from."""
+def list_choices(as_json: bool = False) -> None:
+    """Print the tasks, plants and effects a user can choose from (tables, or JSON)."""
     from msarm.plant.config import DEFAULT_PLANT, EFFECT_NAMES
     from msarm.plant.effects import EFFECT_DESCRIPTIONS
     from msarm.tasks.registry import list_tasks
 
+    if as_json:
+        import json
+
+        choices = {
+            "tasks": list_tasks(),
+            "plants": {name: list(config.effects.enabled()) for name, config in PLANTS.items()},
+            "effects": {
+                name: {
+                    "default_plant": getattr(DEFAULT_PLANT.effects, name).enabled,
+                    "equation": EFFECT_DESCRIPTIONS[name],
+                }
+                for name in EFFECT_NAMES
+            },
+        }
+        print(json.dumps(choices, indent=2))
+        return
     out = console()
     tasks = Table(title="tasks (--task)")
     tasks.add_column("name")
@@ -138,7 +157,7 @@ def track_command(
 ) -> None:
     """Run a tracking task on a plant; print its metrics; write log, sidecar, config, plots."""
     if list_:
-        list_choices()
+        list_choices(as_json=json_output)
         return
     from msarm.control import ArmControllerConfig
     from msarm.errors import InputError
