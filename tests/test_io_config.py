@@ -304,6 +304,8 @@ def test_a_plant_value_that_would_make_the_run_wrong_is_refused(tmp_path, text, 
     [
         ("rate_hz: 0", "rate_hz must be a finite value > 0"),
         ("velocity_cutoff_hz: -1", "velocity_cutoff_hz must be a finite value > 0"),
+        ("velocity_cutoff_hz: 125", r"below the Nyquist frequency rate_hz / 2 = 125 Hz"),
+        ("{rate_hz: 100, velocity_cutoff_hz: 60}", r"rate_hz / 2 = 50 Hz.*got 60"),
         ("kp: [.nan, 60, 30, 30]", "kp must be a list of finite gains >= 0"),
         ("ki: [1, 1, -1, 1]", "ki must be a list of finite gains >= 0"),
         ("integral_limit: -3", "integral_limit must be a finite value >= 0"),

@@ -108,6 +108,12 @@ class ArmControllerConfig:
             positive=("rate_hz", "velocity_cutoff_hz"),
             non_negative=("integral_limit", "min_tension"),
         )
+        if not self.velocity_cutoff_hz < 0.5 * self.rate_hz:
+            raise ValueError(
+                f"velocity_cutoff_hz must be below the Nyquist frequency rate_hz / 2 = "
+                f"{0.5 * self.rate_hz:g} Hz (above it the low-pass filters nothing), got "
+                f"{self.velocity_cutoff_hz:g}"
+            )
         for name in ("kp", "ki", "kd"):
             gains = np.asarray(getattr(self, name), dtype=float)
             if gains.ndim != 1 or not np.all(np.isfinite(gains) & (gains >= 0)):
