@@ -103,6 +103,22 @@ def test_features_from_a_hand_made_log_are_the_hand_computed_values(arm):
     assert x.shape == (3, 42)
 
 
+def test_the_joint_memory_rate_is_capped_at_one(arm):
+    """Travel beyond ``memory_angle`` in one tick sets the memory to the sign, no overshoot."""
+    spec = FeatureSpec(groups=("joint_memory",), memory_angle=0.002)
+    x = FeatureExtractor(arm, spec).from_log(hand_log(arm))
+    qd_ref = hand_log(arm).matrix("qd_ref")
+    sign = np.tanh(qd_ref / 0.05)
+    rate = np.abs(qd_ref) * 0.004 / 0.002  # 5 at 2.5 rad/s: capped at 1
+    assert rate.max() > 1.0
+    memory = np.zeros(4)
+    for k in range(3):
+        step = np.minimum(1.0, rate[k]) if k else np.zeros(4)
+        memory = memory + (sign[k] - memory) * step
+        np.testing.assert_allclose(x[k], memory, rtol=1e-12)
+    assert np.abs(x).max() <= 1.0
+
+
 def _online(extractor, log, commands=None):
     """The features of every tick of ``log`` computed online (told the commands if given)."""
     extractor.reset()
