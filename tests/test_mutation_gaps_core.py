@@ -128,7 +128,10 @@ _PULLEY_MODEL = """<mujoco><worldbody>
 
 
 def test_wrap_angles_do_not_turn_across_a_pulley():
-    """a-b-c turns 90 deg at b, c-d-e 90 deg at d; nothing is counted across the pulley."""
+    """a-b-c turns 90 deg at b, c-d-e 90 deg at d; nothing is counted across the pulley.
+
+    And a turn at two sites on one point (a zero-length segment) is counted once.
+    """
     m_model = mujoco.MjModel.from_xml_string(_PULLEY_MODEL)
     m_data = mujoco.MjData(m_model)
     mujoco.mj_forward(m_model, m_data)
@@ -140,9 +143,10 @@ def test_wrap_angles_do_not_turn_across_a_pulley():
     assert len(branches) == 2
     np.testing.assert_array_equal(branches[0], [[0, 0, 0], [1, 0, 0], [1, 1, 0]])
     np.testing.assert_array_equal(branches[1], [[1, 1, 0], [2, 1, 0], [2, 2, 0]])
-    # a zero-length segment (two sites at one point): both forms skip it alike, no NaN
-    assert np.isfinite(compiled[2])
-    assert compiled[2] == pytest.approx(wrap_angles(m_model, m_data)[2], abs=1e-12)
+    # a zero-length segment (two sites at one point, b and b2) is passed over: the 45 deg
+    # turn there is still counted (it was lost: 0 rad)
+    assert wrap_angles(m_model, m_data)[2] == pytest.approx(math.pi / 4, abs=1e-12)
+    assert compiled[2] == pytest.approx(math.pi / 4, abs=1e-12)
 
 
 # --------------------------------------------------------------------------- allocation

@@ -298,23 +298,24 @@ def wrap_angles_into(points, objects, wrapadr, wrapnum, out):  # pragma: no cove
     for i in range(out.shape[0]):
         first, count = wrapadr[i], wrapnum[i]
         total = 0.0
-        for p in range(first + 1, first + count - 1):
-            if objects[p - 1] == _PULLEY or objects[p] == _PULLEY or objects[p + 1] == _PULLEY:
+        have_previous = False  # the last segment of nonzero length in this branch
+        ux = uy = uz = 0.0
+        for p in range(first, first + count - 1):  # the segment from point p to p + 1
+            if objects[p] == _PULLEY or objects[p + 1] == _PULLEY:
+                have_previous = False  # no turn is counted across a pulley
                 continue
-            ax = points[p, 0] - points[p - 1, 0]
-            ay = points[p, 1] - points[p - 1, 1]
-            az = points[p, 2] - points[p - 1, 2]
-            bx = points[p + 1, 0] - points[p, 0]
-            by = points[p + 1, 1] - points[p, 1]
-            bz = points[p + 1, 2] - points[p, 2]
-            norm_a = math.sqrt(ax * ax + ay * ay + az * az)
-            norm_b = math.sqrt(bx * bx + by * by + bz * bz)
-            if not (norm_a > 1e-12 and norm_b > 1e-12):
-                continue
-            # summed as numpy's einsum sums three products on x86-64 (x and z first), so that
-            # the two forms agree bit for bit there (elsewhere to round-off)
-            cosine = ((ax / norm_a) * (bx / norm_b) + (az / norm_a) * (bz / norm_b)) + (
-                ay / norm_a
-            ) * (by / norm_b)
-            total += math.acos(min(1.0, max(-1.0, cosine)))
+            ax = points[p + 1, 0] - points[p, 0]
+            ay = points[p + 1, 1] - points[p, 1]
+            az = points[p + 1, 2] - points[p, 2]
+            norm = math.sqrt(ax * ax + ay * ay + az * az)
+            if not norm > 1e-12:
+                continue  # two sites at one point: the turn is taken across it
+            vx, vy, vz = ax / norm, ay / norm, az / norm
+            if have_previous:
+                # summed as numpy's einsum sums three products on x86-64 (x and z first), so
+                # that the two forms agree bit for bit there (elsewhere to round-off)
+                cosine = (ux * vx + uz * vz) + uy * vy
+                total += math.acos(min(1.0, max(-1.0, cosine)))
+            ux, uy, uz = vx, vy, vz
+            have_previous = True
         out[i] = total

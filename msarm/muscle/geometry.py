@@ -199,9 +199,10 @@ def wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> NDArray[np.fl
     """Total turning angle of every cable's path [rad], shape ``(m,)``.
 
     The sum over the interior points of each path of the angle between the incoming and the
-    outgoing segment. Around a wrapping geom the path holds the two tangent points, joined
-    here by their chord: the two turns at the tangent points add up to the arc angle exactly
-    for a circular arc (a cylinder wrapped square to its axis) and approximately otherwise.
+    outgoing segment (a segment of zero length, two sites at one point, is passed over).
+    Around a wrapping geom the path holds the two tangent points, joined here by their
+    chord: the two turns at the tangent points add up to the arc angle exactly for a
+    circular arc (a cylinder wrapped square to its axis) and approximately otherwise.
     Pulleys split a path into branches; no turn is counted across a pulley.
 
     Args:
@@ -214,13 +215,17 @@ def wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> NDArray[np.fl
     owner = np.repeat(np.arange(m_model.ntendon), m_data.ten_wrapnum)
     segments = np.diff(points, axis=0)
     # a segment joins two points of the same branch: same tendon, neither end a pulley
-    valid = (owner[1:] == owner[:-1]) & (objects[1:] != _PULLEY) & (objects[:-1] != _PULLEY)
+    in_branch = (owner[1:] == owner[:-1]) & (objects[1:] != _PULLEY) & (objects[:-1] != _PULLEY)
     norms = np.linalg.norm(segments, axis=1)
-    valid &= norms > 1e-12
-    unit = segments / np.where(valid, norms, 1.0)[:, None]
+    # a segment of zero length (two sites at one point) has no direction: the turn there is
+    # taken between the segments before and after it
+    kept = np.flatnonzero(in_branch & (norms > 1e-12))
+    unit = segments[kept] / norms[kept, None]
+    breaks = np.cumsum(~in_branch)  # segments up to each one that leave a branch
+    same_branch = breaks[kept[1:]] == breaks[kept[:-1]]
     cosines = np.clip(np.einsum("ij,ij->i", unit[:-1], unit[1:]), -1.0, 1.0)
-    turns = np.where(valid[:-1] & valid[1:], np.arccos(cosines), 0.0)
-    return np.bincount(owner[1:-1], weights=turns, minlength=m_model.ntendon)
+    turns = np.where(same_branch, np.arccos(cosines), 0.0)
+    return np.bincount(owner[kept[:-1]], weights=turns, minlength=m_model.ntendon)
 
 
 def joint_grid(
