@@ -238,3 +238,25 @@ def test_the_stage_brings_the_arm_closer_to_its_target_on_the_default_plant(arm)
     assert staged.completed and sum(staged.slack_events) == 0
     assert staged.final_error_mm < 0.5 * plain.final_error_mm
     assert np.mean(staged.joint_rmse) < 0.5 * np.mean(plain.joint_rmse)
+
+
+@pytest.mark.filterwarnings("ignore:.*hold one value over the whole log")
+def test_the_shares_are_scored_on_the_validation_logs(arm, tmp_path):
+    """Fitted on friction logs, scored on logs without friction: nothing is explained there."""
+    from msarm.plant import IDEAL_PLANT
+
+    sheath_only = replace(
+        IDEAL_PLANT,
+        name="sheath",
+        effects=replace(
+            IDEAL_PLANT.effects,
+            sheath_friction=replace(IDEAL_PLANT.effects.sheath_friction, enabled=True),
+        ),
+    )
+    rubbing = short_move_logs(arm, tmp_path / "sheath", sheath_only, 3)
+    smooth = short_move_logs(arm, tmp_path / "ideal", IDEAL_PLANT, 1, first_seed=2)
+    on_friction = identify_sheath(arm, rubbing[:2], rubbing[2:])
+    on_none = identify_sheath(arm, rubbing[:2], smooth)
+    assert on_none.mu == on_friction.mu  # the same fit ...
+    assert on_friction.mu_share > 0.5
+    assert on_none.mu_share < 0.0  # ... predicts a friction the validation logs do not have
