@@ -143,22 +143,15 @@ def read_config_section(path: Path, cls: type[T], section: str) -> tuple[T, obje
     return load_config(path, cls), raw
 
 
-def check_controller_file(
-    model: RobotModel,
-    gains: ArmControllerConfig,
-    plant_config: PlantConfig,
-    source: Path,
-    plant_source: str | None = None,
-) -> None:
-    """Check gains read from ``source`` against the arm and the plant, naming the file.
+def check_controller_file(model: RobotModel, gains: ArmControllerConfig, source: Path) -> None:
+    """Check gains read from ``source`` against the arm, naming the file.
 
-    The controller and the runner check them too, but deep in a run and without the file.
-    ``plant_source`` is the plant's file (None for a preset).
+    The controller checks them too, but deep in a run and without the file. The control
+    period against the plant's step is :func:`check_control_period`'s.
 
     Raises:
-        InputError: Gains of the wrong count, a floor above a muscle's strength, or a
-            control period that is not a whole number of plant steps (``source`` named, or
-            the plant's file when its step is the odd one, see :func:`check_control_period`).
+        InputError: Gains of the wrong count or a floor above a muscle's strength (``source``
+            named).
     """
     from msarm.control import MuscleSpaceController
 
@@ -166,7 +159,6 @@ def check_controller_file(
         MuscleSpaceController(model, gains)
     except InputError as exc:
         raise InputError(f"{source}: {exc}") from None
-    check_control_period(gains, plant_config, f"{source}: rate_hz", plant_source)
 
 
 def check_control_period(

@@ -177,8 +177,7 @@ def track_command(
         if folder is not None:
             raise InputError(f"--controller: {folder}")
         gains, _ = read_config_section(controller, ArmControllerConfig, "controller")
-        plant_file = None if plant in PLANTS else plant
-        check_controller_file(arm, gains, plant_config, controller, plant_file)
+        check_controller_file(arm, gains, controller)
     feedforward = None
     if ff is not None:
         from msarm.compensation.feedforward import load_feedforward, trained_controller
