@@ -19,6 +19,16 @@ def arm():
     return load_arm()
 
 
+def ideal_plant_with(name: str, *effects: str):
+    """The ideal plant with the named effects switched on, at their default parameters."""
+    from dataclasses import replace
+
+    from msarm.plant import IDEAL_PLANT
+
+    switched = {e: replace(getattr(IDEAL_PLANT.effects, e), enabled=True) for e in effects}
+    return replace(IDEAL_PLANT, name=name, effects=replace(IDEAL_PLANT.effects, **switched))
+
+
 def short_move_logs(arm, root, plant, n_runs: int, first_seed: int = 0) -> list:
     """Logs of ``n_runs`` short hold-then-move tasks (4 s, seeded) on ``plant``, in ``root``.
 

@@ -9,6 +9,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from conftest import ideal_plant_with
 
 from msarm.compensation.dataset import build_arrays, split_runs
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
@@ -183,14 +184,7 @@ def test_parallel_filtering_takes_the_noise_out_of_the_target(arm, tmp_path):
     # a plant whose only effect is sensor noise: the target should be near zero, and the
     # load cells' noise (and the controller's fast answer to the encoders' noise) in the
     # unfiltered delivered torque is most of what it has
-    noisy = replace(
-        IDEAL_PLANT,
-        name="noise_only",
-        effects=replace(
-            IDEAL_PLANT.effects,
-            sensor_noise=replace(IDEAL_PLANT.effects.sensor_noise, enabled=True),
-        ),
-    )
+    noisy = ideal_plant_with("noise_only", "sensor_noise")
     settings = TrackSettings("short", 0, noisy, ArmControllerConfig())
     result = track(arm, SHORT, settings, tmp_path, plots_too=False)
     log = read_log(result.files["log"])

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import short_move_logs
+from conftest import ideal_plant_with, short_move_logs
 
 from msarm.compensation.feedforward import LearnedFeedforward
 from msarm.compensation.identify import identify_sheath
@@ -246,14 +246,7 @@ def test_the_shares_are_scored_on_the_validation_logs(arm, tmp_path):
     """Fitted on friction logs, scored on logs without friction: nothing is explained there."""
     from msarm.plant import IDEAL_PLANT
 
-    sheath_only = replace(
-        IDEAL_PLANT,
-        name="sheath",
-        effects=replace(
-            IDEAL_PLANT.effects,
-            sheath_friction=replace(IDEAL_PLANT.effects.sheath_friction, enabled=True),
-        ),
-    )
+    sheath_only = ideal_plant_with("sheath", "sheath_friction")
     rubbing = short_move_logs(arm, tmp_path / "sheath", sheath_only, 3)
     smooth = short_move_logs(arm, tmp_path / "ideal", IDEAL_PLANT, 1, first_seed=2)
     with warnings.catch_warnings(record=True) as caught:

@@ -64,23 +64,16 @@ def test_distinct_logs_pass_the_copy_check_and_reach_the_log_reader(arm, tmp_pat
 
 def test_a_gap_at_numerical_precision_is_called_so(arm, tmp_path):
     """Noise-free logs of the nominal model itself: whatever is named fits numerical error."""
-    from dataclasses import replace
-
-    from conftest import short_move_logs
+    from conftest import ideal_plant_with, short_move_logs
 
     from msarm.diagnose.residuals import DiagnosisWarning
     from msarm.plant import IDEAL_PLANT
-    from msarm.plant.config import JointFrictionConfig
 
     ideal = short_move_logs(arm, tmp_path / "ideal", IDEAL_PLANT, 2)
     with pytest.warns(DiagnosisWarning, match=r"numerical precision") as caught:
         load_data(arm, ideal[:1], ideal[1:], candidates=["coulomb"])
     assert any("% of the torque the cables deliver" in str(w.message) for w in caught)
-    friction = replace(
-        IDEAL_PLANT,
-        name="friction",
-        effects=replace(IDEAL_PLANT.effects, joint_friction=JointFrictionConfig(enabled=True)),
-    )
+    friction = ideal_plant_with("friction", "joint_friction")
     rubbing = short_move_logs(arm, tmp_path / "friction", friction, 2)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
