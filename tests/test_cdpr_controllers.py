@@ -543,9 +543,9 @@ def test_the_option_table_covers_every_constructor_parameter():
 
 
 def test_object_options_of_the_wrong_type_are_refused_by_name(model):
-    with pytest.raises(InputError, match="gains must be a PIDGains .*got str 'foo'"):
+    with pytest.raises(InputError, match=r"gains must be a PIDGains .*got str 'foo'"):
         make_cdpr_controller("hc-e", model, gains="foo")
-    with pytest.raises(InputError, match="winch must be a WinchParameters .*got int 1"):
+    with pytest.raises(InputError, match=r"winch must be a WinchParameters .*got int 1"):
         make_cdpr_controller("ikc", model, winch=1)
     with pytest.raises(InputError, match=r"invalid option value .*'f_max': '1e9'"):
         make_cdpr_controller("hc-e", model, f_max="1e9")
@@ -576,5 +576,5 @@ def test_plain_options_are_checked_against_their_type():
         check_plain_options("hc-e", {"gain": 1.0})
     listed = str(info.value).split("valid options: ")[1].split(", ")
     assert "gains" not in listed and "winch" not in listed and "fe_feedforward" in listed
-    with pytest.raises(InputError, match="invalid option .*'all_cables'"):
+    with pytest.raises(InputError, match=r"invalid option .*'all_cables'"):
         check_plain_options("hc-f", {"all_cables": True})

@@ -50,7 +50,7 @@ def test_hc_tau_without_its_friction_model_tracks_forces_worse(robot, triangle):
 
 def test_trajectory_outside_the_workspace_is_refused_before_it_runs(robot):
     high = get_cdpr_trajectory("triangle-12", z=0.34)
-    with pytest.raises(InputError, match="leaves the wrench-feasible workspace .* sample 0"):
+    with pytest.raises(InputError, match=r"leaves the wrench-feasible workspace .* sample 0"):
         run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", high)
 
 
@@ -448,7 +448,7 @@ def test_a_plant_file_of_the_other_robot_gets_a_hint(tmp_path):
             "cable robot's plant"
         )
     cdpr = write_config(DEFAULT_CDPR_PLANT, tmp_path / "cdpr.yaml")
-    with pytest.raises(ConfigError, match="this looks like a cable robot's plant .*'drive'"):
+    with pytest.raises(ConfigError, match=r"this looks like a cable robot's plant .*'drive'"):
         resolve_plant(str(cdpr))
     (tmp_path / "typo.yaml").write_text("winch: {drum_radiu: 0.02}\n")  # no hint for a typo
     for resolve in (_plant, resolve_plant):

@@ -113,7 +113,7 @@ def test_train_compensator_checks_its_paths_before_collecting(arm, monkeypatch, 
     recipe = load_config(
         _recipe(tmp_path, checkpoint=tmp_path / "a_folder"), pipeline.CompensatorRecipe
     )
-    with pytest.raises(ConfigError, match="the recipe: key 'checkpoint': .* is a folder"):
+    with pytest.raises(ConfigError, match=r"the recipe: key 'checkpoint': .* is a folder"):
         pipeline.train_compensator(arm, recipe, DEFAULT_PLANT)
 
 

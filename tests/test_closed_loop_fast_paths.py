@@ -174,7 +174,7 @@ def test_both_step_loops_stop_on_divergence_with_time_and_state(arm, extra, pois
     plant.step(4)
     poison(plant)
     before = {"q": plant.mj_data.qpos.tolist(), "qdot": plant.mj_data.qvel.tolist()}
-    with pytest.raises(SimulationDivergedError, match="diverged at t = 0.0080 s") as caught:
+    with pytest.raises(SimulationDivergedError, match=r"diverged at t = 0.0080 s") as caught:
         plant.step(4)
     assert found in str(caught.value) and "reset its state" in str(caught.value)
     assert caught.value.time == pytest.approx(0.008)
@@ -195,7 +195,7 @@ def test_controller_refuses_references_of_the_wrong_shape(arm):
     zeros = np.zeros(arm.n_joints)
     with pytest.raises(InputError, match="q_ref"):
         controller.update(readings, POSTURE[:3], zeros, zeros)
-    with pytest.raises(InputError, match="readings.q"):
+    with pytest.raises(InputError, match=r"readings.q"):
         controller.update(replace(readings, q=np.zeros(7)), POSTURE, zeros, zeros)
     out = controller.update(readings, list(POSTURE), [0.0] * 4, zeros)  # lists are fine
     assert out.tension_command.shape == (arm.n_cables,)

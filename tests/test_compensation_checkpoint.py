@@ -126,14 +126,14 @@ def test_load_refuses_missing_corrupt_and_foreign_files(compensator, tmp_path):
     # another kind of file: told what to give instead, not torch's advice on weights_only
     table = tmp_path / "log.parquet"
     table.write_bytes(b"PAR1" + bytes(100) + b"PAR1")
-    with pytest.raises(CheckpointError, match="runs/compensator/compensator.pt") as caught:
+    with pytest.raises(CheckpointError, match=r"runs/compensator/compensator.pt") as caught:
         Compensator.load(table)
     assert "weights_only" not in str(caught.value)
 
     other = tmp_path / "other.pt"
     torch.save({"weights": torch.zeros(3)}, other)
     with pytest.raises(
-        CheckpointError, match="not an msarm compensator checkpoint .a dict with no 'format' tag"
+        CheckpointError, match=r"not an msarm compensator checkpoint .a dict with no 'format' tag"
     ):
         Compensator.load(other)
     plain = compensator.to_dict()
@@ -149,12 +149,12 @@ def test_load_refuses_missing_corrupt_and_foreign_files(compensator, tmp_path):
     plain = compensator.to_dict()
     plain["state_dict"]["0.weight"] = torch.zeros(150, 42, dtype=torch.float64)
     torch.save(plain, other)
-    with pytest.raises(CheckpointError, match="do not fit a network 43 -> .150. -> 4"):
+    with pytest.raises(CheckpointError, match=r"do not fit a network 43 -> .150. -> 4"):
         Compensator.load(other)
     plain = compensator.to_dict()
     plain["config"]["activation"] = "sigmoid"
     torch.save(plain, other)
-    with pytest.raises(CheckpointError, match="invalid network config.*activation"):
+    with pytest.raises(CheckpointError, match=r"invalid network config.*activation"):
         Compensator.load(other)
 
 

@@ -259,7 +259,7 @@ def test_missing_channel_is_named(arm, tmp_path):
     log = hand_log(arm)
     columns = {k: v for k, v in log.columns.items() if k != "q_ref.elbow"}
     slim = RunLog(columns, log.metadata)
-    with pytest.raises(InputError, match="q_ref.elbow"):
+    with pytest.raises(InputError, match=r"q_ref.elbow"):
         FeatureExtractor(arm).from_log(slim, source="slim.parquet")
 
 

@@ -121,9 +121,9 @@ def test_helpers_and_missing_signals(signals):
     amplitude, phase = DriveCogging.amplitude_phase(0.0, 0.01)
     assert amplitude == pytest.approx(0.01) and phase == pytest.approx(np.pi / 2)
     bare = replace(signals, tension_cmd=None, motor_speed=None)
-    with pytest.raises(InputError, match="command_delay.*tension_cmd"):
+    with pytest.raises(InputError, match=r"command_delay.*tension_cmd"):
         CommandDelay().design(bare)
-    with pytest.raises(InputError, match="winch_friction.*motor_speed"):
+    with pytest.raises(InputError, match=r"winch_friction.*motor_speed"):
         WinchFriction(DRUM, GAIN).design(bare)
     with pytest.raises(InputError, match="drive_gain"):
         WinchFriction(DRUM, -1.0)

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.filterwarnings(
 
 
 def test_a_multi_value_option_followed_by_another_option_is_refused():
-    with pytest.raises(InputError, match="--candidates: expected at least one value.*--boot"):
+    with pytest.raises(InputError, match=r"--candidates: expected at least one value.*--boot"):
         spread_multi_value_options(["diagnose", "a", "b", "--candidates", "--boot", "0"])
     with pytest.raises(InputError, match="--holdout: expected at least one value"):
         spread_multi_value_options(["diagnose", "a", "--holdout", "--", "b"])

@@ -199,7 +199,7 @@ def test_too_few_runs_and_bad_input_are_refused(arm, noise_logs, tmp_path):
     with pytest.raises(InputError, match="unknown name"):
         diagnose(arm, noise_logs[:1], noise_logs[1:2], candidates=["no_such_effect"])
     missing = tmp_path / "missing.parquet"
-    with pytest.raises(InputError, match="missing.parquet"):
+    with pytest.raises(InputError, match=r"missing.parquet"):
         signals_from_logs(arm, [missing])
     with pytest.raises(InputError, match="given more than once"):
         diagnose(arm, [noise_logs[0], noise_logs[0]], noise_logs[1:2])
@@ -237,7 +237,7 @@ def test_held_out_logs_without_a_channel_skip_the_terms_that_need_it(arm, noise_
     assert reason.startswith("in the held-out logs") and "tension_cmd" in reason
     assert "coulomb" not in data.skipped
     # a term the user asked for: an error that says so
-    with pytest.raises(InputError, match="capstan_hysteresis cannot be fitted.*held-out logs"):
+    with pytest.raises(InputError, match=r"capstan_hysteresis cannot be fitted.*held-out logs"):
         with pytest.warns(DiagnosisWarning):
             load_data(arm, noise_logs[:2], [held], candidates=["coulomb", "capstan_hysteresis"])
 
@@ -289,7 +289,7 @@ def test_cli_takes_the_nominal_model(arm, noise_logs, capsys):
     diagnose_command(noise_logs[:2], noise_logs[2:3], True, None, boot=0, model_path=ARM_MODEL_PATH)
     assert json.loads(capsys.readouterr().out)["train_runs"] == [str(p) for p in noise_logs[:2]]
     cable_robot = ARM_MODEL_PATH.parent / "ipanema_mini.xml"
-    with pytest.raises(ModelError, match="ipanema_mini.xml"):
+    with pytest.raises(ModelError, match=r"ipanema_mini.xml"):
         diagnose_command(noise_logs[:2], noise_logs[2:3], True, None, model_path=cable_robot)
 
 

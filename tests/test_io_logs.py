@@ -104,7 +104,7 @@ def test_helpers_names_matrix_quantities_duration_len():
     assert log.duration == pytest.approx((T - 1) / 250.0)
     with pytest.raises(InputError, match="quantities: q, tension_motor"):
         log.names("qd")
-    with pytest.raises(InputError, match="no channel q.wrist"):
+    with pytest.raises(InputError, match=r"no channel q.wrist"):
         log.matrix("q", ["wrist"])
 
 

@@ -61,7 +61,7 @@ def test_cable_length_error_bad_input():
     l_theory = np.zeros((3, 2))
     with pytest.raises(InputError, match="max_travel must have shape"):
         cable_length_error(l_theory, l_theory, [0.1])
-    with pytest.raises(InputError, match="max_travel must be > 0.*cable 1"):
+    with pytest.raises(InputError, match=r"max_travel must be > 0.*cable 1"):
         cable_length_error(l_theory, l_theory, [0.1, 0.0])
     with pytest.raises(InputError, match="l_theory has shape"):
         cable_length_error(l_theory, l_theory[:, :1], [0.1, 0.1])

@@ -81,7 +81,7 @@ def _variant(tmp_path: Path, old: str, new: str, count: int = 1) -> Path:
 
 
 def test_missing_file_is_named(tmp_path):
-    with pytest.raises(ModelError, match="not found.*nowhere.xml"):
+    with pytest.raises(ModelError, match=r"not found.*nowhere.xml"):
         load_robot(tmp_path / "nowhere.xml")
 
 
@@ -107,7 +107,7 @@ def test_several_root_bodies_are_refused(tmp_path):
         '    <body name="table" pos="1 0 0"><geom type="box" size="0.1 0.1 0.1"/></body>\n'
         "  </worldbody>",
     )
-    with pytest.raises(ModelError, match="2 root bodies.*torso, table"):
+    with pytest.raises(ModelError, match=r"2 root bodies.*torso, table"):
         load_robot(path)
 
 
@@ -123,7 +123,7 @@ def test_unsupported_joint_type_is_named(tmp_path):
         '<joint name="elbow" type="hinge" axis="0 1 0" range="-2.3 0.05"/>',
         '<joint name="elbow" type="ball"/>',
     )
-    with pytest.raises(ModelError, match="joint 'elbow'.*BALL"):
+    with pytest.raises(ModelError, match=r"joint 'elbow'.*BALL"):
         load_robot(path)
 
 
@@ -154,7 +154,7 @@ def test_malformed_hill_parameters_are_named(tmp_path):
     )
     path = tmp_path / "short_triceps.xml"
     path.write_text(text)
-    with pytest.raises(ModelError, match="hill/triceps.*2 values"):
+    with pytest.raises(ModelError, match=r"hill/triceps.*2 values"):
         load_arm(path)
 
 

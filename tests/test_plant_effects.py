@@ -394,7 +394,9 @@ def test_bad_seed_and_config_are_refused(arm):
             ArmPlant(arm, IDEAL_PLANT, seed=bad)
     with pytest.raises(InputError, match="seed must be a non-negative integer, got -1"):
         ArmPlant(arm, IDEAL_PLANT, seed=np.int64(-1))
-    with pytest.raises(InputError, match="config must be an msarm.plant.PlantConfig, got NoneType"):
+    with pytest.raises(
+        InputError, match=r"config must be an msarm.plant.PlantConfig, got NoneType"
+    ):
         ArmPlant(arm, None)
 
 

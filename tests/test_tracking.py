@@ -176,7 +176,7 @@ def test_a_task_too_short_or_out_of_range_is_refused_before_it_runs(arm):
     with pytest.raises(InputError, match="at least two control periods"):
         run_tracking(plant, controller, short)
     far = hold_then_move("far", home, [3.0, 0.0, 0.0, -0.5], 0.5, 1.0, 2.0)
-    with pytest.raises(InputError, match="'shoulder_abduction' at 3.0 rad, outside"):
+    with pytest.raises(InputError, match=r"'shoulder_abduction' at 3.0 rad, outside"):
         run_tracking(plant, controller, far)
     with pytest.raises(InputError, match="without leading zeros, random-7"):
         get_task("random-007", arm)
@@ -211,7 +211,7 @@ def test_the_controller_refuses_bad_input_and_keeps_its_state(arm):
 
 
 def test_controller_settings_the_arm_cannot_meet_are_refused(arm):
-    with pytest.raises(InputError, match="min_tension 600.0 N is above the strength of biceps"):
+    with pytest.raises(InputError, match=r"min_tension 600.0 N is above the strength of biceps"):
         MuscleSpaceController(arm, ArmControllerConfig(min_tension=600.0))
-    with pytest.raises(ValueError, match="kp must be a list of finite gains >= 0.*got 60.0"):
+    with pytest.raises(ValueError, match=r"kp must be a list of finite gains >= 0.*got 60.0"):
         ArmControllerConfig(kp=60.0)
