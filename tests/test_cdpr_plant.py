@@ -1,4 +1,4 @@
-"""The simulated IPAnema 3 Mini: statics, the drives' following error, friction, slack, seeds."""
+"""The simulated IPAnema 3 Mini: statics, drives (eq. 8-9, anti-windup), friction, slack, seeds."""
 
 from __future__ import annotations
 
@@ -277,6 +277,120 @@ def test_fast_transients_beyond_the_friction_fit_are_counted(cdpr, beyond):
     truth = plant.ground_truth()
     assert truth["friction_beyond_v_high"][2] > 0
     assert np.isfinite(truth["qpos"]).all()
+
+
+def accelerate_along_x(plant: CdprPlant, cdpr, top_speed: float, steps: int) -> list[dict]:
+    """Command the IK of a path along x that speeds up evenly to ``top_speed`` [m/s].
+
+    The platform reaches ``top_speed`` at half the ``steps`` and keeps it; no feedforward.
+
+    Returns:
+        The ground truth after the reset and after every step (``steps + 1`` of them).
+    """
+    truths = [plant.ground_truth()]
+    r, R = truths[0]["position"], truths[0]["rotation"]
+    h = plant.config.timestep
+    t_acc = steps // 2 * h
+    for k in range(1, steps + 1):
+        t = k * h
+        ta = min(t, t_acc)
+        x = 0.5 * top_speed / t_acc * ta**2 + top_speed * (t - ta)
+        plant.command(cdpr.robot.cable_lengths(r + np.array([x, 0.0, 0.0]), R))
+        plant.step()
+        truths.append(plant.ground_truth())
+    return truths
+
+
+@pytest.mark.parametrize("beyond", ["clamp", "extrapolate"])
+def test_friction_beyond_v_high_is_eq_5_at_v_high_or_at_the_speed(cdpr, beyond):
+    """Beyond v_H the winch friction is eq. 5 at +-v_H ("clamp") or at the speed ("extrapolate").
+
+    The platform speeds up along x to 18 m/min (3 v_H): four cables pay out, four haul in, all
+    taut and beyond v_H for most of the run. Each step's friction torque is eq. 5 at the
+    tension and speed the step started from (``msarm.cdpr.winch_friction`` is the reference),
+    clamped to +-v_H or not; within v_H, and extrapolated, it carries the implicit step's slope
+    term ``min(dtau_F/dv, 0) (v' - v)`` (none on the plateau). The load cell's f_F is eq. 7 at
+    the new tension and speed, clamped the same way, and ``friction_beyond_v_high`` counts the
+    steps that ended faster than v_H.
+    """
+    config = replace(QUIET, friction=replace(QUIET.friction, beyond_v_high=beyond))
+    plant = CdprPlant(cdpr, config)
+    plant.reset(cdpr.home_pose)
+    truths = accelerate_along_x(plant, cdpr, 18.0 / 60.0, 200)
+
+    def stack(key: str, start: int) -> np.ndarray:
+        return np.array([g[key] for g in truths[start : len(truths) - 1 + start]])
+
+    f0, u = stack("tension", 0), stack("cable_speed", 0)  # where each step starts
+    f, v, tau_F, f_F = (
+        stack(key, 1) for key in ("tension", "cable_speed", "friction_torque", "friction_force")
+    )
+    fitted = PAPER_000_WINCH_FRICTION  # refuses |v| > v_H: the clamp must give +-v_H exactly
+    wide = replace(fitted, extrapolate=True)
+    v_high, v_low = fitted.v_high, fitted.v_low
+    assert np.all(f > 0.0)
+    assert (u > v_high).sum() >= 400 and (u < -v_high).sum() >= 400  # both directions
+    outer = np.abs(u) >= v_low  # eq. 4's branches, where dtau_F/dv is c1 + 2 c2 v
+    beyond_fit = np.abs(u) > v_high
+    branches = wide.torque_branches
+    slope = np.where(u < 0.0, branches.negative.slope(u), branches.positive.slope(u))
+    implicit = wide.torque(f0, u) + np.minimum(slope, 0.0) * (v - u)
+    if beyond == "clamp":
+        at_v_high = fitted.torque(f0, np.clip(u, -v_high, v_high))
+        expected = np.where(beyond_fit, at_v_high, implicit)
+        expected_force = fitted.force(f, np.clip(v, -v_high, v_high))
+    else:
+        expected = implicit
+        expected_force = wide.force(f, v)
+    np.testing.assert_allclose(tau_F[outer], expected[outer], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(f_F, expected_force, rtol=0, atol=1e-12)
+    # friction opposes the motion: it brakes the paying out, loads the hauling in
+    assert np.all(tau_F[u > v_high] < 0.0) and np.all(tau_F[u < -v_high] > 0.0)
+    counts = np.array([g["friction_beyond_v_high"] for g in truths])
+    steps_beyond = np.cumsum(np.abs(v) > v_high, axis=0)
+    np.testing.assert_array_equal(counts, np.vstack([np.zeros((1, cdpr.n_cables)), steps_beyond]))
+
+
+def test_a_saturated_drive_holds_its_integral(cdpr):
+    """Anti-windup: while a drive's torque is at +-tau_max its PI integral is held.
+
+    Hauling cable 2 in by 5 cm stalls its winch at +tau_max for about 0.1 s (the other cables
+    hold the platform); setting the length back pays it out at -tau_max for a few steps. The
+    torque law ``tau = K_v (v - v_cmd) + (K_v / T_n) I`` with ``v_cmd = K_pos FE`` gives the
+    integral at every unsaturated step (and at the reset); from one such step to the next it
+    grows by ``h (v - v_cmd)`` of the later step only, so across a saturated interval it is
+    the held value: the torque leaves saturation where the held integral puts it.
+    """
+    plant = CdprPlant(cdpr, QUIET)
+    r, R = cdpr.home_pose
+    plant.reset((r, R), drive_mode="pi")
+    home = cdpr.robot.cable_lengths(r, R)
+    hauled = home.copy()
+    hauled[2] -= 0.05
+    truths = [plant.ground_truth()]
+    for k in range(200):
+        plant.command(hauled if k < 100 else home)
+        plant.step()
+        truths.append(plant.ground_truth())
+    drive, h = QUIET.drive, QUIET.timestep
+    kv, tn, tau_max = drive.velocity_gain, drive.integral_time, QUIET.winch.torque_limit
+    tau, v, fe, saturated = (
+        np.array([g[key] for g in truths])
+        for key in ("motor_torque", "cable_speed", "following_error", "drive_saturated")
+    )
+    slip = v - drive.position_gain * fe  # v - v_cmd
+    integral = tn * (tau / kv - slip)  # valid where the drive is not saturated
+    for i in range(cdpr.n_cables):  # the integral moves at the unsaturated steps only
+        free = np.flatnonzero(~saturated[:, i])
+        np.testing.assert_allclose(
+            np.diff(integral[free, i]), h * slip[free[1:], i], rtol=0, atol=1e-12, err_msg=f"{i}"
+        )
+    np.testing.assert_allclose(np.abs(tau[saturated]), tau_max, rtol=1e-14)
+    # the run did stall cable 2 at +tau_max, pay it out at -tau_max and let it go again
+    sat = saturated[:, 2]
+    assert sat[1:101].sum() >= 90 and np.all(tau[1:101, 2][sat[1:101]] > 0.0)
+    assert np.any(tau[101:, 2][sat[101:]] < 0.0)
+    assert not sat[0] and not sat[-1]
 
 
 def test_effect_parameters_name_what_is_switched_on(cdpr):
