@@ -410,3 +410,24 @@ def test_cable_velocity_features_from_a_hand_made_log_are_the_hand_computed_valu
     # biceps (cable 7): ldot = 0.1103 m/s at sample 2, hand-worked from its central difference
     s = math.tanh(0.1103 / eps_l)
     assert x[2, 7] == pytest.approx(math.exp(-s), rel=1e-3)  # ~0.60, exp(+s) ~1.65
+
+
+def test_arrays_built_once_per_log_with_a_cache(arm, tmp_path):
+    """A training's rounds stack the same runs again: a cache gives the same arrays."""
+    first = write_log(tmp_path / "first.parquet", hand_log(arm))
+    log = hand_log(arm)
+    shifted = {k: v + 0.01 if k.startswith("q.") else v for k, v in log.columns.items()}
+    second = write_log(tmp_path / "second.parquet", RunLog(shifted, log.metadata))
+    spec, target = FeatureSpec(), TargetSpec(window=3, polyorder=1)
+    paths = [first, second, first]
+    expected = build_arrays(arm, paths, spec, target)
+    cache = {}
+    for _ in range(2):  # filled by the first call, read by the second
+        got = build_arrays(arm, paths, spec, target, cache)
+        for a, b in zip(got, expected, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert set(cache) == {first, second}
+    # what the cache holds is what a cached log contributes (the file is not read again)
+    x, y = cache[first]
+    cache[first] = (x + 1.0, y)
+    assert np.array_equal(build_arrays(arm, [first], spec, target, cache)[0], x + 1.0)

@@ -132,17 +132,6 @@ def test_checkpoint_for_another_model_is_refused(trained, tmp_path):
         load_feedforward(recipe.checkpoint, other)
 
 
-def test_retraining_on_the_cached_runs_gives_the_same_compensator(trained, tmp_path):
-    arm, recipe, _, _ = trained
-    again = replace(recipe, checkpoint=str(tmp_path / "again.pt"))
-    train_compensator(arm, again, DEFAULT_PLANT)  # runs reused from the first training
-    first = Compensator.load(recipe.checkpoint)
-    second = Compensator.load(again.checkpoint)
-    for (w1, b1), (w2, b2) in zip(first.layer_weights(), second.layer_weights(), strict=True):
-        np.testing.assert_array_equal(w1, w2)
-        np.testing.assert_array_equal(b1, b2)
-
-
 def test_train_command_reads_a_recipe(tmp_path, trained):
     _, recipe, _, _ = trained
     path = tmp_path / "recipe.yaml"
@@ -235,36 +224,50 @@ def test_a_cached_run_is_reused_only_whole_undiverged_and_of_this_model(trained,
     assert not _reusable(run, settings, arm.sha256)  # metrics are written last: cut short
 
 
-def test_an_interrupted_training_resumes_and_a_changed_recipe_starts_over(trained, tmp_path):
+def test_an_interrupted_retraining_resumes_to_the_same_compensator(trained, tmp_path):
+    """The recipe again on the cached runs, cut in round 1 and resumed: the first training's
+    weights bit for bit, no run simulated again; then another recipe's state starts over."""
     from msarm.errors import MsarmWarning
 
     arm, recipe, _, _ = trained
-    short = replace(recipe, data=replace(recipe.data, rounds=0))
-    short = replace(short, network=replace(short.network, max_epochs=8))
-    whole = replace(short, checkpoint=str(tmp_path / "whole.pt"))
-    train_compensator(arm, whole, DEFAULT_PLANT)
 
     class StopTrainingError(Exception):
         pass
 
-    def stop_at_epoch_3(epoch, *_):
-        if epoch == 3:
+    rounds: list[int] = []
+    epochs: dict[int, list[int]] = {}
+
+    def note_round(round_, _):
+        rounds.append(round_)
+
+    def stop_in_round_1_at_epoch_3(epoch, *_):
+        if rounds[-1] == 1 and epoch == 3:
             raise StopTrainingError
 
-    cut = replace(short, checkpoint=str(tmp_path / "cut.pt"))
+    def note_epoch(epoch, *_):
+        epochs.setdefault(rounds[-1], []).append(epoch)
+
+    cut = replace(recipe, checkpoint=str(tmp_path / "cut.pt"))
     with pytest.raises(StopTrainingError):
-        train_compensator(arm, cut, DEFAULT_PLANT, on_epoch=stop_at_epoch_3)
-    epochs, reused = [], []
+        train_compensator(
+            arm, cut, DEFAULT_PLANT, on_round=note_round, on_epoch=stop_in_round_1_at_epoch_3
+        )
+    assert rounds == [0, 1]
+    rounds.clear()
+    reused = []
     train_compensator(
         arm,
         cut,
         DEFAULT_PLANT,
-        on_epoch=lambda epoch, *_: epochs.append(epoch),
+        on_round=note_round,
+        on_epoch=note_epoch,
         on_run=lambda done, total, was_reused: reused.append(was_reused),
     )
-    assert epochs[0] == 4 and all(reused)  # resumed after epoch 3; no run simulated again
+    assert rounds == [0, 1, 2] and reused and all(reused)  # no run simulated again
+    assert 0 not in epochs  # round 0 had finished: taken as it was
+    assert epochs[1][0] == 4 and epochs[2][0] == 1  # round 1 resumed after epoch 3
     for first, second in zip(
-        Compensator.load(whole.checkpoint).layer_weights(),
+        Compensator.load(recipe.checkpoint).layer_weights(),
         Compensator.load(cut.checkpoint).layer_weights(),
         strict=True,
     ):
@@ -272,10 +275,22 @@ def test_an_interrupted_training_resumes_and_a_changed_recipe_starts_over(traine
             np.testing.assert_array_equal(a, b)
     # a finished training's state, then another learning rate: the round starts over
     other = replace(cut, network=replace(cut.network, learning_rate=cut.network.learning_rate / 2))
+    other = replace(other, data=replace(other.data, rounds=0))
+    rounds.clear()
     epochs.clear()
-    with pytest.warns(MsarmWarning, match="learning_rate.*round 0 of the training starts over"):
-        train_compensator(arm, other, DEFAULT_PLANT, on_epoch=lambda e, *_: epochs.append(e))
-    assert epochs[0] == 1
+    with (
+        pytest.warns(MsarmWarning, match="learning_rate.*round 0 of the training starts over"),
+        pytest.raises(StopTrainingError),
+    ):
+
+        def stop_at_the_first_epoch(epoch, *_):
+            note_epoch(epoch)
+            raise StopTrainingError
+
+        train_compensator(
+            arm, other, DEFAULT_PLANT, on_round=note_round, on_epoch=stop_at_the_first_epoch
+        )
+    assert epochs == {0: [1]}
 
 
 def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, trained):

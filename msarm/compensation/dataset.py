@@ -179,8 +179,21 @@ def build_arrays(
     log_paths: Sequence[Path],
     features: FeatureSpec,
     target: TargetSpec,
+    cache: dict[Path, tuple[FloatArray, FloatArray]] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Features ``(N, d)`` and targets ``(N, n)`` of the logs, stacked in order.
+
+    Args:
+        model: The robot model the logs were recorded with.
+        log_paths: The run logs, in the order their samples are stacked.
+        features: The feature spec.
+        target: The target spec.
+        cache: Arrays already built, by log path, for the same model and specs (one
+            training's rounds stack the same runs again); the logs built here are added.
+            The caller keeps it only while the files cannot change.
+
+    Returns:
+        ``(x, y)``: the features ``(N, d)`` and the targets [N m] ``(N, n)``.
 
     Raises:
         InputError: A log holds NaN (file, column and row named) or lacks a channel.
@@ -188,6 +201,11 @@ def build_arrays(
     extractor = FeatureExtractor(model, features)
     xs, ys = [], []
     for path in log_paths:
+        if cache is not None and Path(path) in cache:
+            x, y = cache[Path(path)]
+            xs.append(x)
+            ys.append(y)
+            continue
         log = read_log(path)  # refuses NaN, naming the file, column and row
         if log.metadata.model_sha256.lower() != model.sha256.lower():
             raise InputError(
@@ -197,4 +215,6 @@ def build_arrays(
         check_standard_units(log, tuple(STANDARD_UNITS), str(path))
         xs.append(extractor.from_log(log, source=str(path)))
         ys.append(torque_error(model, log, target, source=str(path)))
+        if cache is not None:
+            cache[Path(path)] = (xs[-1], ys[-1])
     return np.concatenate(xs), np.concatenate(ys)

@@ -264,7 +264,9 @@ def train_compensator(
         train_paths = _paths_of(by_seed, split.train)
         val_paths = _paths_of(by_seed, split.validation)
     test_paths = _paths_of(by_seed, split.test)
-    test_arrays = build_arrays(model, test_paths, recipe.features, recipe.target)
+    # each run's features and target, built once: the rounds stack the same runs again
+    built: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
+    test_arrays = build_arrays(model, test_paths, recipe.features, recipe.target, built)
     names = FeatureExtractor(model, recipe.features).names
     checkpoint = Path(recipe.checkpoint)
     checkpoint.parent.mkdir(parents=True, exist_ok=True)
@@ -306,8 +308,8 @@ def train_compensator(
             collect_time += time.perf_counter() - start
             train_paths += new[: len(split.train)]
             val_paths += new[len(split.train) :]
-        x_train, y_train = build_arrays(model, train_paths, recipe.features, recipe.target)
-        x_val, y_val = build_arrays(model, val_paths, recipe.features, recipe.target)
+        x_train, y_train = build_arrays(model, train_paths, recipe.features, recipe.target, built)
+        x_val, y_val = build_arrays(model, val_paths, recipe.features, recipe.target, built)
         state_path = checkpoint.with_name(f"{checkpoint.stem}.round{round_}.training.pt")
         metadata["round"] = round_
         resume_round = resume and state_path.is_file()
