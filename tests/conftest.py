@@ -65,3 +65,27 @@ def trajectory_head(trajectory, n: int):
         velocity=trajectory.velocity[:n],
         acceleration=trajectory.acceleration[:n],
     )
+
+
+#: Samples a plumbing test keeps of a cable-robot trajectory: 3 s at 1 ms (the 0.5 s hold,
+#: the 0.5 s ramp and 2 s at cruise speed).
+SHORT_CDPR_SAMPLES = 3000
+
+
+@pytest.fixture
+def short_cdpr_trajectories(monkeypatch):
+    """Every named cable-robot trajectory cut to its first :data:`SHORT_CDPR_SAMPLES`, where
+    the commands and the comparison look them up, for tests of the commands' plumbing (folders,
+    caches, progress, tables) rather than of the controllers' findings. Returns the short
+    ``get_cdpr_trajectory``."""
+    import msarm.tasks.cdpr_compare as cdpr_compare
+    import msarm.tasks.cdpr_trajectories as cdpr_trajectories
+
+    full = cdpr_trajectories.get_cdpr_trajectory
+
+    def short(name: str, **options: float):
+        return trajectory_head(full(name, **options), SHORT_CDPR_SAMPLES)
+
+    monkeypatch.setattr(cdpr_trajectories, "get_cdpr_trajectory", short)
+    monkeypatch.setattr(cdpr_compare, "get_cdpr_trajectory", short)
+    return short

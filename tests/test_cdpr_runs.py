@@ -54,7 +54,9 @@ def test_trajectory_outside_the_workspace_is_refused_before_it_runs(robot):
         run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", high)
 
 
-def test_compare_writes_tables_and_repeatability(robot, triangle, tmp_path, monkeypatch):
+def test_compare_writes_tables_and_repeatability(
+    robot, tmp_path, monkeypatch, short_cdpr_trajectories
+):
     import msarm.tasks.cdpr_compare as cdpr_compare
 
     runs = []  # every run the comparison simulates, with its arguments
@@ -80,7 +82,7 @@ def test_compare_writes_tables_and_repeatability(robot, triangle, tmp_path, monk
         ("nc", "triangle-12", 0),
         ("nc", "triangle-12", 1),
     ]
-    path = triangle.position
+    path = short_cdpr_trajectories("triangle-12").position
     errors = []
     for _, _, run in runs:
         marker = np.column_stack([run.columns[f"marker.{a}"] for a in "xyz"])
@@ -123,6 +125,7 @@ def test_compare_writes_tables_and_repeatability(robot, triangle, tmp_path, monk
     assert len(runs) == 2
 
 
+@pytest.mark.usefixtures("short_cdpr_trajectories")
 def test_cdpr_run_command(tmp_path):
     result = CliRunner().invoke(
         app,
@@ -280,6 +283,7 @@ def test_a_diverged_run_says_why_on_the_console(tmp_path):
     assert "diverged" in json.loads((tmp_path / "run" / "metrics.json").read_text())
 
 
+@pytest.mark.usefixtures("short_cdpr_trajectories")
 def test_cdpr_compare_records_its_plant_in_a_folder_of_its_own(tmp_path, monkeypatch):
     """Default folder per plant, plant in the JSON, config.yaml, test ids never cut."""
     import msarm.tasks.cdpr_compare as cdpr_compare

@@ -143,6 +143,7 @@ def test_cdpr_compare_counts_the_steps_it_reports():
     assert progress_steps(3, tests=["11", "12"]) == 2 + 2  # one repeated test
 
 
+@pytest.mark.usefixtures("short_cdpr_trajectories")
 def test_cdpr_compare_json_progress_ends_at_its_total(monkeypatch, tmp_path):
     import msarm.tasks.cdpr_compare as cdpr_compare
 
@@ -340,6 +341,7 @@ def test_track_s_default_folder_names_a_seed_other_than_0(monkeypatch, tmp_path)
         assert (tmp_path / "runs" / folder).is_dir()
 
 
+@pytest.mark.usefixtures("short_cdpr_trajectories")
 def test_cdpr_run_s_default_folder_names_a_seed_other_than_0(monkeypatch, tmp_path):
     from msarm.cli.cdpr import default_run_folder
     from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, IDEAL_CDPR_PLANT
