@@ -1,0 +1,142 @@
+"""Gaps found by a hand-made mutation round over msarm.cdpr: kinematics, following error,
+switching (eq. 10), sensitivity index, force estimation and forward kinematics.
+
+Every test compares with an independent reference: hand-computed values, a brute-force
+search, the equilibrium A^T f + w = 0, finite differences or the docstrings' promises.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from msarm.cdpr import CableRobot
+from msarm.cdpr.following_error import FollowingErrorModel
+from msarm.cdpr.sensitivity import sensitivity_matrix
+from msarm.cdpr.switching import HALF_PI, SwitchingFactor, switching_cycles, switching_time
+from msarm.errors import InputError
+
+
+def _box_robot() -> CableRobot:
+    top = np.array([[-2.0, 1.5, 2.0], [2.0, 1.5, 2.0], [2.0, -1.5, 2.0], [-2.0, -1.5, 2.0]])
+    bottom = top * [1.0, 1.0, 0.0]
+    plate = np.array([[-0.1, 0.1, 0.07], [0.1, 0.1, 0.07], [0.1, -0.1, 0.07], [-0.1, -0.1, 0.07]])
+    return CableRobot(np.vstack([top, bottom]), np.vstack([plate, plate * [1.0, 1.0, -1.0]]))
+
+
+# --- kinematics -----------------------------------------------------------------------------
+
+
+def test_anchors_with_four_columns_are_refused_by_their_shape():
+    """Both anchor arrays (m, 4): same shape, so only the (m, 3) check can refuse them."""
+    with pytest.raises(InputError, match=r"frame_anchors must have shape \(m, 3\)"):
+        CableRobot(np.ones((8, 4)), np.ones((8, 4)))
+
+
+def test_a_slightly_non_orthonormal_rotation_is_refused():
+    """|R R^T - I| = 0.0201 for R = 1.01 I: not a rotation; 1e-9 of round-off is accepted."""
+    robot = _box_robot()
+    r = np.array([0.0, 0.0, 1.0])
+    with pytest.raises(InputError, match="rotation matrix"):
+        robot.structure_matrix(r, 1.01 * np.eye(3))
+    c, s = math.cos(0.3), math.sin(0.3)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) * (1.0 + 1e-9)
+    assert robot.structure_matrix(r, R).shape == (6, 8)
+
+
+def test_one_position_with_a_batch_of_rotations_is_refused():
+    """r of shape (3,) is one pose: R must then be (3, 3), not a batch (1, 3, 3)."""
+    robot = _box_robot()
+    with pytest.raises(InputError, match=r"R must have shape \(3, 3\)"):
+        robot.inverse_kinematics(np.array([0.0, 0.0, 1.0]), np.eye(3)[None])
+
+
+# --- following error (eq. 8-9) --------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [({"k_p": 0.0}, "k_p"), ({"c_v": math.nan}, "c_v"), ({"c_v": math.inf}, "c_v")],
+)
+def test_following_error_model_refuses_a_zero_gain_and_a_non_finite_c_v(kwargs, name):
+    with pytest.raises(InputError, match=name):
+        FollowingErrorModel(**kwargs)
+
+
+# --- switching (eq. 10) ---------------------------------------------------------------------
+
+
+def _brute_force_cycles(delta: float) -> int:
+    """Smallest n with n * delta >= pi/2 in floating point, by counting up."""
+    n = 0
+    while n * delta < HALF_PI:
+        n += 1
+    return n
+
+
+def test_switching_cycles_equal_the_brute_force_count_for_pi_half_over_n():
+    """delta = (pi/2) / n sits on the rounding edge of ceil((pi/2) / delta): for some n the
+    quotient rounds above n although n * delta >= pi/2 already (n = 61 is one)."""
+    for n in range(1, 400):
+        delta = HALF_PI / n
+        expected = _brute_force_cycles(delta)
+        assert switching_cycles(delta) == expected, n
+    s = SwitchingFactor(HALF_PI / 61)
+    s.activate()
+    assert s.cycles_left == _brute_force_cycles(HALF_PI / 61)
+    steps = 0
+    while s.switching:
+        s.step()
+        steps += 1
+    assert steps == _brute_force_cycles(HALF_PI / 61) and s.h == 1.0
+
+
+def test_switching_off_steps_alpha_down_by_delta():
+    """From h = 1, switching off gives alpha = pi/2 - k delta, h = cos^2(k delta)."""
+    delta = 0.02
+    s = SwitchingFactor(delta, active=True)
+    s.deactivate()
+    for k in range(1, 6):
+        s.step()
+        assert s.alpha == pytest.approx(HALF_PI - k * delta, abs=1e-15)
+        assert 0.0 <= s.alpha <= HALF_PI
+        assert s.h == pytest.approx(math.cos(k * delta) ** 2, abs=1e-15)
+
+
+def test_calling_activate_every_cycle_does_not_turn_alpha_into_a_running_sum():
+    """Module docstring: alpha is the start plus k delta after k steps, so it does not
+    drift; a controller that calls activate() every cycle must not restart the count."""
+    delta = 0.0005
+    s = SwitchingFactor(delta)
+    for k in range(1, 3143):
+        s.activate()
+        s.step()
+        if k < 3142:
+            assert s.alpha == k * delta, k
+    assert not s.switching and s.h == 1.0
+
+
+def test_switching_time_refuses_a_zero_cycle_time():
+    with pytest.raises(InputError, match="cycle_time"):
+        switching_time(0.02, 0.0)
+    assert switching_time(0.02, 2e-3) == pytest.approx(79 * 2e-3)
+
+
+# --- sensitivity index ----------------------------------------------------------------------
+
+
+def test_sensitivity_matrix_sign_and_order_keep_the_equilibrium():
+    """Docstring: Delta f_P = -S Delta f_C keeps A^T f + w = 0, rows in ascending P and
+    columns in ascending C, whatever the order in which C is given."""
+    robot = _box_robot()
+    At = robot.structure_matrix(np.array([0.3, -0.2, 0.8]), np.eye(3))
+    c, p = [1, 5], [0, 2, 3, 4, 6, 7]
+    S = sensitivity_matrix(At, [5, 1])
+    delta_c = np.array([0.7, -1.3])  # cables 1 and 5
+    delta_f = np.zeros(8)
+    delta_f[c] = delta_c
+    delta_f[p] = -S @ delta_c
+    np.testing.assert_allclose(At @ delta_f, 0.0, atol=1e-12)
+    assert np.abs(S).max() > 0.1  # a real test: the controlled cables do move the others
