@@ -12,9 +12,17 @@ import math
 import numpy as np
 import pytest
 
+# sensitivity_map imports msarm.allocation (and cvxpy, several seconds) on its first call;
+# importing it here puts that one-off cost into collection, not into a test's duration.
+import msarm.allocation  # noqa: F401
 from msarm.cdpr import CableRobot
 from msarm.cdpr.following_error import FollowingErrorModel
-from msarm.cdpr.sensitivity import sensitivity_matrix
+from msarm.cdpr.sensitivity import (
+    pair_sensitivities,
+    sensitivity_index,
+    sensitivity_map,
+    sensitivity_matrix,
+)
 from msarm.cdpr.switching import HALF_PI, SwitchingFactor, switching_cycles, switching_time
 from msarm.errors import InputError
 
@@ -140,3 +148,84 @@ def test_sensitivity_matrix_sign_and_order_keep_the_equilibrium():
     delta_f[p] = -S @ delta_c
     np.testing.assert_allclose(At @ delta_f, 0.0, atol=1e-12)
     assert np.abs(S).max() > 0.1  # a real test: the controlled cables do move the others
+
+
+def _worst_corner(At, pair, e, f, w):
+    """Brute force over the corners of the error box +-e on the pair: the largest change of a
+    position-controlled tension, and the smallest distance of any tension to its bounds
+    (as a function of the bounds), with the pose held by the other cables."""
+    others = [k for k in range(At.shape[1]) if k not in pair]
+    worst_change, tensions = 0.0, []
+    for d in [(-1, -1), (-1, 1), (1, -1), (1, 1)]:
+        g = f.copy()
+        g[list(pair)] += e * np.array(d, dtype=float)
+        g[others] = np.linalg.solve(At[:, others], -w - At[:, list(pair)] @ g[list(pair)])
+        worst_change = max(worst_change, np.abs(g[others] - f[others]).max())
+        tensions.append(g)
+    return worst_change, np.array(tensions)
+
+
+# 8 cables at arbitrary anchors: at (0, 0, 1) the pair (1, 3) moves every other tension by
+# less than the error bound itself (sigma = 0.80 N for e = 1 N).
+_SKEW_FRAME = [
+    [1.4, -1.4, 0.3], [1.7, 0.9, 0.5], [-0.6, -1.4, 0.3], [-2.0, 0.3, 1.2],
+    [-1.4, 1.0, 1.0], [0.4, 0.5, 0.4], [1.2, -0.3, 1.0], [-1.5, -0.7, 0.9],
+]  # fmt: skip
+_SKEW_PLATE = [
+    [0.04, -0.01, 0.01], [0.05, -0.02, -0.1], [0.01, 0.09, -0.09], [-0.01, 0.03, -0.0],
+    [-0.08, 0.0, -0.08], [-0.09, -0.03, -0.06], [0.0, 0.09, -0.06], [0.1, -0.03, 0.07],
+]  # fmt: skip
+
+
+def test_map_sigma_below_the_error_bound_counts_only_the_position_controlled_cables():
+    """sigma is the largest change of a *position-controlled* tension; the controlled cables'
+    own error e does not enter it, which shows where sigma < e."""
+    robot = CableRobot(_SKEW_FRAME, _SKEW_PLATE)
+    r = np.array([0.0, 0.0, 1.0])
+    At = robot.structure_matrix(r, np.eye(3))
+    worst, _ = _worst_corner(At, (1, 3), 1.0, np.zeros(8), np.zeros(6))
+    assert 0.5 < worst < 0.95
+    assert float(sensitivity_index(At, (1, 3))) == pytest.approx(worst, rel=1e-12)
+    m = sensitivity_map(
+        robot, (1, 3), [0.0], [0.0], [1.0], wrench=np.zeros(6), f_min=0.0, f_max=50.0
+    )
+    assert float(m.sigma[0, 0, 0]) == pytest.approx(worst, rel=1e-12)
+
+
+def test_map_margin_is_the_worst_corner_distance_to_either_bound():
+    """margin = min over the error-box corners of the distance of every tension to its bounds.
+
+    A negative lower bound (the allocation's arithmetic allows it) keeps the minimum-norm
+    tensions far from f_min, so at some poses the upper bound is the one that binds."""
+    robot = _box_robot()
+    w = np.array([0.0, 0.0, -2.0 * 9.81, 0.0, 0.0, 0.0])
+    x, y, z = [-0.6, -0.2, 0.2, 0.6], [-0.4, 0.0, 0.4], [0.6, 1.0, 1.4]
+    lo, hi = -20.0, 20.0
+    m = sensitivity_map(robot, (0, 3), x, y, z, wrench=w, f_min=lo, f_max=hi)
+    At = robot.structure_matrix(m.positions.reshape(-1, 3), np.eye(3))
+    forces, feasible, margin = m.forces.reshape(-1, 8), m.feasible.ravel(), m.margin.ravel()
+    upper_binds = 0
+    for k in np.flatnonzero(feasible):
+        _, g = _worst_corner(At[k], (0, 3), 1.0, forces[k], w)
+        assert margin[k] == pytest.approx(min((g - lo).min(), (hi - g).min()), abs=1e-9)
+        upper_binds += (hi - g).min() < (g - lo).min()
+    assert upper_binds > 0
+    # Share of the *feasible* points with sigma < 1.5 N; some points are infeasible.
+    assert 0 < feasible.sum() < feasible.size
+    expected = np.mean(m.sigma.ravel()[feasible] < 1.5)
+    assert 0.0 < expected < 1.0
+    assert m.fraction_acceptable(1.5) == pytest.approx(expected, rel=1e-15)
+    # "sigma < threshold" is strict: a threshold equal to a point's sigma leaves it out.
+    k = int(np.flatnonzero(feasible)[0])
+    t = float(m.sigma.ravel()[k])
+    assert not m.acceptable(t).ravel()[k]
+    assert m.acceptable(float(np.nextafter(t, np.inf))).ravel()[k]
+
+
+def test_sensitivity_refuses_fractional_indices_and_pair_table_refuses_a_batch():
+    robot = _box_robot()
+    At = robot.structure_matrix(np.array([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]]), np.eye(3))
+    with pytest.raises(InputError, match="cable indices"):
+        sensitivity_index(At[0], [0.0, 1.5])
+    with pytest.raises(InputError, match="one pose"):
+        pair_sensitivities(At)
