@@ -17,6 +17,13 @@ import pytest
 import msarm.allocation  # noqa: F401
 from msarm.cdpr import CableRobot
 from msarm.cdpr.following_error import FollowingErrorModel
+from msarm.cdpr.forward_kinematics import (
+    ForwardKinematicsError,
+    forward_kinematics,
+    platform_wrench,
+    rotation_matrix,
+    rotation_vector,
+)
 from msarm.cdpr.sensitivity import (
     pair_sensitivities,
     sensitivity_index,
@@ -229,3 +236,79 @@ def test_sensitivity_refuses_fractional_indices_and_pair_table_refuses_a_batch()
         sensitivity_index(At[0], [0.0, 1.5])
     with pytest.raises(InputError, match="one pose"):
         pair_sensitivities(At)
+
+
+# --- forward kinematics and rotations -------------------------------------------------------
+
+
+def test_rotation_matrix_below_the_taylor_switch_matches_rodrigues():
+    """Rodrigues: (R - R^T) / 2 = sin(theta)/theta [v]x; at theta = 8.4e-5 rad (Taylor branch)
+    a wrong theta^2 coefficient in a or b shows as a relative error of about 1e-9."""
+    v = np.array([3e-5, -5e-5, 6e-5])
+    theta = float(np.linalg.norm(v))
+    assert theta < 1e-4
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    R = rotation_matrix(v)
+    np.testing.assert_allclose((R - R.T) / 2.0, math.sin(theta) / theta * K, rtol=1e-13, atol=0)
+    # Symmetric part: (1 - cos theta)/theta^2 v v^T off the diagonal, written without the
+    # cancellation as 2 sin^2(theta/2)/theta^2; the entries are ~5e-9 next to a K ~ 6e-5, so
+    # round-off leaves them about 1e-11 relative, below the 1.2e-9 of a wrong theta^2 term.
+    off = ~np.eye(3, dtype=bool)
+    b = 2.0 * math.sin(theta / 2.0) ** 2 / theta**2
+    np.testing.assert_allclose(((R + R.T) / 2.0)[off], (b * np.outer(v, v))[off], rtol=1e-10)
+
+
+def test_a_reflection_is_not_a_rotation():
+    """-I is orthonormal with det -1: refused wherever a rotation matrix is read."""
+    with pytest.raises(InputError, match="rotation matrix"):
+        rotation_vector(-np.eye(3))
+    robot = _box_robot()
+    lengths = robot.cable_lengths(np.array([0.0, 0.0, 1.0]), np.eye(3))
+    with pytest.raises(InputError, match="R0 must be a rotation matrix"):
+        forward_kinematics(robot, lengths, R0=-np.eye(3))
+
+
+def test_platform_wrench_refuses_an_asymmetric_inertia():
+    inertia = np.diag([1e-3, 2e-3, 3e-3])
+    inertia[0, 1] = 1e-4
+    with pytest.raises(InputError, match="symmetric"):
+        platform_wrench(np.zeros(3), np.eye(3), mass=0.25, inertia=inertia)
+
+
+def test_forward_kinematics_starts_at_the_frame_anchor_centroid():
+    """Default start: the centroid of the frame anchors, here (0, 0, 1); lengths of that
+    pose converge in one (zero) Newton step."""
+    robot = _box_robot()
+    centroid = np.array([0.0, 0.0, 1.0])
+    np.testing.assert_allclose(robot.frame_anchors.mean(axis=0), centroid, atol=1e-15)
+    result = forward_kinematics(robot, robot.cable_lengths(centroid, np.eye(3)))
+    assert result.iterations == 1
+    np.testing.assert_allclose(result.r, centroid, atol=1e-15)
+
+
+def test_forward_kinematics_takes_exactly_max_iter_steps_and_wants_an_integer():
+    robot = _box_robot()
+    r = np.array([0.3, -0.2, 1.2])
+    R = rotation_matrix([0.1, -0.05, 0.2])
+    lengths = robot.cable_lengths(r, R)
+    n = forward_kinematics(robot, lengths).iterations
+    assert n >= 3
+    exact = forward_kinematics(robot, lengths, max_iter=n)  # n steps are allowed
+    assert exact.iterations == n and np.abs(exact.r - r).max() < 1e-12
+    with pytest.raises(ForwardKinematicsError, match=f"in {n - 1} iterations"):
+        forward_kinematics(robot, lengths, max_iter=n - 1)
+    with pytest.raises(InputError, match="max_iter"):
+        forward_kinematics(robot, lengths, max_iter=2.5)
+    with pytest.raises(InputError, match="> 0"):
+        forward_kinematics(robot, np.r_[lengths[:7], 0.0])
+
+
+def test_forward_kinematics_from_a_far_start_needs_the_step_halving():
+    """From near a frame corner the full Newton step overshoots: the line search has to halve
+    it many times (about ten) before the residual falls, and still finds the pose."""
+    robot = _box_robot()
+    r = np.array([-0.5, 0.5, 0.8])
+    lengths = robot.cable_lengths(r, np.eye(3))
+    result = forward_kinematics(robot, lengths, r0=np.array([-1.5, 1.2, 1.8]))
+    assert np.abs(result.r - r).max() < 1e-9
+    assert np.abs(rotation_vector(result.R)).max() < 1e-9
