@@ -15,7 +15,7 @@ import pytest
 # sensitivity_map imports msarm.allocation (and cvxpy, several seconds) on its first call;
 # importing it here puts that one-off cost into collection, not into a test's duration.
 import msarm.allocation  # noqa: F401
-from msarm.cdpr import CableRobot
+from msarm.cdpr import CableRobot, WinchParameters, force_from_motor_torque
 from msarm.cdpr.following_error import FollowingErrorModel
 from msarm.cdpr.forward_kinematics import (
     ForwardKinematicsError,
@@ -312,3 +312,35 @@ def test_forward_kinematics_from_a_far_start_needs_the_step_halving():
     result = forward_kinematics(robot, lengths, r0=np.array([-1.5, 1.2, 1.8]))
     assert np.abs(result.r - r).max() < 1e-9
     assert np.abs(rotation_vector(result.R)).max() < 1e-9
+
+
+# --- force estimation (eq. 3) ---------------------------------------------------------------
+
+
+def test_default_drum_inertia_gives_0_075_kg_times_a():
+    """Module docstring: tau_In is J_D a / r_D^2 = 0.075 kg times a for the defaults; with
+    no torque, no friction and a = 2 m/s^2 the estimate is 0.15 N."""
+    f = force_from_motor_torque(0.0, 0.0, 2.0, friction_model=False)
+    assert float(f) == pytest.approx(0.15, rel=1e-12)
+
+
+def test_winch_with_no_inertia_is_allowed_and_a_zero_drum_radius_is_not():
+    """J_D >= 0: a massless drum leaves f = tau / r_D whatever a (0.2 N m / 0.02 m = 10 N)."""
+    winch = WinchParameters(drum_inertia=0.0)
+    f = force_from_motor_torque(0.2, 0.0, 5.0, winch=winch, friction_model=False)
+    assert float(f) == pytest.approx(10.0, rel=1e-12)
+    with pytest.raises(InputError, match="drum_radius"):
+        WinchParameters(drum_radius=0.0)
+
+
+def test_following_error_for_force_without_friction_is_eq_8_of_f_r_d():
+    """No tau_F, no inertia term (a = 0), feed-forward: FE = (c_f / K_p) f r_D, by hand
+    -0.511 / 200 * (10 N * 0.02 m) = -5.11e-4 m, also at 3 m/min where tau_F would add."""
+    winch = WinchParameters()
+    fe = winch.following_error_for_force(10.0, 0.05, 0.0, friction_model=False)
+    assert float(fe) == pytest.approx(-5.11e-4, rel=1e-12)
+    # Without feed-forward eq. 9 adds c_v v = 8.893e-5 min * 3 m/min.
+    fe = winch.following_error_for_force(
+        10.0, 0.05, 0.0, friction_model=False, velocity_feedforward=False
+    )
+    assert float(fe) == pytest.approx(-5.11e-4 + 8.893e-5 * 3.0, rel=1e-12)
