@@ -2,7 +2,8 @@
 switching (eq. 10), sensitivity index, force estimation and forward kinematics.
 
 Every test compares with an independent reference: hand-computed values, a brute-force
-search, the equilibrium A^T f + w = 0, finite differences or the docstrings' promises.
+search (switching cycles, corners of the error box), the equilibrium A^T f + w = 0,
+Rodrigues' closed form, a known pose, or a promise of the module's docstring.
 """
 
 from __future__ import annotations
