@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, residuals_from_log
+from msarm.errors import LogError
 from msarm.io.logs import LogMetadata, RunLog
 from msarm.muscle.batch_kinematics import cable_kinematics_batch
 
@@ -148,3 +149,10 @@ def test_a_step_beyond_one_and_a_half_periods_is_a_gap(arm, step):
     assert any("gap" in m for m in messages) == split
     expected = made["tension"][30] - made["command"][30 if split else 29]
     np.testing.assert_allclose(result.drive[30], expected, atol=1e-12)
+
+
+def test_a_log_without_a_stretch_as_long_as_the_filter_is_refused(arm):
+    log, _ = _log(arm)
+    short = RunLog({k: v[:24] for k, v in log.columns.items()}, log.metadata)
+    with pytest.raises(LogError, match=r"^hand: no contiguous stretch .* filter's 25 samples"):
+        residuals_from_log(arm, short, source="hand", spec=ResidualSpec(replay=False))

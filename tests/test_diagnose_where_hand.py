@@ -170,9 +170,18 @@ def test_the_posture_grid_bins_as_a_2d_histogram():
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(energy / (2 * counts))
     np.testing.assert_allclose(breakdown.posture_rms, rms)  # NaN where no samples, alike
-    rows = breakdown.group("posture")
-    assert sorted(r.samples for r in rows) == sorted(counts[counts > 0].astype(int).tolist())
-    assert sum(r.energy for r in rows) == pytest.approx(per_sample.sum())
+    # by hand: each sample in a cell of its own, named by the cell's ranges
+    rows = {r.where: (r.samples, r.energy) for r in breakdown.group("posture")}
+    assert rows == {
+        "a [0.00, 0.25] x b [-1.00, -0.50]": (1, 5.0),
+        "a [0.50, 0.75] x b [-0.50, 0.00]": (1, 25.0),
+        "a [0.50, 0.75] x b [0.00, 0.50]": (1, 61.0),
+        "a [0.75, 1.00] x b [0.50, 1.00]": (1, 113.0),
+        "a [0.25, 0.50] x b [0.50, 1.00]": (1, 181.0),
+        "a [0.00, 0.25] x b [0.50, 1.00]": (1, 265.0),
+        "a [0.75, 1.00] x b [-0.50, 0.00]": (1, 365.0),
+        "a [0.50, 0.75] x b [0.50, 1.00]": (1, 481.0),
+    }
 
 
 def test_a_posture_joint_that_never_moves_still_gets_a_grid_of_increasing_edges():
@@ -224,3 +233,7 @@ def test_logs_of_different_robots_and_a_grid_without_bins_are_refused():
         break_down([one, other_cables])
     with pytest.raises(ValueError, match=r"bins must be >= 1"):
         break_down(one, bins=0)
+    with pytest.raises(ValueError, match=r"unknown joint 'elbow'"):
+        break_down(one, posture_joints=("j0", "elbow"))
+    with pytest.raises(ValueError, match=r"unknown group 'joints'"):
+        break_down(one).group("joints")
