@@ -6,6 +6,7 @@ No simulation: every input is laid out by hand and every expected value is worke
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -77,6 +78,24 @@ def test_motion_thresholds_are_strict_or_inclusive_as_documented():
     expected[30:33] = 0  # reversal
     got = motion_phases(_residuals(qd, qdd), EXACT)
     np.testing.assert_array_equal(got, expected)
+
+
+def test_a_sign_change_across_a_time_gap_is_no_reversal():
+    """The reversal window is +-reversal_window in time within one stretch of the log: qd of
+    +0.3 rad/s, then a 1 s gap (the log's rows go on), then -0.3 rad/s is no reversal; the
+    same rows without the gap reverse at the two samples either side of the change."""
+    qd = np.zeros((20, 1))
+    qd[:10, 0] = 0.3
+    qd[10:, 0] = -0.3
+    joined = _residuals(qd)
+    expected = np.full(20, 3)  # constant velocity (|qd| >= hold_speed 0.25)
+    expected[8:12] = 0  # +-2 samples of 10 ms around the change see both signs
+    settings = PhaseSettings(hold_speed=0.25, reversal_speed=0.25, reversal_window=0.02)
+    np.testing.assert_array_equal(motion_phases(joined, settings), expected)
+    t = joined.t.copy()
+    t[10:] += 1.0  # rows 0..9, then rows 10..19 a second later
+    gapped = replace(joined, t=t)
+    np.testing.assert_array_equal(motion_phases(gapped, settings), np.full(20, 3))
 
 
 def test_load_thresholds_and_the_high_load_percentile():

@@ -50,7 +50,9 @@ from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 
 __all__ = [
+    "GAP_FACTOR",
     "RESIDUAL_UNITS",
+    "gap_starts",
     "replay_runs",
     "DiagnosisWarning",
     "ResidualSpec",
@@ -66,7 +68,7 @@ RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "drive": "N", "rep
 #: The log quantities the residuals read (their units must be msarm's SI ones).
 _QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
 #: A step of ``t`` longer than this many nominal sample periods is a gap.
-_GAP_FACTOR = 1.5
+GAP_FACTOR = 1.5
 #: The median step of ``t`` may differ from the nominal period by this fraction at most.
 _RATE_TOLERANCE = 0.05
 #: Beyond this fraction (but within :data:`_RATE_TOLERANCE`) the difference is warned about:
@@ -432,6 +434,21 @@ def _warn_constant_sensors(source: str, channels: list[tuple[str, list[str], Flo
         )
 
 
+def gap_starts(t: FloatArray, sample_rate_hz: float) -> NDArray[np.intp]:
+    """The rows that start a new stretch after a time gap.
+
+    Args:
+        t: Sample times [s], shape ``(T,)``.
+        sample_rate_hz: Nominal sample rate [Hz].
+
+    Returns:
+        Row indices ``k`` (ascending) with ``t[k] - t[k - 1]`` longer than
+        :data:`GAP_FACTOR` nominal sample periods, shape ``(G,)``.
+    """
+    period = 1.0 / sample_rate_hz
+    return np.flatnonzero(np.diff(t) > GAP_FACTOR * period) + 1
+
+
 def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
     """Contiguous, uniformly sampled stretches ``[start, stop)`` of a log; warns about gaps.
 
@@ -459,13 +476,13 @@ def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
             DiagnosisWarning,
             stacklevel=3,
         )
-    gaps = np.flatnonzero(steps > _GAP_FACTOR * period) + 1
+    gaps = gap_starts(t, log.metadata.sample_rate_hz)
     bounds = [0, *gaps.tolist(), len(t)]
     segments = list(zip(bounds[:-1], bounds[1:], strict=True))
     if len(gaps):
         row = int(gaps[0])
         warnings.warn(
-            f"{source}: column '{TIME}' has {len(gaps)} gap(s) longer than {_GAP_FACTOR:g} "
+            f"{source}: column '{TIME}' has {len(gaps)} gap(s) longer than {GAP_FACTOR:g} "
             f"sample periods, the first at row {row} "
             f"(t = {float(t[row - 1]):.6g} -> {float(t[row]):.6g} s); "
             "the log is diagnosed as separate segments",

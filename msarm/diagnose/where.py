@@ -15,7 +15,8 @@ so that its shares sum to 100 %:
     joint velocities and accelerations):
 
     1. ``reversal``: some joint's ``qd`` is above ``+reversal_speed`` and below
-       ``-reversal_speed`` within ``+-reversal_window`` of the sample (a velocity reversal);
+       ``-reversal_speed`` within ``+-reversal_window`` of the sample, in the same
+       stretch of the log (a sign change across a time gap is no reversal);
     2. ``acceleration``: some joint has ``|qdd| >= acceleration``;
     3. ``hold``: every joint has ``|qd| < hold_speed``;
     4. ``constant_velocity``: the rest (some ``|qd| >= hold_speed``, every
@@ -48,7 +49,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d
 
-from msarm.diagnose.residuals import RESIDUAL_UNITS, Residuals, ResidualSpec, residuals_from_log
+from msarm.diagnose.residuals import (
+    RESIDUAL_UNITS,
+    Residuals,
+    ResidualSpec,
+    gap_starts,
+    residuals_from_log,
+)
 from msarm.model import RobotModel
 
 __all__ = [
@@ -263,9 +270,15 @@ def motion_phases(residuals: Residuals, settings: PhaseSettings | None = None) -
     qdd = np.nan_to_num(residuals.qdd)
     half = max(1, round(s.reversal_window * residuals.sample_rate_hz))
     size = 2 * half + 1
-    positive = maximum_filter1d((qd > s.reversal_speed).astype(np.int8), size, axis=0)
-    negative = maximum_filter1d((qd < -s.reversal_speed).astype(np.int8), size, axis=0)
-    reversal = (positive & negative).astype(bool).any(axis=1)
+    reversal = np.zeros(len(qd), dtype=bool)
+    # the window counts samples within each stretch: a sign change across a time gap is no
+    # reversal (the residuals are computed stretch by stretch too)
+    bounds = [0, *gap_starts(residuals.t, residuals.sample_rate_hz).tolist(), len(qd)]
+    for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
+        part = slice(start, stop)
+        up = maximum_filter1d((qd[part] > s.reversal_speed).astype(np.int8), size, axis=0)
+        down = maximum_filter1d((qd[part] < -s.reversal_speed).astype(np.int8), size, axis=0)
+        reversal[part] = (up & down).astype(bool).any(axis=1)
     accelerating = (np.abs(qdd) >= s.acceleration).any(axis=1)
     holding = (np.abs(qd) < s.hold_speed).all(axis=1)
     return np.select(
