@@ -30,7 +30,7 @@ lint: install
 	$(VENV)/bin/ruff check msarm tests examples
 
 test: install lint
-	$(PY) -m pytest -n 2 --dist loadfile -q
+	$(PY) -m pytest -n 2 --dist loadfile --no-loadscope-reorder -q
 
 # Speed and accuracy benchmarks; the withheld-effect diagnosis benchmark simulates its 29
 # scenarios once (cached under runs/bench-diagnose): 1 min 15 s the first time on the fastest
