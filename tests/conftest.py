@@ -17,7 +17,7 @@ settings.load_profile("msarm")
 #: ``make test`` (``pytest -n 2 --dist loadfile --no-loadscope-reorder``) starts a worker on
 #: each at once while the other files fill in; left where they fall, the slowest started
 #: halfway through and ran alone at the end.
-SLOW_TEST_FILES = ("test_compensation_pipeline.py", "test_cdpr_runs.py")
+SLOW_TEST_FILES = ("test_compensation_pipeline.py", "test_compensation_small_recipe.py")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -20,7 +20,7 @@ from msarm.compensation.feedforward import (
 )
 from msarm.compensation.pipeline import TUNED_CONTROLLER, CompensatorRecipe, train_compensator
 from msarm.control import ArmControllerConfig
-from msarm.io.config import load_config, write_config
+from msarm.io.config import load_config
 from msarm.model import load_arm
 from msarm.plant import DEFAULT_PLANT
 from msarm.tasks.evaluate import SLACK_THRESHOLD
@@ -132,20 +132,6 @@ def test_checkpoint_for_another_model_is_refused(trained, tmp_path):
         load_feedforward(recipe.checkpoint, other)
 
 
-def test_train_command_reads_a_recipe(tmp_path, trained):
-    _, recipe, _, _ = trained
-    path = tmp_path / "recipe.yaml"
-    short = replace(
-        recipe,
-        data=replace(recipe.data, rounds=0),
-        network=replace(recipe.network, max_epochs=3),
-    )
-    write_config(replace(short, checkpoint=str(tmp_path / "cli.pt")), path)
-    result = CliRunner().invoke(app, ["train", "--config", str(path), "--json"])
-    assert result.exit_code == 0, result.output
-    assert '"test_r2"' in result.output
-
-
 def test_compare_parts_needs_a_compensator_with_a_sheath_stage(tmp_path, trained):
     _, recipe, _, _ = trained
     compensator = Compensator.load(recipe.checkpoint)
@@ -222,97 +208,3 @@ def test_a_cached_run_is_reused_only_whole_undiverged_and_of_this_model(trained,
     assert not _reusable(run, settings, arm.sha256)  # a diverged run is simulated again
     (run / "metrics.json").unlink()
     assert not _reusable(run, settings, arm.sha256)  # metrics are written last: cut short
-
-
-def test_an_interrupted_retraining_resumes_to_the_same_compensator(trained, tmp_path):
-    """The recipe again on the cached runs, cut in round 1 and resumed: the first training's
-    weights bit for bit, no run simulated again; then another recipe's state starts over."""
-    from msarm.errors import MsarmWarning
-
-    arm, recipe, _, _ = trained
-
-    class StopTrainingError(Exception):
-        pass
-
-    rounds: list[int] = []
-    epochs: dict[int, list[int]] = {}
-
-    def note_round(round_, _):
-        rounds.append(round_)
-
-    def stop_in_round_1_at_epoch_3(epoch, *_):
-        if rounds[-1] == 1 and epoch == 3:
-            raise StopTrainingError
-
-    def note_epoch(epoch, *_):
-        epochs.setdefault(rounds[-1], []).append(epoch)
-
-    cut = replace(recipe, checkpoint=str(tmp_path / "cut.pt"))
-    with pytest.raises(StopTrainingError):
-        train_compensator(
-            arm, cut, DEFAULT_PLANT, on_round=note_round, on_epoch=stop_in_round_1_at_epoch_3
-        )
-    assert rounds == [0, 1]
-    rounds.clear()
-    reused = []
-    train_compensator(
-        arm,
-        cut,
-        DEFAULT_PLANT,
-        on_round=note_round,
-        on_epoch=note_epoch,
-        on_run=lambda done, total, was_reused: reused.append(was_reused),
-    )
-    assert rounds == [0, 1, 2] and reused and all(reused)  # no run simulated again
-    assert 0 not in epochs  # round 0 had finished: taken as it was
-    assert epochs[1][0] == 4 and epochs[2][0] == 1  # round 1 resumed after epoch 3
-    for first, second in zip(
-        Compensator.load(recipe.checkpoint).layer_weights(),
-        Compensator.load(cut.checkpoint).layer_weights(),
-        strict=True,
-    ):
-        for a, b in zip(first, second, strict=True):
-            np.testing.assert_array_equal(a, b)
-    # a finished training's state, then another learning rate: the round starts over
-    other = replace(cut, network=replace(cut.network, learning_rate=cut.network.learning_rate / 2))
-    other = replace(other, data=replace(other.data, rounds=0))
-    rounds.clear()
-    epochs.clear()
-    with (
-        pytest.warns(MsarmWarning, match="learning_rate.*round 0 of the training starts over"),
-        pytest.raises(StopTrainingError),
-    ):
-
-        def stop_at_the_first_epoch(epoch, *_):
-            note_epoch(epoch)
-            raise StopTrainingError
-
-        train_compensator(
-            arm, other, DEFAULT_PLANT, on_round=note_round, on_epoch=stop_at_the_first_epoch
-        )
-    assert epochs == {0: [1]}
-
-
-def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, trained):
-    _, recipe, report, _ = trained
-    out = tmp_path / "compare"
-    result = CliRunner().invoke(
-        app, ["compare", "--ff", recipe.checkpoint, "--out", str(out), "--json"]
-    )
-    assert result.exit_code == 0, result.output
-    payload = json.loads(result.stdout)  # progress went to stderr
-    assert payload["held_out"] == [f"random-{seed}" for seed in report.split["test"]]
-    assert payload["tasks"][:4] == [f"table1-{k}" for k in range(1, 5)]
-    assert payload["final_error_ratio_held_out"] > 1  # the compensator helps on held-out tasks
-    assert all(Path(path).is_file() for path in payload["files"].values())
-    assert {"error_statistics", "json", "trajectories_table1-1"} <= set(payload["files"])
-    track_out = tmp_path / "track"
-    ff = ["track", "--task", "table1-2", "--ff", recipe.checkpoint, "--out", str(track_out)]
-    result = CliRunner().invoke(app, [*ff, "--json"])
-    assert result.exit_code == 0, result.output
-    metrics = json.loads(result.stdout)
-    assert metrics["task"] == "table1-2" and metrics["final_error_mm"] < 1.0
-    names = {"log.parquet", "log.truth.parquet", "config.yaml", "metrics.json", "joints.png"}
-    assert names <= {p.name for p in track_out.iterdir()}
-    # the run records the compensator it ran with
-    assert f"feedforward: {recipe.checkpoint}" in (track_out / "config.yaml").read_text()

@@ -1,0 +1,150 @@
+"""The compensator's commands and its resumable training, on a small recipe of their own.
+
+The recipe: 4 runs of 20 s (2 / 1 / 1), one feedforward round, 6 epochs a round. These tests
+need a trained compensator and its kept runs but not the shipped recipe's numbers, so they run
+beside the shipped recipe's end-to-end tests (``test_compensation_pipeline.py``) instead of
+after them on the same worker: an interrupted training resumes to the uninterrupted one's
+weights; ``msarm train`` reads a recipe; ``msarm compare`` and ``msarm track --ff`` run with
+the compensator.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from msarm.cli import app
+from msarm.compensation.checkpoint import Compensator
+from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
+from msarm.errors import MsarmWarning
+from msarm.io.config import write_config
+from msarm.plant import DEFAULT_PLANT
+
+
+class StopTrainingError(Exception):
+    """Raised from an epoch callback: the training is cut there."""
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory, arm):
+    """The small recipe and its report, trained once without interruption; its runs are kept."""
+    folder = tmp_path_factory.mktemp("resume")
+    shipped = CompensatorRecipe()
+    recipe = replace(
+        shipped,
+        data=replace(
+            shipped.data, n_runs=4, split=(0.5, 0.25, 0.25), rounds=1, folder=str(folder / "data")
+        ),
+        network=replace(shipped.network, max_epochs=6, patience=20),
+        checkpoint=str(folder / "compensator.pt"),
+    )
+    report = train_compensator(arm, recipe, DEFAULT_PLANT)
+    return recipe, report
+
+
+def test_an_interrupted_training_resumes_to_the_same_compensator(small, arm, tmp_path):
+    """The recipe again on the kept runs, cut in round 1 at epoch 3 and resumed: the
+    uninterrupted training's weights bit for bit, no run simulated again; then another
+    learning rate's state starts over."""
+    small, _ = small
+    rounds: list[int] = []
+    epochs: dict[int, list[int]] = {}
+
+    def note_round(round_, _):
+        rounds.append(round_)
+
+    def stop_in_round_1_at_epoch_3(epoch, *_):
+        if rounds[-1] == 1 and epoch == 3:
+            raise StopTrainingError
+
+    def note_epoch(epoch, *_):
+        epochs.setdefault(rounds[-1], []).append(epoch)
+
+    cut = replace(small, checkpoint=str(tmp_path / "cut.pt"))
+    with pytest.raises(StopTrainingError):
+        train_compensator(
+            arm, cut, DEFAULT_PLANT, on_round=note_round, on_epoch=stop_in_round_1_at_epoch_3
+        )
+    assert rounds == [0, 1]
+    rounds.clear()
+    reused = []
+    train_compensator(
+        arm,
+        cut,
+        DEFAULT_PLANT,
+        on_round=note_round,
+        on_epoch=note_epoch,
+        on_run=lambda done, total, was_reused: reused.append(was_reused),
+    )
+    assert rounds == [0, 1] and reused and all(reused)  # no run simulated again
+    assert 0 not in epochs  # round 0 had finished: taken as it was
+    assert epochs[1] == [4, 5, 6]  # round 1 resumed after epoch 3
+    for first, second in zip(
+        Compensator.load(small.checkpoint).layer_weights(),
+        Compensator.load(cut.checkpoint).layer_weights(),
+        strict=True,
+    ):
+        for a, b in zip(first, second, strict=True):
+            np.testing.assert_array_equal(a, b)
+    # a finished training's state, then another learning rate: the round starts over
+    other = replace(cut, network=replace(cut.network, learning_rate=cut.network.learning_rate / 2))
+    other = replace(other, data=replace(other.data, rounds=0))
+    rounds.clear()
+    epochs.clear()
+
+    def stop_at_the_first_epoch(epoch, *_):
+        note_epoch(epoch)
+        raise StopTrainingError
+
+    with (
+        pytest.warns(MsarmWarning, match="learning_rate.*round 0 of the training starts over"),
+        pytest.raises(StopTrainingError),
+    ):
+        train_compensator(
+            arm, other, DEFAULT_PLANT, on_round=note_round, on_epoch=stop_at_the_first_epoch
+        )
+    assert epochs == {0: [1]}
+
+
+def test_train_command_reads_a_recipe(tmp_path, small):
+    recipe, _ = small
+    path = tmp_path / "recipe.yaml"
+    short = replace(
+        recipe,
+        data=replace(recipe.data, rounds=0),
+        network=replace(recipe.network, max_epochs=3),
+    )
+    write_config(replace(short, checkpoint=str(tmp_path / "cli.pt")), path)
+    result = CliRunner().invoke(app, ["train", "--config", str(path), "--json"])
+    assert result.exit_code == 0, result.output
+    assert '"test_r2"' in result.output
+
+
+def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, small):
+    recipe, report = small
+    out = tmp_path / "compare"
+    result = CliRunner().invoke(
+        app, ["compare", "--ff", recipe.checkpoint, "--out", str(out), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)  # progress went to stderr
+    assert payload["held_out"] == [f"random-{seed}" for seed in report.split["test"]]
+    assert payload["tasks"][:4] == [f"table1-{k}" for k in range(1, 5)]
+    assert payload["final_error_ratio_held_out"] > 1  # the compensator helps on held-out tasks
+    assert all(Path(path).is_file() for path in payload["files"].values())
+    assert {"error_statistics", "json", "trajectories_table1-1"} <= set(payload["files"])
+    track_out = tmp_path / "track"
+    ff = ["track", "--task", "table1-2", "--ff", recipe.checkpoint, "--out", str(track_out)]
+    result = CliRunner().invoke(app, [*ff, "--json"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads(result.stdout)
+    assert metrics["task"] == "table1-2" and metrics["final_error_mm"] < 1.0
+    names = {"log.parquet", "log.truth.parquet", "config.yaml", "metrics.json", "joints.png"}
+    assert names <= {p.name for p in track_out.iterdir()}
+    # the run records the compensator it ran with
+    assert f"feedforward: {recipe.checkpoint}" in (track_out / "config.yaml").read_text()
