@@ -1,5 +1,7 @@
 # msarm: two commands on a fresh machine, `make demo` and `make test`.
-# Both create .venv if needed and install the exact versions of requirements.lock.
+# Both create .venv if needed and install the exact versions of requirements.lock
+# (--no-compile: Python compiles only the modules it imports, when it first imports them;
+# compiling every file of the locked packages took a third of the install).
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -10,7 +12,7 @@ export MPLBACKEND := Agg
 
 $(STAMP): requirements.lock pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --disable-pip-version-check -r requirements.lock
+	$(PY) -m pip install -q --disable-pip-version-check --no-compile -r requirements.lock
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
