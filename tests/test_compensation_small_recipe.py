@@ -33,7 +33,7 @@ class StopTrainingError(Exception):
 @pytest.fixture(scope="module")
 def small(tmp_path_factory, arm):
     """The small recipe and its report, trained once without interruption; its runs are kept."""
-    folder = tmp_path_factory.mktemp("resume")
+    folder = tmp_path_factory.mktemp("small_recipe")
     shipped = CompensatorRecipe()
     recipe = replace(
         shipped,
@@ -51,7 +51,7 @@ def test_an_interrupted_training_resumes_to_the_same_compensator(small, arm, tmp
     """The recipe again on the kept runs, cut in round 1 at epoch 3 and resumed: the
     uninterrupted training's weights bit for bit, no run simulated again; then another
     learning rate's state starts over."""
-    small, _ = small
+    recipe, _ = small
     rounds: list[int] = []
     epochs: dict[int, list[int]] = {}
 
@@ -65,7 +65,7 @@ def test_an_interrupted_training_resumes_to_the_same_compensator(small, arm, tmp
     def note_epoch(epoch, *_):
         epochs.setdefault(rounds[-1], []).append(epoch)
 
-    cut = replace(small, checkpoint=str(tmp_path / "cut.pt"))
+    cut = replace(recipe, checkpoint=str(tmp_path / "cut.pt"))
     with pytest.raises(StopTrainingError):
         train_compensator(
             arm, cut, DEFAULT_PLANT, on_round=note_round, on_epoch=stop_in_round_1_at_epoch_3
@@ -85,7 +85,7 @@ def test_an_interrupted_training_resumes_to_the_same_compensator(small, arm, tmp
     assert 0 not in epochs  # round 0 had finished: taken as it was
     assert epochs[1] == [4, 5, 6]  # round 1 resumed after epoch 3
     for first, second in zip(
-        Compensator.load(small.checkpoint).layer_weights(),
+        Compensator.load(recipe.checkpoint).layer_weights(),
         Compensator.load(cut.checkpoint).layer_weights(),
         strict=True,
     ):
