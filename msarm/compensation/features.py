@@ -83,7 +83,14 @@ from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import current_wrap_angles
 from msarm.muscle.geometry import cable_kinematics
 
-__all__ = ["DEFAULT_GROUPS", "FEATURE_GROUPS", "STICTION_MUS", "FeatureExtractor", "FeatureSpec"]
+__all__ = [
+    "DEFAULT_GROUPS",
+    "FEATURE_GROUPS",
+    "REFERENCE_GROUPS",
+    "STICTION_MUS",
+    "FeatureExtractor",
+    "FeatureSpec",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -106,6 +113,9 @@ FEATURE_GROUPS = {
 STICTION_MUS = (0.03, 0.06, 0.12, 0.24)
 #: Least tension taken for the logarithm of a stick-slip element [N].
 _STICTION_FLOOR = 1e-3
+#: Groups computed from the task's reference alone (with ``source="reference"``): a spec of
+#: these only gives features that need no sensor (:meth:`FeatureExtractor.from_reference`).
+REFERENCE_GROUPS = ("q", "qdot", "sign_qdot", "exp_sign_qdot", "exp_sign_ldot")
 #: The default inputs: the motion state of paper 003 eq. 8 from the task's reference, without
 #: the two groups that the compensator's own output feeds back into (``cable_length_error``
 #: and ``tension``, see the module docstring): a true feedforward.
@@ -289,9 +299,12 @@ class FeatureExtractor:
         if self._origin is None:
             self._origin = (measured_lengths.copy(), motor_angle.copy())
         length0, angle0 = self._origin
+        groups = spec.groups
         sign_q = np.tanh(qdot / spec.sign_joint_speed)
         ldot = jacobian @ qdot
-        joint_memory, cable_memory = self._memories(t, qdot, ldot)
+        joint_memory = cable_memory = None
+        if "joint_memory" in groups or "cable_memory" in groups:  # state: only when used
+            joint_memory, cable_memory = self._memories(t, qdot, ldot)
         values = {
             "q": q,
             "qdot": qdot,
@@ -301,12 +314,20 @@ class FeatureExtractor:
                 else None
             ),
             "sign_qdot": sign_q,
-            "exp_sign_qdot": np.exp(-sign_q) * sign_q,
-            "exp_sign_ldot": np.exp(-np.tanh(ldot / spec.sign_cable_speed)),
+            "exp_sign_qdot": np.exp(-sign_q) * sign_q if "exp_sign_qdot" in groups else None,
+            "exp_sign_ldot": (
+                np.exp(-np.tanh(ldot / spec.sign_cable_speed))
+                if "exp_sign_ldot" in groups
+                else None
+            ),
             "tension": tension,
             "joint_memory": joint_memory,
             "cable_memory": cable_memory,
-            "sign_error": np.tanh((reference[0] - q_meas) / spec.sign_error_angle),
+            "sign_error": (
+                np.tanh((reference[0] - q_meas) / spec.sign_error_angle)
+                if "sign_error" in groups
+                else None
+            ),
             "sheath_stiction": stiction,
         }
         return np.concatenate([values[group] for group in spec.groups])  # type: ignore[misc]
@@ -334,6 +355,45 @@ class FeatureExtractor:
             np.asarray(readings.tension_motor, dtype=float),
             self._command,
         )
+
+    @property
+    def reference_only(self) -> bool:
+        """Whether the features are the task reference's alone, known before a run starts.
+
+        That is: groups of :data:`REFERENCE_GROUPS` only, with ``source="reference"``.
+        """
+        return self.spec.source == "reference" and set(self.spec.groups) <= set(REFERENCE_GROUPS)
+
+    def from_reference(self, q_ref: FloatArray, qd_ref: FloatArray) -> FloatArray:
+        """Features of every tick of a run from its reference alone, shape ``(T, d)``.
+
+        Row ``k`` is what :meth:`__call__` gives at tick ``k`` of a run from its start,
+        whatever the sensors read (the same code, so the same bits): the compiled loop
+        takes the network's inputs from here.
+
+        Args:
+            q_ref: Reference joint angles [rad], ``(T, n)``.
+            qd_ref: Reference joint velocities [rad/s], ``(T, n)``.
+
+        Raises:
+            InputError: The spec has a group that needs the sensors (see
+                :attr:`reference_only`).
+        """
+        if not self.reference_only:
+            raise InputError(
+                f"features {list(self.spec.groups)} from the {self.spec.source}: expected "
+                f"groups of {list(REFERENCE_GROUPS)} from the reference to compute them "
+                "before the run"
+            )
+        q_ref, qd_ref = np.asarray(q_ref, dtype=float), np.asarray(qd_ref, dtype=float)
+        unread = np.zeros(self.model.n_cables)  # sensors the reference groups do not read
+        self.reset()
+        out = np.empty((len(q_ref), self.size))
+        for k in range(len(q_ref)):
+            motion = (q_ref[k], qd_ref[k])
+            out[k] = self._features(0.0, motion, motion, unread, unread)
+        self.reset()
+        return out
 
     def from_log(self, log: RunLog, source: str = "log") -> FloatArray:
         """Features of every sample of a log, shape ``(T, d)`` (a run from its start).

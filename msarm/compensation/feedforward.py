@@ -163,6 +163,35 @@ class LearnedFeedforward:
             return self._zeros.copy()
         return self.fast(self.extractor(readings, qdot_estimate, q_ref, qd_ref))
 
+    def precompute(
+        self, q_ref: FloatArray, qd_ref: FloatArray
+    ) -> tuple[FloatArray, SheathInverse | None] | None:
+        """What this feedforward gives a whole run, before it starts (the compiled loop).
+
+        Args:
+            q_ref: The run's reference joint angles [rad], ``(T, n)``.
+            qd_ref: Its reference joint velocities [rad/s], ``(T, n)``.
+
+        Returns:
+            ``(dtau, stage)``: the ``dtau`` of every tick [N m], ``(T, n)``, the same bits as
+            the calls of a run from its start (:meth:`__call__`), and the sheath stage (or
+            None), which the loop runs tick by tick; or None when ``dtau`` needs the robot's
+            sensors (features beyond :data:`~msarm.compensation.features.REFERENCE_GROUPS`)
+            or is not finite (the Python loop then raises it at its tick).
+        """
+        if self.fast is None:
+            dtau = np.zeros(np.shape(q_ref))
+        elif not self.extractor.reference_only:
+            return None
+        else:
+            features = self.extractor.from_reference(q_ref, qd_ref)
+            dtau = np.empty(np.shape(q_ref))
+            for k, row in enumerate(features):
+                dtau[k] = self.fast(row)
+            if not np.all(np.isfinite(dtau)):
+                return None
+        return dtau, self.sheath
+
     def tension_command(self, tension: FloatArray, q_ref: FloatArray) -> FloatArray:
         """The drives' command [N], ``(m,)``, for the wanted tensions ``(m,)`` [N]."""
         if self.sheath is None:

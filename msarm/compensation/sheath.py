@@ -51,9 +51,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from msarm.compensation.sheath_kernel import sheath_tick
 from msarm.errors import InputError
 from msarm.model import RobotModel
-from msarm.muscle.batch_kinematics import current_wrap_angles
+from msarm.muscle.batch_kinematics import cable_kinematics_batch, current_wrap_angles
 from msarm.muscle.geometry import cable_kinematics
 
 __all__ = ["SheathInverse", "SheathParameters", "SheathSpec"]
@@ -168,25 +169,24 @@ class SheathInverse:
         self._jacobian = np.zeros((model.n_cables, model.n_joints))
         self._alpha = period / (spec.filter_time + period)
         self._stretch = spec.compliance_share * parameters.compliance
-        self._state: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        self._friction = spec.gain * parameters.mu
+        # F_bar, u of the last tick, s, and "started" (row 3, column 0): sheath_tick's state
+        self._state = np.zeros((4, model.n_cables))
+        self._command = np.zeros(model.n_cables)
 
     @property
     def side(self) -> FloatArray:
         """``s`` of every cable [-], ``(m,)``: where each sheath's friction stands (0 at rest)."""
-        if self._state is None:
+        if self._state[3, 0] == 0.0:
             return np.zeros(self.model.n_cables)
         return self._state[2].copy()
 
     def reset(self) -> None:
         """Start a new run: the next call starts the filter and ``s = 0`` (mid-band)."""
-        self._state = None
+        self._state[:] = 0.0
 
-    def __call__(self, tension: ArrayLike, q_ref: ArrayLike) -> FloatArray:
-        """The drive's tension command of this tick [N], ``(m,)``.
-
-        Args:
-            tension: The tension the controller wants at the insertions [N], ``(m,)``, >= 0.
-            q_ref: The reference posture of this tick [rad], ``(n,)``.
+    def check_inputs(self, tension: ArrayLike, q_ref: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """``tension`` and ``q_ref`` as float arrays, checked as :meth:`__call__` checks them.
 
         Raises:
             InputError: A shape that is not ``(m,)`` / ``(n,)``, a non-finite value or a
@@ -204,16 +204,52 @@ class SheathInverse:
             raise InputError(f"sheath stage: non-finite tension {force} or q_ref {posture}")
         if np.any(force < 0):
             raise InputError(f"sheath stage: tensions must be >= 0 [N], got {force}")
+        return force, posture
+
+    def reference_geometry(self, q_ref: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Cable lengths [m] and wrap angles [rad] of every reference posture, each ``(T, m)``.
+
+        Row ``k`` is what :meth:`__call__` computes at ``q_ref[k]`` (MuJoCo's same functions,
+        so the same bits): the compiled loop takes them from here.
+
+        Args:
+            q_ref: Reference joint angles [rad], ``(T, n)``.
+        """
+        kinematics = cable_kinematics_batch(self.model, q_ref)
+        return kinematics.lengths, kinematics.wrap_angles
+
+    @property
+    def constants(self) -> tuple[float, float, float, float, float]:
+        """``(alpha, c_s, w, g mu, floor)``: :func:`sheath_tick`'s constants for this stage."""
+        spec = self.spec
+        return self._alpha, self._stretch, float(spec.width), self._friction, float(spec.floor)
+
+    @property
+    def state(self) -> FloatArray:
+        """The stage's state ``(4, m)`` (see :func:`sheath_tick`), the array itself.
+
+        The compiled loop runs the stage on it, so a run leaves the stage as the Python loop
+        would.
+        """
+        return self._state
+
+    def __call__(self, tension: ArrayLike, q_ref: ArrayLike) -> FloatArray:
+        """The drive's tension command of this tick [N], ``(m,)``.
+
+        Args:
+            tension: The tension the controller wants at the insertions [N], ``(m,)``, >= 0.
+            q_ref: The reference posture of this tick [rad], ``(n,)``.
+
+        Raises:
+            InputError: A shape that is not ``(m,)`` / ``(n,)``, a non-finite value or a
+                negative tension.
+        """
+        force, posture = self.check_inputs(tension, q_ref)
         lengths = cable_kinematics(self.model.mj_model, self._data.mj, posture, self._jacobian)
         wrap = current_wrap_angles(self.model.mj_model, self._data.mj)
-        if self._state is None:
-            filtered, side = force.copy(), np.zeros(m)
-        else:
-            filtered, previous, side = self._state
-            filtered = filtered + self._alpha * (force - filtered)
-        pulled = self._stretch * filtered - lengths  # cable pulled through the sheath [m]
-        if self._state is not None:
-            side = np.clip(side + (pulled - previous) / self.spec.width, -1.0, 1.0)
-        self._state = (filtered, pulled, side)
-        command = force * np.exp(self.spec.gain * self.parameters.mu * wrap * side)
-        return np.maximum(command, self.spec.floor) if self.spec.floor > 0 else command
+        alpha, stretch, width, friction, floor = self.constants
+        command = np.empty_like(force)
+        sheath_tick(
+            force, lengths, wrap, alpha, stretch, width, friction, floor, self._state, command
+        )
+        return command

@@ -19,22 +19,29 @@ path calls:
   the wrap-angle refresh;
 - log and ground truth: written row by row into the runner's arrays.
 
+- feedforward: a feedforward whose joint torques ``dtau`` follow from the task's reference
+  alone (:meth:`msarm.compensation.feedforward.LearnedFeedforward.precompute`: the learned
+  network on the reference's features) has them computed before the loop, by the calls the
+  Python loop makes each tick; its sheath stage runs in the loop, by the kernel the Python
+  path calls (:func:`msarm.compensation.sheath_kernel.sheath_tick`).
+
 The result is the same bits as the Python loop (tested). What the compiled loop cannot
 finish it hands back for one tick: an allocation the Newton method does not settle goes to
 the controller's allocator (DAQP, then the bounded least squares) and the loop goes on from
 there; a bad muscle length, a non-finite or negative command or a diverged simulation are
 raised by the Python functions that raise them on the Python path, with the same messages.
 
-:func:`compiled_loop_supported` says when a run qualifies: no feedforward, a plant whose step
-is compiled and whose only sensor and actuation effects are the built-in noise and delay (no
-user hooks), and the controller itself (not a subclass) with the ``"newton"`` solver and no
-activation dynamics.
+:func:`compiled_loop_supported` says when a run qualifies: no feedforward or one with a
+``precompute`` method (see above; the runner takes the Python loop when that method gives
+None), a plant whose step is compiled and whose only sensor and actuation effects are the
+built-in noise and delay (no user hooks), and the controller itself (not a subclass) with
+the ``"newton"`` solver and no activation dynamics.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numba
 import numpy as np
@@ -42,8 +49,10 @@ from numpy.typing import NDArray
 
 from msarm.allocation.batched import MAX_ITER
 from msarm.allocation.solvers.newton import dual_newton_tick
+from msarm.compensation.sheath_kernel import sheath_tick
 from msarm.control.arm_controller import MuscleSpaceController
 from msarm.control.kernels import activation_and_reach, filter_and_pid, force_bounds, muscle_speed
+from msarm.errors import InputError
 from msarm.mujoco_c import function_addresses
 from msarm.muscle.batch_kinematics import KINEMATICS_FUNCTIONS, jacobian_at, wrap_angles_into
 from msarm.muscle.fast import hill_parts
@@ -52,11 +61,15 @@ from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.cable_kernel import step_plant
 from msarm.plant.effects import Delay, SensorNoise
 
+if TYPE_CHECKING:
+    from msarm.compensation.sheath import SheathInverse
+
 drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
 
 __all__ = [
     "Allocation",
     "Control",
+    "FeedforwardArrays",
     "PlantArrays",
     "Sensing",
     "compiled_loop_supported",
@@ -77,6 +90,8 @@ BAD_COMMAND = 3
 """Status: a non-finite or negative tension command (the plant refuses it)."""
 DIVERGED = 4
 """Status: the plant diverged during this tick's step."""
+BAD_STAGE_COMMAND = 5
+"""Status: a non-finite or negative command from the feedforward's sheath stage."""
 
 
 #: The sensor effects the compiled loop renders, in the plant's order (noise, then delay).
@@ -88,7 +103,7 @@ def compiled_loop_supported(
 ) -> bool:
     """Whether :func:`run_compiled` can run this plant and controller (see the module doc)."""
     return (
-        feedforward is None
+        (feedforward is None or callable(getattr(feedforward, "precompute", None)))
         and plant.compiled
         and [type(effect) for effect in plant._sensors] in _SENSOR_EFFECTS
         and [type(effect) for effect in plant._actuators] in ([], [Delay])
@@ -165,6 +180,19 @@ class Allocation(NamedTuple):
     tol: float
 
 
+class FeedforwardArrays(NamedTuple):
+    """The feedforward of a run, for :func:`run_ticks` (see the module docstring)."""
+
+    on: bool  # a feedforward is given: its dtau is added (zeros for a stage alone)
+    dtau: FloatArray  # its joint torques of every tick [N m], (T, n)
+    stage: bool  # a sheath stage turns the wanted tensions into the drives' command
+    lengths: FloatArray  # the stage's cable lengths at every reference posture [m], (T, m)
+    wrap: FloatArray  # its wrap angles there [rad], (T, m)
+    constants: tuple  # sheath_tick's (alpha, c_s, w, g mu, floor)
+    state: FloatArray  # the stage's state (4, m), updated (the stage's own array)
+    force: FloatArray  # the tension the controller wants this tick [N], (m,), work
+
+
 class PlantArrays(NamedTuple):
     """The plant's compiled step arguments and state views, for :func:`run_ticks`."""
 
@@ -225,7 +253,7 @@ def _sense(k, sensing, plant):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _control_and_allocate(k, reference, sensing, c, a):  # pragma: no cover - compiled
+def _control_and_allocate(k, reference, sensing, c, a, ff):  # pragma: no cover - compiled
     """``MuscleSpaceController.update`` up to the allocation's forces; returns a status."""
     q_ref, qd_ref, tau_id = reference
     for i in range(c.tau.shape[0]):
@@ -234,6 +262,9 @@ def _control_and_allocate(k, reference, sensing, c, a):  # pragma: no cover - co
         sensing.q, q_ref[k], qd_ref[k], c.period, c.alpha, c.kp, c.ki, c.kd, c.bound,
         c.q_prev, c.qdot, c.integral, c.tau,
     )  # fmt: skip
+    if ff.on:
+        for i in range(c.tau.shape[0]):
+            c.tau[i] = c.tau[i] + ff.dtau[k, i]
     jacobian_at(
         c.functions, c.model, c.data, sensing.q, c.qpos, c.ten_j, c.rownnz, c.rowadr,
         c.colind, c.jacobian,
@@ -272,7 +303,7 @@ def _control_and_allocate(k, reference, sensing, c, a):  # pragma: no cover - co
 
 
 @numba.njit(cache=True, inline="always")
-def _record(k, reference, sensing, c, plant, log, truth):  # pragma: no cover - compiled
+def _record(k, reference, sensing, c, ff, plant, log, truth):  # pragma: no cover - compiled
     """The tick's row of the log, then of the ground truth, as the Python loop writes them.
 
     ``log`` and ``truth`` are in the order of the runner's ``LOG_UNITS`` and ``TRUTH_UNITS``.
@@ -285,7 +316,7 @@ def _record(k, reference, sensing, c, plant, log, truth):  # pragma: no cover - 
         log[2][k, i] = sensing.q[i]
         log[3][k, i] = c.qdot[i]
         log[4][k, i] = c.tau[i]
-        log[5][k, i] = 0.0  # no feedforward
+        log[5][k, i] = ff.dtau[k, i] if ff.on else 0.0
         truth[0][k, i] = qpos[i]
         truth[1][k, i] = qvel[i]
     for i in range(plant.theta.shape[0]):
@@ -294,7 +325,7 @@ def _record(k, reference, sensing, c, plant, log, truth):  # pragma: no cover - 
         log[8][k, i] = sensing.tension_motor[i]
         log[9][k, i] = c.command[i]
         log[10][k, i] = c.activation[i]
-        log[11][k, i] = 0.0  # no tension-space feedforward either
+        log[11][k, i] = c.command[i] - ff.force[i] if ff.stage else 0.0
         truth[2][k, i] = plant.tension_insertion[i]
         truth[3][k, i] = plant.tension_motor[i]
         unstretched = (
@@ -330,7 +361,7 @@ def _step(substeps, timestep, clock, plant):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def run_ticks(
     k_start, k_end, resume, substeps, timestep, clock, reference, sensing, control,
-    allocation, plant, log, truth,
+    allocation, feedforward, plant, log, truth,
 ):  # fmt: skip  # pragma: no cover - compiled
     """Ticks ``k_start`` .. ``k_end - 1`` of a run; stops early at a tick Python must handle.
 
@@ -347,6 +378,7 @@ def run_ticks(
         sensing: :class:`Sensing`.
         control: :class:`Control`.
         allocation: :class:`Allocation`.
+        feedforward: :class:`FeedforwardArrays`.
         plant: :class:`PlantArrays`.
         log: The log's arrays ``(T, .)``, in the order of the runner's ``LOG_UNITS``.
         truth: The ground truth's arrays ``(T, .)``, in the order of ``TRUTH_UNITS``.
@@ -354,11 +386,11 @@ def run_ticks(
     Returns:
         ``(status, k)``: :data:`DONE` with ``k = k_end``, or the status that stopped tick k.
     """
-    c, a = control, allocation
+    c, a, ff = control, allocation, feedforward
     for k in range(k_start, k_end):
         if not (resume and k == k_start):
             _sense(k, sensing, plant)
-            status = _control_and_allocate(k, reference, sensing, c, a)
+            status = _control_and_allocate(k, reference, sensing, c, a, ff)
             if status != DONE:
                 return status, k
         activation_and_reach(a.force, c.active, c.passive, c.activation, c.reach)
@@ -366,11 +398,21 @@ def run_ticks(
             c.command[i] = c.activation[i] * c.active[i] + c.passive[i]
             if not (np.isfinite(c.command[i]) and c.command[i] >= 0.0):
                 return BAD_COMMAND, k
+        if ff.stage:  # the sheath stage: the wanted tensions become the drives' command
+            ff.force[:] = c.command
+            alpha, stretch, width, friction, floor = ff.constants
+            sheath_tick(
+                ff.force, ff.lengths[k], ff.wrap[k], alpha, stretch, width, friction, floor,
+                ff.state, c.command,
+            )  # fmt: skip
+            for i in range(c.command.shape[0]):
+                if not (np.isfinite(c.command[i]) and c.command[i] >= 0.0):
+                    return BAD_STAGE_COMMAND, k
         # ArmPlant.command: the drives get the command of tick max(k - delay, 0)
         size = plant.command_history.shape[0]
         plant.command_history[k % size] = c.command
         plant.command[:] = plant.command_history[max(k - plant.command_delay, 0) % size]
-        _record(k, reference, sensing, c, plant, log, truth)
+        _record(k, reference, sensing, c, ff, plant, log, truth)
         if _step(substeps, timestep, clock, plant):
             return DIVERGED, k
         if k % plant.wrap_every == 0:
@@ -438,6 +480,29 @@ def _arrays(
     return sensing, control, allocation, plant_arrays
 
 
+def _feedforward_arrays(
+    feedforward: tuple[FloatArray, SheathInverse | None] | None, q_ref: FloatArray, m: int
+) -> FeedforwardArrays:
+    """:class:`FeedforwardArrays` of a precomputed feedforward (or of none)."""
+    n_ticks, n = q_ref.shape
+    none = np.zeros((0, m))
+    if feedforward is None:
+        return FeedforwardArrays(
+            False, np.zeros((0, n)), False, none, none, (0.0,) * 5, np.zeros((4, m)), np.empty(m)
+        )
+    dtau, stage = feedforward
+    dtau = np.ascontiguousarray(dtau, dtype=float)
+    if dtau.shape != (n_ticks, n):
+        raise InputError(f"precomputed dtau must have shape {(n_ticks, n)}, got {dtau.shape}")
+    if stage is None:
+        return FeedforwardArrays(
+            True, dtau, False, none, none, (0.0,) * 5, np.zeros((4, m)), np.empty(m)
+        )
+    lengths, wrap = stage.reference_geometry(q_ref)
+    constants = tuple(float(value) for value in stage.constants)
+    return FeedforwardArrays(True, dtau, True, lengths, wrap, constants, stage.state, np.empty(m))
+
+
 def run_compiled(
     plant: ArmPlant,
     controller: MuscleSpaceController,
@@ -447,6 +512,7 @@ def run_compiled(
     substeps: int,
     wrap_every: int,
     progress: Callable[[float], None] | None = None,
+    feedforward: tuple[FloatArray, SheathInverse | None] | None = None,
 ) -> tuple[SimulationDivergedError | None, int]:
     """Run a task's ticks compiled, from a plant and a controller reset as the runner does.
 
@@ -461,6 +527,9 @@ def run_compiled(
         wrap_every: Refresh the plant's wrap angles after every this many periods.
         progress: Optional callback with the fraction done, called at the ticks where the
             Python loop calls it.
+        feedforward: The feedforward of the run, precomputed: ``(dtau, stage)`` as
+            :meth:`~msarm.compensation.feedforward.LearnedFeedforward.precompute` gives them
+            (the stage reset for the run, and left as the run leaves it); None: none.
 
     Returns:
         ``(error, done)``: the divergence that stopped the run (or None) and the number of
@@ -473,6 +542,8 @@ def run_compiled(
     n_ticks = q_ref.shape[0]
     reference = (q_ref, qd_ref, controller.reference_torques(q_ref, qd_ref, qdd_ref))
     sensing, control, allocation, plant_arrays = _arrays(plant, controller, n_ticks, wrap_every)
+    feedforward_arrays = _feedforward_arrays(feedforward, q_ref, plant.n_cables)
+    stage = None if feedforward is None else feedforward[1]
     clock = np.array([float(plant.mj_data.time), np.nan])
     report_every = max(1, n_ticks // 50)
     k, resume = 0, False
@@ -481,7 +552,7 @@ def run_compiled(
         stop = n_ticks if progress is None else min(report + 1, n_ticks)
         status, k = run_ticks(
             k, stop, resume, substeps, plant.config.timestep, clock, reference, sensing,
-            control, allocation, plant_arrays, log, truth,
+            control, allocation, feedforward_arrays, plant_arrays, log, truth,
         )  # fmt: skip
         resume = status == ALLOCATE
         if status == ALLOCATE:  # the controller's allocator settles it (DAQP, least squares)
@@ -492,8 +563,18 @@ def run_compiled(
         elif status == BAD_MUSCLE_LENGTH:  # the Hill model raises its InputError
             controller._hill.parts(control.lengths, control.speed)
             raise AssertionError("the Hill model accepted what its kernel refused")
-        elif status == BAD_COMMAND:  # the plant raises its InputError
+        elif status == BAD_COMMAND:  # the stage or the plant raises its InputError
+            if stage is not None:
+                stage.check_inputs(control.command, q_ref[k])
             plant.command(control.command)
+            raise AssertionError("the plant accepted what the compiled loop refused")
+        elif status == BAD_STAGE_COMMAND:  # the controller's check, else the plant's
+            command = control.command
+            if not np.all(np.isfinite(command)):
+                raise InputError(
+                    f"feedforward.tension_command must give {command.shape} finite N, got {command}"
+                )
+            plant.command(command)
             raise AssertionError("the plant accepted what the compiled loop refused")
         elif status == DIVERGED:
             try:

@@ -188,7 +188,8 @@ def run_tracking(
     supported = compiled_loop_supported(plant, controller, feedforward)
     if compiled and not supported:
         raise InputError(
-            "this run cannot take the compiled loop (it needs no feedforward, a plant with a "
+            "this run cannot take the compiled loop (it needs no feedforward or one whose "
+            "torques follow from the task's reference, a plant with a "
             "compiled step and no sensor or actuation effect but the built-in noise and delay, "
             "and the controller with the "
             "'newton' solver and no activation dynamics): pass compiled=None or False"
@@ -243,6 +244,16 @@ def run_tracking(
         ]
     }
     references = (q_ref_all, qd_ref_all, qdd_ref_all)
+    planned = None  # the feedforward of the whole run, for the compiled loop
+    if supported and compiled is not False and feedforward is not None:
+        planned = feedforward.precompute(q_ref_all, qd_ref_all)
+        if planned is None:
+            if compiled:
+                raise InputError(
+                    "this run cannot take the compiled loop: its feedforward's torques need "
+                    "the robot's sensors (or are not finite): pass compiled=None or False"
+                )
+            supported = False
     if supported and compiled is not False:
         error, done = run_compiled(
             plant,
@@ -253,6 +264,7 @@ def run_tracking(
             substeps,
             _WRAP_REFRESH_PERIODS,
             progress,
+            planned,
         )
     else:
         error, done = _python_loop(
