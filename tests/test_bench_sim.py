@@ -28,3 +28,17 @@ def test_bench_sim_reports_json():
         assert key in report
     assert report["closed_loop_s"] > 0 and report["simulated_s"] == 20.0
     assert report["closed_loop_path"] == "compiled"  # the ideal plant qualifies
+
+
+def test_the_table_has_the_feedforward_rows_only_when_timed():
+    from dataclasses import replace
+
+    from msarm.tasks.bench import SimBenchmark
+
+    plain = SimBenchmark("table1-1", "default", 20.0, 0.1, 0.2, 30.0, 0.4, 0.8, "compiled")
+    assert [row[0] for row in plain.rows()][-1] == "closed loop, Python ticks"
+    timed = replace(plain, feedforward_s=0.5, feedforward_python_s=2.0, feedforward_path="compiled")
+    rows = {row[0]: row[1:] for row in timed.rows()}
+    assert len(rows) == 6
+    assert rows["closed loop with the feedforward, compiled ticks"] == (0.5, 40.0, 5.0)
+    assert rows["closed loop with the feedforward, Python ticks"] == (2.0, 10.0, 20.0)

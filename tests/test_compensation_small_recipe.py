@@ -19,7 +19,7 @@ import pytest
 from typer.testing import CliRunner
 
 from msarm.cli import app
-from msarm.compensation.checkpoint import Compensator
+from msarm.compensation.checkpoint import CheckpointError, Compensator
 from msarm.compensation.pipeline import CompensatorRecipe, train_compensator
 from msarm.errors import MsarmWarning
 from msarm.io.config import write_config
@@ -148,3 +148,18 @@ def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, small
     assert names <= {p.name for p in track_out.iterdir()}
     # the run records the compensator it ran with
     assert f"feedforward: {recipe.checkpoint}" in (track_out / "config.yaml").read_text()
+
+
+def test_bench_sim_times_the_loop_with_the_compensator(small):
+    recipe, _ = small
+    command = ["bench", "sim", "--plant", "ideal", "--best-of", "1", "--ff", recipe.checkpoint]
+    result = CliRunner().invoke(app, [*command, "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    # its features are the reference's: the loop with the feedforward runs compiled
+    assert report["feedforward_path"] == "compiled"
+    assert report["feedforward_s"] > 0 and report["feedforward_python_s"] > 0
+    missing = CliRunner().invoke(app, ["bench", "sim", "--ff", "no/such/compensator.pt"])
+    # msarm's entry point prints it as "msarm: error: ..." (exit status 2)
+    assert isinstance(missing.exception, CheckpointError)
+    assert "no/such/compensator.pt: compensator file not found" in str(missing.exception)

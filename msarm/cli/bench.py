@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -97,6 +98,14 @@ def sim(
     repeats: int = typer.Option(
         3, "--best-of", "--repeats", min=1, help="Runs of each; the fastest counts."
     ),
+    ff: Annotated[
+        Path | None,
+        typer.Option(
+            "--ff",
+            help="Also time the closed loop with this compensator (msarm train's checkpoint), "
+            "run with the gains it was trained with.",
+        ),
+    ] = None,
     json_output: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
     """Closed-loop real-time factor of a task and its ratio to bare MuJoCo stepping."""
@@ -109,7 +118,15 @@ def sim(
     from msarm.model import load_arm
     from msarm.tasks.bench import TARGET_REAL_TIME_FACTOR, run_sim_benchmark
 
-    result = run_sim_benchmark(load_arm(), resolve_plant(plant), task, repeats)
+    arm = load_arm()
+    feedforward = None
+    if ff is not None:
+        from msarm.compensation.checkpoint import Compensator
+        from msarm.compensation.feedforward import load_feedforward, trained_controller
+
+        compensation = load_feedforward(ff, arm)
+        feedforward = (compensation, trained_controller(Compensator.load(ff), str(ff)))
+    result = run_sim_benchmark(arm, resolve_plant(plant), task, repeats, feedforward)
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))
         return

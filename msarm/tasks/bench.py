@@ -11,7 +11,10 @@ Measures, on one core and in one process:
   ``run_tracking`` runs it (the compiled loop of :mod:`msarm.tasks.compiled_loop` where the
   run qualifies);
 - the closed loop with Python ticks: the same task through the Python loop (the path of runs
-  with a feedforward or user effects), for comparison.
+  with user effects or a feedforward that reads the sensors), for comparison;
+- optionally, the closed loop with a learned feedforward (a trained compensator: network and
+  sheath stage, with the gains it was trained with), compiled where the run qualifies and
+  with Python ticks.
 
 Each is the best of ``repeats`` runs. The real-time factor is simulated time over wall time;
 the ratio says how many times slower than bare MuJoCo stepping each one is.
@@ -25,12 +28,12 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 
-from msarm.control import MuscleSpaceController
+from msarm.control import ArmControllerConfig, MuscleSpaceController
 from msarm.model import RobotModel
 from msarm.plant import ArmPlant, PlantConfig
 from msarm.tasks.compiled_loop import compiled_loop_supported
 from msarm.tasks.registry import get_task
-from msarm.tasks.runner import run_tracking
+from msarm.tasks.runner import Feedforward, run_tracking
 
 __all__ = ["SimBenchmark", "run_sim_benchmark"]
 
@@ -51,6 +54,9 @@ class SimBenchmark:
     closed_loop_s: float
     closed_loop_python_s: float
     closed_loop_path: str
+    feedforward_s: float | None = None
+    feedforward_python_s: float | None = None
+    feedforward_path: str | None = None
 
     @property
     def closed_loop_real_time_factor(self) -> float:
@@ -69,7 +75,13 @@ class SimBenchmark:
                     self.closed_loop_s,
                 ),
                 ("closed loop, Python ticks", self.closed_loop_python_s),
+                (
+                    f"closed loop with the feedforward, {self.feedforward_path} ticks",
+                    self.feedforward_s,
+                ),
+                ("closed loop with the feedforward, Python ticks", self.feedforward_python_s),
             ]
+            if wall is not None
         ]
 
     def as_dict(self) -> dict:
@@ -92,9 +104,26 @@ def _best(repeats: int, run) -> float:
 
 
 def run_sim_benchmark(
-    model: RobotModel, plant_config: PlantConfig, task_name: str = "table1-1", repeats: int = 3
+    model: RobotModel,
+    plant_config: PlantConfig,
+    task_name: str = "table1-1",
+    repeats: int = 3,
+    feedforward: tuple[Feedforward, ArmControllerConfig] | None = None,
 ) -> SimBenchmark:
-    """Time bare MuJoCo, the plant, the controller and the closed loop on one task."""
+    """Time bare MuJoCo, the plant, the controller and the closed loop on one task.
+
+    Args:
+        model: The arm.
+        plant_config: The plant.
+        task_name: The task (``msarm track --list``).
+        repeats: Runs of each measurement; the fastest counts.
+        feedforward: Also time the closed loop with this feedforward, run with these
+            controller gains (a compensator's: ``load_feedforward`` and
+            ``trained_controller``).
+
+    Returns:
+        The timings.
+    """
     task = get_task(task_name, model)
     steps = int(round(task.duration / plant_config.timestep))
 
@@ -127,6 +156,23 @@ def run_sim_benchmark(
             controller.update(readings, readings.q, zeros, zeros)
 
     supported = compiled_loop_supported(plant, controller, None)
+    with_feedforward: dict = {}
+    if feedforward is not None:
+        compensation, gains = feedforward
+        tuned = MuscleSpaceController(model, gains)
+
+        def closed_loop_with(compiled: bool | None):
+            return lambda: run_tracking(plant, tuned, task, compensation, compiled=compiled)
+
+        closed_loop_with(None)()  # warm-up
+        compiled = compiled_loop_supported(plant, tuned, compensation) and (
+            compensation.precompute(*task.reference(np.zeros(1))[:2]) is not None
+        )
+        with_feedforward = {
+            "feedforward_s": _best(repeats, closed_loop_with(None)),
+            "feedforward_python_s": _best(repeats, closed_loop_with(False)),
+            "feedforward_path": "compiled" if compiled else "Python",
+        }
     return SimBenchmark(
         task=task.name,
         plant=plant_config.name,
@@ -139,4 +185,5 @@ def run_sim_benchmark(
             repeats, lambda: run_tracking(plant, controller, task, compiled=False)
         ),
         closed_loop_path="compiled" if supported else "Python",
+        **with_feedforward,
     )

@@ -74,7 +74,10 @@ class Feedforward(Protocol):
     sheath stage; what it adds is logged as ``tension_ff``). One with an
     ``observe_command(tension_command)`` method is told each tick's tension command [N],
     ``(m,)``, once the controller has computed it (a feedforward with memory of the commands,
-    e.g. the ``sheath_stiction`` features).
+    e.g. the ``sheath_stiction`` features). One with a ``precompute(q_ref, qd_ref)`` method
+    may run in the compiled loop: it returns ``(dtau, stage)`` for the whole run, ``dtau``
+    ``(T, n)`` [N m] and a sheath stage or None, or None when it cannot (see
+    :meth:`msarm.compensation.feedforward.LearnedFeedforward.precompute`).
     """
 
     def reset(self) -> None:
