@@ -13,11 +13,18 @@ settings.register_profile("msarm", derandomize=True, database=None)
 settings.load_profile("msarm")
 
 
-#: Test files that take minutes, slowest first. They are collected before the others, so that
-#: ``make test`` (``pytest -n 2 --dist loadfile --no-loadscope-reorder``) starts a worker on
-#: each at once while the other files fill in; left where they fall, the slowest started
-#: halfway through and ran alone at the end.
-SLOW_TEST_FILES = ("test_compensation_pipeline.py", "test_compensation_small_recipe.py")
+#: Test files that take minutes, in the order they are collected, before the others: ``make
+#: test`` (``pytest -n 2 --dist loadfile --no-loadscope-reorder``) starts the first worker on
+#: the first and the second on the second, while the other files fill in; left where they
+#: fall, the slowest started halfway through and ran alone at the end. The second is the
+#: cable robot's: the first compiles the arm's numba kernels (about 40 s on a 2-core
+#: machine), and the second worker finds them in the cache once it comes to the arm, rather
+#: than compiling them too at the same time (a clean clone has no cache).
+SLOW_TEST_FILES = (
+    "test_compensation_pipeline.py",
+    "test_cdpr_runs.py",
+    "test_compensation_small_recipe.py",
+)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
