@@ -21,6 +21,7 @@ carry a leading axis of length ``N``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,37 @@ def _anchor_array(value: ArrayLike, name: str) -> FloatArray:
         raise InputError(f"{name} must be finite, got {array}")
     array.setflags(write=False)
     return array
+
+
+def _one_pose_ok(r: FloatArray, R: FloatArray) -> bool:
+    """Whether one pose surely passes :meth:`CableRobot._pose`'s checks (scalar arithmetic).
+
+    Conservative: True only if ``r`` and ``R`` are finite, ``|R R^T - I|`` is below half of
+    ``_pose``'s 1e-6 (round-off between this sum and its matrix product cannot cross the
+    limit) and ``det R > 0`` (R is then within 1e-6 of a rotation, whose det is +1). A pose
+    this rejects goes through ``_pose``'s own checks, which raise their errors or let it pass.
+
+    Args:
+        r: Platform position [m], shape (3,).
+        R: Rotation matrix [-], shape (3, 3).
+
+    Returns:
+        Whether the pose is finite and R a rotation matrix.
+    """
+    x, y, z = r.tolist()
+    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    if not all(map(math.isfinite, (x, y, z, a, b, c, d, e, f, g, h, i))):
+        return False
+    orth = max(
+        abs(a * a + b * b + c * c - 1.0),
+        abs(d * d + e * e + f * f - 1.0),
+        abs(g * g + h * h + i * i - 1.0),
+        abs(a * d + b * e + c * f),
+        abs(a * g + b * h + c * i),
+        abs(d * g + e * h + f * i),
+    )
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    return orth < 5e-7 and det > 0.0
 
 
 class CableRobot:
@@ -112,6 +144,9 @@ class CableRobot:
         """Validate a pose or a batch of poses; return (r (N,3), R (N,3,3), batched)."""
         r_arr = np.asarray(r, dtype=np.float64)
         R_arr = np.asarray(R, dtype=np.float64)
+        if r_arr.shape == (3,) and R_arr.shape == (3, 3) and _one_pose_ok(r_arr, R_arr):
+            # one valid pose (the per-tick case): the checks below would all pass
+            return r_arr[None, :], R_arr[None, :, :], False
         if r_arr.ndim == 1 and r_arr.shape == (3,):
             batched = False
             r_arr = r_arr[None, :]

@@ -36,7 +36,10 @@ limited to the tested 2.7-31.3 N (the model is linear in ``f``), only to ``f >= 
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -239,11 +242,55 @@ class FrictionBranches:
         )
 
     def evaluate(self, f: FloatArray, v: FloatArray, v_low: float) -> FloatArray:
-        """Eq. 5/7 at broadcast-equal arrays f [N] and v [m/s] (no validation)."""
-        b = self.polynomial(f, v_low)
-        inner = v * (b[1] + v * (b[2] + v * (b[3] + v * b[4])))
+        """Eq. 5/7 at broadcast-equal arrays f [N] and v [m/s] (no validation).
+
+        The eq. 6 polynomial's b_1..b_4 as :meth:`polynomial` gives them, the same floating
+        point operations, with its f-independent parts computed once per (branches, v_low).
+        """
+        c3n, c4n, c3p, c4p, sn, sp, k1, k2, d1, d2, d3, d4 = _blend_constants(self, v_low)
+        yn = sn + c3n * f + c4n
+        yp = sp + c3p * f + c4p
+        b1 = -(3.0 * (yn - yp) + k1) / d1
+        b2 = (4.0 * (yn + yp) + k2) / d2
+        b3 = (yn - yp + k1) / d3
+        b4 = -(2.0 * (yn + yp) + k2) / d4
+        inner = v * (b1 + v * (b2 + v * (b3 + v * b4)))
         out = np.where(v < 0.0, self.negative.value(f, v), self.positive.value(f, v))
         return np.where(np.abs(v) < v_low, inner, out)
+
+
+@functools.lru_cache(maxsize=64)
+def _blend_constants(branches: FrictionBranches, v_low: float) -> tuple[Any, ...]:
+    """The f-independent parts of :meth:`FrictionBranches.polynomial`, for ``evaluate``.
+
+    Computed as :func:`blend_coefficients` computes them from the branch values (same
+    operations, same types): ``(c3n, c4n, c3p, c4p, sn, sp, k1, k2, d1, d2, d3, d4)`` with
+    ``y(f, -+v_L) = s + c3 f + c4``, ``k1 = L (dn + dp)``, ``k2 = L (dn - dp)`` and the
+    denominators ``4 L``, ``4 L^2``, ``4 L^3``, ``4 L^4``.
+    """
+    neg, pos = branches.negative, branches.positive
+    vl = np.float64(v_low)
+    sn = neg.c1 * -vl + neg.c2 * -vl * -vl
+    sp = pos.c1 * vl + pos.c2 * vl * vl
+    dn = np.asarray(neg.slope(-vl), dtype=np.float64)
+    dp = np.asarray(pos.slope(vl), dtype=np.float64)
+    L = float(v_low)
+    k1 = L * (dn + dp)
+    k2 = L * (dn - dp)
+    return (
+        neg.c3,
+        neg.c4,
+        pos.c3,
+        pos.c4,
+        sn,
+        sp,
+        k1,
+        k2,
+        4.0 * L,
+        4.0 * L**2,
+        4.0 * L**3,
+        4.0 * L**4,
+    )
 
 
 def _check_speed(v_low: float, v_high: float) -> None:
@@ -316,6 +363,8 @@ class WinchFrictionModel:
     def _inputs(self, f: ArrayLike, v: ArrayLike) -> tuple[FloatArray, FloatArray]:
         f_arr = np.asarray(f, dtype=np.float64)
         v_arr = np.asarray(v, dtype=np.float64)
+        if f_arr.shape == v_arr.shape and f_arr.ndim == 1 and self._fast_ok(f_arr, v_arr):
+            return f_arr, v_arr  # what the checks below return for them
         try:
             f_arr, v_arr = np.broadcast_arrays(f_arr, v_arr)
         except ValueError as err:
@@ -340,6 +389,17 @@ class WinchFrictionModel:
                     "build the model with extrapolate=True to use eq. 4 there"
                 )
         return f_arr, v_arr
+
+    def _fast_ok(self, f: FloatArray, v: FloatArray) -> bool:
+        """Whether 1-d f [N] and v [m/s] surely pass ``_inputs``'s checks (scalar loop).
+
+        False sends them through the checks, which raise their errors or let them pass.
+        """
+        limit = math.inf if self.extrapolate else self.v_high * (1.0 + 1e-12)
+        for fi, vi in zip(f.tolist(), v.tolist(), strict=True):
+            if not (0.0 <= fi < math.inf and abs(vi) <= limit and math.isfinite(vi)):
+                return False
+        return True
 
     def torque(self, f: ArrayLike, v: ArrayLike) -> FloatArray:
         """Friction torque tau_F(f, v) of eq. 5 [N m].

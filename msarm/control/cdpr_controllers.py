@@ -389,8 +389,8 @@ def cable_motion(
         d_dot = -v - _cross(omega, rb)
         d_ddot = -a - _cross(alpha, rb) - _cross(omega, _cross(omega, rb))
     else:  # translation only: the rotational terms vanish
-        d_dot = np.broadcast_to(-v, rb.shape)
-        d_ddot = np.broadcast_to(-a, rb.shape)
+        d_dot = _rows(-v, rb.shape[0])
+        d_ddot = _rows(-a, rb.shape[0])
     l_dot = np.einsum("ij,ij->i", u, d_dot)
     l_ddot = (
         np.einsum("ij,ij->i", u, d_ddot)
@@ -400,11 +400,25 @@ def cable_motion(
     return lengths, l_dot, l_ddot, At
 
 
+def _rows(x: FloatArray, n: int) -> FloatArray:
+    """``np.broadcast_to(x, (n, 3))`` for a contiguous x of shape (3,), without its overhead.
+
+    The same view (row stride 0), so einsum over it runs the same loops.
+    """
+    out = np.ndarray((n, 3), np.float64, buffer=x, strides=(0, x.strides[0]))
+    return out
+
+
 def _cross(x: FloatArray, y: FloatArray) -> FloatArray:
     """Cross product along the last axis, broadcast (numpy's ``cross`` costs ~30 us a call)."""
     x0, x1, x2 = x[..., 0], x[..., 1], x[..., 2]
     y0, y1, y2 = y[..., 0], y[..., 1], y[..., 2]
-    return np.stack([x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0], axis=-1)
+    c0 = x1 * y2 - x2 * y1
+    out = np.empty((*c0.shape, 3))
+    out[..., 0] = c0
+    out[..., 1] = x2 * y0 - x0 * y2
+    out[..., 2] = x0 * y1 - x1 * y0
+    return out
 
 
 def _vector3(value: ArrayLike | None, name: str, unit: str) -> FloatArray:
