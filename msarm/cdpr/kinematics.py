@@ -189,8 +189,8 @@ class CableRobot:
         r_arr, R_arr, batched = self._pose(r, R)
         rb = np.einsum("nij,mj->nmi", R_arr, self._b)  # R b_i, (N, m, 3)
         d = self._a[None, :, :] - r_arr[:, None, :] - rb
-        lengths = np.linalg.norm(d, axis=2)
-        if np.any(lengths <= 0.0):
+        lengths = np.sqrt(np.add.reduce(d * d, axis=2))  # np.linalg.norm's own expression
+        if (lengths <= 0.0).any():
             pose, cable = np.argwhere(lengths <= 0.0)[0]
             raise InputError(f"cable {cable} has zero length at pose {pose}: u is undefined")
         u = d / lengths[:, :, None]

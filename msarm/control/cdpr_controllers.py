@@ -400,6 +400,10 @@ def cable_motion(
     return lengths, l_dot, l_ddot, At
 
 
+_IDENTITY = np.eye(3)
+_IDENTITY.setflags(write=False)
+
+
 def _rows(x: FloatArray, n: int) -> FloatArray:
     """``np.broadcast_to(x, (n, 3))`` for a contiguous x of shape (3,), without its overhead.
 
@@ -489,6 +493,8 @@ class CdprController(ABC):
         self._hi = np.full(self.m, self.f_max)
         self._allocator = make_allocator(self.m, N_DOF, solver, f_ref=None)
         self.velocity_feedforward = bool(velocity_feedforward)
+        # one tuple for every command (the plant recognises the same object cycle to cycle)
+        self._all_pi: tuple[str, ...] = (DRIVE_PI,) * self.m
 
     def _feedforward(self, nominal: NominalState) -> FloatArray:
         """The v_ff of the command [m/s], shape (m,): IK velocities, or zeros without FF."""
@@ -548,7 +554,7 @@ class CdprController(ABC):
         a_ = _vector3(a, "a", "m/s^2")
         w_ = _vector3(omega, "omega", "rad/s")
         al_ = _vector3(alpha, "alpha", "rad/s^2")
-        R_ = np.eye(3) if R is None else np.asarray(R, dtype=np.float64)
+        R_ = _IDENTITY if R is None else np.asarray(R, dtype=np.float64)
         lengths, l_dot, l_ddot, At = cable_motion(self.robot, r_, R_, v_, w_, a_, al_)
         wrench = self.platform.wrench(r_, R_, v_, w_, a_, al_)
         result = self._allocator.solve(At, -wrench, self._lo, self._hi)
@@ -620,7 +626,7 @@ class InverseKinematicsController(CdprController):
         return CdprCommand(
             l_set=nominal.lengths.copy(),
             v_ff=self._feedforward(nominal),
-            drive_mode=(DRIVE_PI,) * self.m,
+            drive_mode=self._all_pi,
             l_ik=nominal.lengths,
             delta_l=zeros,
             h=zeros.copy(),
@@ -995,8 +1001,11 @@ class HybridController(CdprController):
         chosen = set(pair)
         for i in self.switchable:
             self._factors[i].set_active(i in chosen)
-        h = np.array([f.step() for f in self._factors])
-        engaged = np.array([f.active or f.h > 0.0 for f in self._factors])
+        steps = [f.step() for f in self._factors]  # each the factor's h after its step
+        h = np.array(steps)
+        engaged = np.array(
+            [f.active or hf > 0.0 for f, hf in zip(self._factors, steps, strict=True)]
+        )
         reading, unit = _READING[self.feedback]
         measured = _reading(measurement, reading, unit, m, self.name)
         if self.filter_time > 0.0:
@@ -1259,7 +1268,7 @@ class NullspaceController(CdprController):
         return CdprCommand(
             l_set=nominal.lengths + delta_l,
             v_ff=self._feedforward(nominal),
-            drive_mode=(DRIVE_PI,) * m,
+            drive_mode=self._all_pi,
             l_ik=nominal.lengths,
             delta_l=delta_l,
             h=np.ones(m),

@@ -248,7 +248,8 @@ class DiscretePID:
             raise InputError(f"PID error must be a scalar or shape ({self.n},), got {e.shape}")
         if not np.isfinite(e).all():
             raise InputError(f"PID error must be finite, got {e}")
-        e = np.broadcast_to(e, (self.n,))
+        if e.shape != (self.n,):
+            e = np.broadcast_to(e, (self.n,))
         p = self.gains.k * e
         self._derivative = self._d_decay * self._derivative + self._d_gain * (e - self._e_prev)
         candidate = self._integral + self._ki * e

@@ -393,7 +393,7 @@ def _vector(value: ArrayLike, size: int, name: str, unit: str) -> FloatArray:
     array = np.asarray(value, dtype=np.float64)
     if array.shape != (size,):
         raise InputError(f"{name} must have shape ({size},) [{unit}], got {array.shape}")
-    if not np.all(np.isfinite(array)):
+    if not np.isfinite(array).all():
         raise InputError(f"{name} [{unit}] must be finite, got {array}")
     return array.copy()
 
@@ -473,6 +473,7 @@ class CdprPlant:
         self._ext_force = np.zeros(3)
         self._ext_moment = np.zeros(3)
         self._has_ext = False
+        self._last_modes: tuple[object, FloatArray | None] = (object(), None)
         self._rng = copy.deepcopy(self._seed_rng)
         self._is_reset = False
         self.last_iterations = 0
@@ -870,6 +871,21 @@ class CdprPlant:
         return qpos
 
     def _modes(self, drive_mode: str | Sequence[str]) -> FloatArray:
+        """The modes as 1.0 (PI) / 0.0 (P), shape (m,), from a name or one name per cable.
+
+        The same str or tuple object as last time (a controller sends its own every cycle)
+        is not parsed again.
+        """
+        if drive_mode is self._last_modes[0]:
+            return self._last_modes[1].copy()
+        modes = self._parse_modes(drive_mode)
+        if type(drive_mode) is str or (
+            type(drive_mode) is tuple and all(type(name) is str for name in drive_mode)
+        ):
+            self._last_modes = (drive_mode, modes.copy())  # immutable: safe to recognise
+        return modes
+
+    def _parse_modes(self, drive_mode: str | Sequence[str]) -> FloatArray:
         m = self.n_cables
         names = [drive_mode] * m if isinstance(drive_mode, str) else list(drive_mode)
         if len(names) != m or any(name not in DRIVE_MODES for name in names):
