@@ -192,9 +192,11 @@ class SwitchingFactor:
 
     def step(self) -> float:
         """Advance one control cycle: alpha +- delta, clamped; return the new h [-]."""
-        if self.switching:
+        alpha = self.alpha
+        if alpha != (HALF_PI if self._active else 0.0):  # self.switching
             self._steps += 1
-        return self.h
+            alpha = self.alpha
+        return 1.0 if alpha == HALF_PI else math.sin(alpha) ** 2  # self.h
 
     def __repr__(self) -> str:
         return (

@@ -396,7 +396,9 @@ def cable_motion(
         np.einsum("ij,ij->i", u, d_ddot)
         + (np.einsum("ij,ij->i", d_dot, d_dot) - l_dot**2) / lengths
     )
-    At = np.concatenate([u, _cross(rb, u)], axis=1).T.copy()
+    At = np.empty((6, len(lengths)))  # [u; rb x u] per column, as concatenate(...).T.copy()
+    At[:3] = u.T
+    At[3:] = _cross(rb, u).T
     return lengths, l_dot, l_ddot, At
 
 

@@ -474,6 +474,7 @@ class CdprPlant:
         self._ext_moment = np.zeros(3)
         self._has_ext = False
         self._last_modes: tuple[object, FloatArray | None] = (object(), None)
+        self._views: tuple[object, dict[str, FloatArray]] = (None, {})
         self._rng = copy.deepcopy(self._seed_rng)
         self._is_reset = False
         self.last_iterations = 0
@@ -645,7 +646,9 @@ class CdprPlant:
         # the state first, to name them if the period fails
         end = self.time + int(n_steps) * self.mj_model.opt.timestep
         start = self._period_start
-        for key, value in self._state_views().items():
+        if self._views[0] is not self.mj_data:  # live views, built once per MjData
+            self._views = (self.mj_data, self._state_views())
+        for key, value in self._views[1].items():
             np.copyto(start[key], value)
         for _ in range(int(n_steps)):
             self._step_once()
