@@ -113,3 +113,19 @@ def short_cdpr_trajectories(monkeypatch):
     monkeypatch.setattr(cdpr_trajectories, "get_cdpr_trajectory", short)
     monkeypatch.setattr(cdpr_compare, "get_cdpr_trajectory", short)
     return short
+
+
+def assert_same_run_bits(python, compiled) -> None:
+    """Two tracking runs (``run_tracking``'s) have the same columns and truth, bit for bit."""
+    import numpy as np
+
+    assert set(python.columns) == set(compiled.columns)
+    assert set(python.truth) == set(compiled.truth)
+    for name in python.columns:
+        np.testing.assert_array_equal(
+            python.columns[name].view(np.uint64), compiled.columns[name].view(np.uint64), name
+        )
+    for name in python.truth:
+        np.testing.assert_array_equal(
+            python.truth[name].view(np.uint64), compiled.truth[name].view(np.uint64), name
+        )

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import assert_same_run_bits
 
 from msarm.control import ArmControllerConfig, MuscleSpaceController
 from msarm.errors import InputError
@@ -40,18 +41,6 @@ def _both_loops(arm, plant_config, controller_config=None, seed=3, task=SHORT):
     return runs, calls
 
 
-def _assert_same_bits(python, compiled):
-    assert set(python.columns) == set(compiled.columns)
-    for name in python.columns:
-        np.testing.assert_array_equal(
-            python.columns[name].view(np.uint64), compiled.columns[name].view(np.uint64), name
-        )
-    for name in python.truth:
-        np.testing.assert_array_equal(
-            python.truth[name].view(np.uint64), compiled.truth[name].view(np.uint64), name
-        )
-
-
 @pytest.mark.parametrize(
     "plant_config",
     [
@@ -72,7 +61,7 @@ def _assert_same_bits(python, compiled):
 def test_compiled_loop_gives_the_python_loops_bits(arm, plant_config):
     (python, compiled), (python_calls, compiled_calls) = _both_loops(arm, plant_config)
     assert python.completed and compiled.completed
-    _assert_same_bits(python, compiled)
+    assert_same_run_bits(python, compiled)
     assert compiled_calls == python_calls and len(python_calls) > 40
 
 
@@ -101,7 +90,7 @@ def test_unsettled_allocations_are_handed_to_the_allocator_and_the_loop_goes_on(
     assert "infeasible" in python_statuses and "optimal" in python_statuses[1:]
     # the compiled loop called the allocator only for those ticks (and the runner's first)
     assert compiled_statuses[1:] == [s for s in python_statuses[1:] if s != "optimal"]
-    _assert_same_bits(python_solve, run)
+    assert_same_run_bits(python_solve, run)
 
 
 def test_a_diverged_run_stops_the_same_in_both_loops(arm):
@@ -114,7 +103,7 @@ def test_a_diverged_run_stops_the_same_in_both_loops(arm):
     assert str(compiled.error) == str(python.error)
     assert compiled.error.time == python.error.time
     assert compiled.error.state == python.error.state
-    _assert_same_bits(python, compiled)
+    assert_same_run_bits(python, compiled)
 
 
 def test_a_bad_muscle_length_mid_run_raises_the_hill_models_error(arm):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import assert_same_run_bits
 
 from msarm.compensation import Compensator, NetworkConfig, Normalizer, build_mlp
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
@@ -68,14 +69,7 @@ def test_a_learned_feedforward_runs_compiled_to_the_python_loops_bits(arm, parts
     feedforward = LearnedFeedforward(arm, network, stage)
     (python, compiled), (python_calls, compiled_calls), sides = _runs(arm, feedforward)
     assert python.completed and compiled.completed
-    for name in python.columns:
-        np.testing.assert_array_equal(
-            python.columns[name].view(np.uint64), compiled.columns[name].view(np.uint64), name
-        )
-    for name in python.truth:
-        np.testing.assert_array_equal(
-            python.truth[name].view(np.uint64), compiled.truth[name].view(np.uint64), name
-        )
+    assert_same_run_bits(python, compiled)
     assert compiled_calls == python_calls and len(python_calls) > 40
     # the feedforward did act (what is compared is not the loop without it)
     tau_ff = np.abs(
