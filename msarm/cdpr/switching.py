@@ -115,6 +115,13 @@ def switching_time(delta: float, cycle_time: float = CYCLE_TIME) -> float:
     return switching_cycles(delta) * float(cycle_time)
 
 
+def _scaling(alpha: float) -> float:
+    """The scaling factor h = sin^2(alpha) [-] of a switching angle alpha [rad]."""
+    if alpha == HALF_PI:
+        return 1.0
+    return math.sin(alpha) ** 2
+
+
 class SwitchingFactor:
     """The scaling factor h of one force-controllable cable, stepped once per control cycle.
 
@@ -159,15 +166,12 @@ class SwitchingFactor:
     @property
     def h(self) -> float:
         """Current scaling factor h = sin^2(alpha) [-], in [0, 1]."""
-        alpha = self.alpha
-        if alpha == HALF_PI:
-            return 1.0
-        return math.sin(alpha) ** 2
+        return _scaling(self.alpha)
 
     @property
     def switching(self) -> bool:
         """True while alpha has not reached its end (pi/2 when active, 0 when not)."""
-        return self.alpha != (HALF_PI if self._active else 0.0)
+        return self.alpha != self._end
 
     @property
     def cycles_left(self) -> int:
@@ -192,11 +196,16 @@ class SwitchingFactor:
 
     def step(self) -> float:
         """Advance one control cycle: alpha +- delta, clamped; return the new h [-]."""
-        alpha = self.alpha
-        if alpha != (HALF_PI if self._active else 0.0):  # self.switching
+        alpha = self.alpha  # switching and h, with alpha computed once per state
+        if alpha != self._end:
             self._steps += 1
             alpha = self.alpha
-        return 1.0 if alpha == HALF_PI else math.sin(alpha) ** 2  # self.h
+        return _scaling(alpha)
+
+    @property
+    def _end(self) -> float:
+        """Where alpha is heading [rad]: pi/2 when active, 0 when not."""
+        return HALF_PI if self._active else 0.0
 
     def __repr__(self) -> str:
         return (

@@ -172,7 +172,6 @@ class SheathInverse:
         self._friction = spec.gain * parameters.mu
         # F_bar, u of the last tick, s, and "started" (row 3, column 0): sheath_tick's state
         self._state = np.zeros((4, model.n_cables))
-        self._command = np.zeros(model.n_cables)
 
     @property
     def side(self) -> FloatArray:

@@ -160,6 +160,20 @@ class _ControllerState:
     started: bool = field(default=False)
 
 
+def check_tension_command(command: FloatArray, shape: tuple[int, ...]) -> None:
+    """Refuse a tension-space feedforward's command that is not ``shape`` finite tensions.
+
+    Args:
+        command: What ``feedforward.tension_command`` gave [N].
+        shape: The shape it must have, ``(m,)``.
+
+    Raises:
+        InputError: Another shape or a non-finite value (the command named).
+    """
+    if command.shape != shape or not np.all(np.isfinite(command)):
+        raise InputError(f"feedforward.tension_command must give {shape} finite N, got {command}")
+
+
 class MuscleSpaceController:
     """Joint PID + inverse dynamics + allocation + inverse Hill model (paper 003).
 
@@ -368,10 +382,7 @@ class MuscleSpaceController:
         command = force
         if shape is not None:  # a feedforward in tension space
             command = np.asarray(shape(force, q_ref), dtype=float)
-            if command.shape != force.shape or not np.all(np.isfinite(command)):
-                raise InputError(
-                    f"feedforward.tension_command must give {force.shape} finite N, got {command}"
-                )
+            check_tension_command(command, force.shape)
         if observe is not None:  # a feedforward with memory of the commands
             observe(command)
         return ControlOutput(

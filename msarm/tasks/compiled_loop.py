@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from msarm.allocation.batched import MAX_ITER
 from msarm.allocation.solvers.newton import dual_newton_tick
 from msarm.compensation.sheath_kernel import sheath_tick
-from msarm.control.arm_controller import MuscleSpaceController
+from msarm.control.arm_controller import MuscleSpaceController, check_tension_command
 from msarm.control.kernels import activation_and_reach, filter_and_pid, force_bounds, muscle_speed
 from msarm.errors import InputError
 from msarm.mujoco_c import function_addresses
@@ -485,22 +485,20 @@ def _feedforward_arrays(
 ) -> FeedforwardArrays:
     """:class:`FeedforwardArrays` of a precomputed feedforward (or of none)."""
     n_ticks, n = q_ref.shape
-    none = np.zeros((0, m))
-    if feedforward is None:
-        return FeedforwardArrays(
-            False, np.zeros((0, n)), False, none, none, (0.0,) * 5, np.zeros((4, m)), np.empty(m)
-        )
-    dtau, stage = feedforward
+    dtau, stage = (np.zeros((0, n)), None) if feedforward is None else feedforward
     dtau = np.ascontiguousarray(dtau, dtype=float)
-    if dtau.shape != (n_ticks, n):
+    if feedforward is not None and dtau.shape != (n_ticks, n):
         raise InputError(f"precomputed dtau must have shape {(n_ticks, n)}, got {dtau.shape}")
-    if stage is None:
-        return FeedforwardArrays(
-            True, dtau, False, none, none, (0.0,) * 5, np.zeros((4, m)), np.empty(m)
-        )
-    lengths, wrap = stage.reference_geometry(q_ref)
-    constants = tuple(float(value) for value in stage.constants)
-    return FeedforwardArrays(True, dtau, True, lengths, wrap, constants, stage.state, np.empty(m))
+    lengths = wrap = np.zeros((0, m))
+    constants, state = (0.0,) * 5, np.zeros((4, m))
+    if stage is not None:
+        lengths, wrap = stage.reference_geometry(q_ref)
+        constants = tuple(float(value) for value in stage.constants)
+        state = stage.state
+    return FeedforwardArrays(
+        feedforward is not None, dtau, stage is not None, lengths, wrap, constants, state,
+        np.empty(m),
+    )  # fmt: skip
 
 
 def run_compiled(
@@ -569,12 +567,8 @@ def run_compiled(
             plant.command(control.command)
             raise AssertionError("the plant accepted what the compiled loop refused")
         elif status == BAD_STAGE_COMMAND:  # the controller's check, else the plant's
-            command = control.command
-            if not np.all(np.isfinite(command)):
-                raise InputError(
-                    f"feedforward.tension_command must give {command.shape} finite N, got {command}"
-                )
-            plant.command(command)
+            check_tension_command(control.command, control.command.shape)
+            plant.command(control.command)
             raise AssertionError("the plant accepted what the compiled loop refused")
         elif status == DIVERGED:
             try:
