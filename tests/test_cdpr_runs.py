@@ -124,6 +124,13 @@ def test_compare_writes_tables_and_repeatability(
     compare_cdpr(robot, other, tmp_path, repeats=0, tests=["41"])
     compare_cdpr(robot, DEFAULT_CDPR_PLANT, tmp_path, repeats=0, tests=["41"], resume=False)
     assert len(runs) == 2
+    # a run kept by another msarm version (or library version): simulated again
+    import msarm.tasks.cdpr_run_cache as run_cache
+
+    runs.clear()
+    monkeypatch.setattr(run_cache, "code_fingerprint", lambda scope: "f" * 64)
+    compare_cdpr(robot, DEFAULT_CDPR_PLANT, tmp_path, repeats=0, tests=["41"])
+    assert len(runs) == 1
 
 
 @pytest.mark.usefixtures("short_cdpr_trajectories")

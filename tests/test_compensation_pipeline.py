@@ -20,6 +20,7 @@ from msarm.compensation.feedforward import (
 )
 from msarm.compensation.pipeline import TUNED_CONTROLLER, CompensatorRecipe, train_compensator
 from msarm.control import ArmControllerConfig
+from msarm.io.code_version import code_fingerprint
 from msarm.io.config import load_config
 from msarm.model import load_arm
 from msarm.plant import DEFAULT_PLANT
@@ -188,7 +189,7 @@ def test_a_checkpoint_whose_parts_do_not_fit_is_refused_with_its_file(trained, t
     assert "records no run split" in str(result.exception)
 
 
-def test_a_cached_run_is_reused_only_whole_undiverged_and_of_this_model(trained, tmp_path):
+def test_a_cached_run_is_reused_only_whole_undiverged_of_this_model_and_code(trained, tmp_path):
     import json
     import shutil
 
@@ -204,6 +205,14 @@ def test_a_cached_run_is_reused_only_whole_undiverged_and_of_this_model(trained,
     assert not _reusable(run, settings, "0" * 64)  # recorded with another model file
     assert not _reusable(run, replace(settings, seed=settings.seed + 1), arm.sha256)
     metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["code"] == code_fingerprint("simulation")  # recorded by the run
+    # made by another version of msarm (or of its libraries): simulated again
+    (run / "metrics.json").write_text(json.dumps({**metrics, "code": "0" * 64}))
+    assert not _reusable(run, settings, arm.sha256)
+    (run / "metrics.json").write_text(json.dumps({k: v for k, v in metrics.items() if k != "code"}))
+    assert not _reusable(run, settings, arm.sha256)  # from before the code was recorded
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    assert _reusable(run, settings, arm.sha256)
     (run / "metrics.json").write_text(json.dumps({**metrics, "diverged": {"time": 3.0}}))
     assert not _reusable(run, settings, arm.sha256)  # a diverged run is simulated again
     (run / "metrics.json").unlink()

@@ -18,6 +18,7 @@ from msarm.diagnose.bench import (
     summarise,
 )
 from msarm.errors import InputError
+from msarm.io.code_version import code_fingerprint
 
 TINY = BenchSettings(
     draws=1,
@@ -124,8 +125,13 @@ def test_a_rerun_reuses_the_scores_and_rescore_recomputes(arm, report, monkeypat
     monkeypatch.setattr(bench_module, "_diagnose_scenario", refuse)
     again = run_diagnosis_benchmark(arm, out, TINY)
     assert again["summary"] == first["summary"]
+    assert json.loads((out / "results.json").read_text())["code"] == code_fingerprint("diagnosis")
     with pytest.raises(AssertionError, match="diagnosed again"):
         run_diagnosis_benchmark(arm, out, TINY, rescore=True)
+    # scores of another msarm version (or library version) are not reused
+    monkeypatch.setattr(bench_module, "code_fingerprint", lambda scope: "f" * 64)
+    with pytest.raises(AssertionError, match="diagnosed again"):
+        run_diagnosis_benchmark(arm, out, TINY)
 
 
 def test_scores_are_computed_from_the_names():

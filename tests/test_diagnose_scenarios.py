@@ -24,6 +24,7 @@ from msarm.diagnose.scenarios import (
 )
 from msarm.errors import InputError
 from msarm.io.atomic import write_json_atomic
+from msarm.io.code_version import code_fingerprint
 from msarm.io.logs import read_log
 from msarm.plant.config import SensorNoiseConfig
 from msarm.tasks.track import track as real_track
@@ -198,8 +199,16 @@ def test_generate_logs_writes_the_runs_and_resumes(arm, tmp_path, monkeypatch):
     config.write_text(config.read_text().replace("seed:", "seed: 1 #"))
     generate_logs(arm, scenario, train, holdout, tmp_path)
     assert calls == ["holdout-0"]
-    # logs recorded with another model file (its hash differs) are all run again
+    # runs made by other code (another msarm version or library version) are all run again
     calls.clear()
+    monkeypatch.setattr(scenarios_module, "code_fingerprint", lambda scope: "f" * 64)
+    generate_logs(arm, scenario, train, holdout, tmp_path)
+    assert calls == ["train-0", "holdout-0"]
+    monkeypatch.setattr(scenarios_module, "code_fingerprint", code_fingerprint)
+    calls.clear()
+    generate_logs(arm, scenario, train, holdout, tmp_path)
+    assert calls == []  # the runs just made carry the fingerprint in use
+    # logs recorded with another model file (its hash differs) are all run again
     generate_logs(replace(arm, sha256="0" * 64), scenario, train, holdout, tmp_path)
     assert calls == ["train-0", "holdout-0"]
 

@@ -23,6 +23,7 @@ from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.target import TargetSpec, torque_error
 from msarm.control import ArmControllerConfig
 from msarm.errors import InputError, MsarmError
+from msarm.io.code_version import code_fingerprint
 from msarm.io.config import load_config
 from msarm.io.logs import STANDARD_UNITS, check_standard_units, read_log, read_model_sha256
 from msarm.model import RobotModel
@@ -156,8 +157,10 @@ def reusable_run(folder: Path, settings: TrackSettings, model_sha256: str) -> bo
     """Whether the run in ``folder`` is the one ``settings`` ask for, whole, on this model.
 
     A run is reused when its config is ``settings``, its metrics were written (they are
-    written last) and say it did not diverge, and its log was recorded with the model of
-    ``model_sha256``; any other run is simulated again.
+    written last), say it did not diverge and were made by the code in use (their ``code``,
+    :func:`~msarm.io.code_version.code_fingerprint`: the same msarm sources and library
+    versions), and its log was recorded with the model of ``model_sha256``; any other run is
+    simulated again.
     """
     config_path, log_path = folder / "config.yaml", folder / "log.parquet"
     metrics_path = folder / "metrics.json"
@@ -169,6 +172,8 @@ def reusable_run(folder: Path, settings: TrackSettings, model_sha256: str) -> bo
         metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
         if not isinstance(metrics, dict) or "diverged" in metrics:
             return False
+        if metrics.get("code") != code_fingerprint("simulation"):
+            return False  # made by another version of msarm or of its libraries
         return read_model_sha256(log_path).lower() == model_sha256.lower()
     except (MsarmError, OSError, ValueError):
         return False

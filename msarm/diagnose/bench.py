@@ -31,9 +31,10 @@ Scores (each for both methods):
 
 Results are written after each scenario (atomically) to ``results.json`` in the output
 folder, with ``confusion.png`` (:func:`plot_benchmark`) at the end; a rerun with the same
-settings and model (its SHA-256) reuses the scenarios already scored (``rescore`` diagnoses
-them again from their cached logs; an unreadable ``results.json`` is no cache, with a
-:class:`BenchCacheWarning`).
+settings, model (its SHA-256) and code (:func:`~msarm.io.code_version.code_fingerprint`,
+scope ``"diagnosis"``: another msarm version or library version scores again) reuses the
+scenarios already scored (``rescore`` diagnoses them again from their cached logs; an
+unreadable ``results.json`` is no cache, with a :class:`BenchCacheWarning`).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ from msarm.diagnose.scenarios import (
 from msarm.diagnose.select import DEFAULT_THRESHOLD, load_data, select_effects
 from msarm.errors import InputError, MsarmWarning
 from msarm.io.atomic import write_json_atomic
+from msarm.io.code_version import code_fingerprint
 from msarm.model import RobotModel
 
 __all__ = [
@@ -281,8 +283,9 @@ def run_diagnosis_benchmark(
     results_path = out / "results.json"
     settings_dict = {**asdict(settings), "effects": list(settings.effects)}
     done: dict[str, Any] = {}
+    code = code_fingerprint("diagnosis")
     if results_path.is_file() and not rescore:
-        done = _cached_rows(results_path, settings_dict, model.sha256)
+        done = _cached_rows(results_path, settings_dict, model.sha256, code)
     scenarios = _scenarios(settings)
     train_tasks, held_tasks = scenario_tasks(
         model, settings.n_train, settings.n_holdout, settings.duration, settings.seed
@@ -320,6 +323,7 @@ def run_diagnosis_benchmark(
         report = {
             "settings": settings_dict,
             "model_sha256": model.sha256,
+            "code": code,
             "scenarios": rows,
             "failed": failed,
         }
@@ -328,6 +332,7 @@ def run_diagnosis_benchmark(
     report = {
         "settings": settings_dict,
         "model_sha256": model.sha256,
+        "code": code,
         "scenarios": rows,
         "failed": failed,
         "summary": summary,
@@ -365,11 +370,15 @@ def _row_problem(row: Any) -> str | None:
     return None
 
 
-def _cached_rows(path: Path, settings: dict[str, Any], model_sha256: str) -> dict[str, Any]:
+def _cached_rows(
+    path: Path, settings: dict[str, Any], model_sha256: str, code: str
+) -> dict[str, Any]:
     """The scored scenarios of a previous ``results.json`` that can be reused, by name.
 
-    Empty when the file was written with other settings or for another model (a file
-    without ``model_sha256``, from before it was recorded, is taken as the same model's). An
+    Empty when the file was written with other settings, for another model (a file
+    without ``model_sha256``, from before it was recorded, is taken as the same model's) or
+    by other code (its ``code`` is not ``code``, the fingerprint in use; a file without one
+    is from before it was recorded, and is scored again). An
     unreadable or malformed file is no cache: :class:`BenchCacheWarning` names it, and every
     scenario is scored again (from its cached logs).
     """
@@ -405,6 +414,8 @@ def _cached_rows(path: Path, settings: dict[str, Any], model_sha256: str) -> dic
         return {}
     if previous.get("model_sha256", model_sha256) != model_sha256:
         return {}  # scored against another version of the model
+    if previous.get("code") != code:
+        return {}  # scored by another version of msarm or of its libraries
     return {row["scenario"]: row for row in scenarios}
 
 

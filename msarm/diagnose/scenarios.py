@@ -71,6 +71,7 @@ from msarm.control import ArmControllerConfig
 from msarm.diagnose.effect_classes import EFFECT_CLASSES
 from msarm.errors import InputError, MsarmError
 from msarm.io.atomic import write_json_atomic
+from msarm.io.code_version import code_fingerprint
 from msarm.io.config import config_to_dict, dump_config
 from msarm.io.logs import read_model_sha256
 from msarm.model import RobotModel
@@ -493,7 +494,12 @@ def _read_json(path: Path) -> Any:
 def _is_done(
     run_dir: Path, settings: TrackSettings, task_data: dict[str, Any], model_sha256: str
 ) -> bool:
-    """Whether ``run_dir`` holds this exact run, complete, recorded with this model file."""
+    """Whether ``run_dir`` holds this exact run, complete, made with this model file and code.
+
+    The code is the fingerprint in the run's ``metrics.json``
+    (:func:`~msarm.io.code_version.code_fingerprint`): a run of another msarm version is
+    simulated again.
+    """
     needed = ("log.parquet", "config.yaml", "metrics.json", "task.json")
     if not all((run_dir / name).is_file() for name in needed):
         return False
@@ -502,10 +508,13 @@ def _is_done(
         recorded_with = read_model_sha256(run_dir / "log.parquet")
     except (OSError, MsarmError):
         return False
+    metrics = _read_json(run_dir / "metrics.json")
     return (
         config_text == dump_config(settings)
         and _read_json(run_dir / "task.json") == task_data
         and recorded_with.lower() == model_sha256.lower()
+        and isinstance(metrics, dict)
+        and metrics.get("code") == code_fingerprint("simulation")
     )
 
 

@@ -4,10 +4,12 @@
 machine). Each finished run is kept here as one ``.npz`` file holding what the comparison
 reads of it (its metrics, the log columns ``t``, ``marker.*``, ``r_ref.*``, ``f_desired.*``,
 ``h.*`` and the ground-truth cable forces) and the key it was run with: the controller, the
-trajectory, the controller's options, the noise seed, the resolved plant and the SHA-256 of
-the robot model file. A run is reused only when its stored key is the key asked for, bit for
-bit (a changed plant, option or model file runs it again); a file that cannot be read is run
-again too. A run that diverged is not kept. Files are written atomically.
+trajectory, the controller's options, the noise seed, the resolved plant, the SHA-256 of
+the robot model file and the fingerprint of the code
+(:func:`msarm.io.code_version.code_fingerprint`: msarm's sources and the libraries'
+versions). A run is reused only when its stored key is the key asked for, bit for bit (a
+changed plant, option, model file or msarm version runs it again); a file that cannot be
+read is run again too. A run that diverged is not kept. Files are written atomically.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 
 from msarm.cdpr.robot_model import CableRobotModel
 from msarm.io.atomic import atomic_path
+from msarm.io.code_version import code_fingerprint
 from msarm.io.config import config_to_dict
 from msarm.plant.cdpr_config import CdprPlantConfig
 from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun
@@ -54,6 +57,7 @@ class CdprRunCache:
             "format": _FORMAT,
             "model_sha256": model.sha256.lower(),
             "plant": config_to_dict(plant_config),
+            "code": code_fingerprint("simulation"),
         }
 
     def _key(self, controller: str, trajectory: str, seed: int, options: Mapping[str, Any]) -> str:

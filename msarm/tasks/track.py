@@ -6,7 +6,10 @@ feedforward compensator) and writes, into one folder (atomically, file by file):
 - ``log.parquet``: the log in the documented schema (sensors, references, commands);
 - ``log.truth.parquet``: the sim-only ground truth sidecar (never read by a diagnosis);
 - ``config.yaml``: the resolved plant, controller and task settings and the seed;
-- ``metrics.json``: the metrics of paper 003 (see :mod:`msarm.tasks.evaluate`);
+- ``metrics.json``: the metrics of paper 003 (see :mod:`msarm.tasks.evaluate`) and the
+  fingerprint of the code that made the run (``code``,
+  :func:`msarm.io.code_version.code_fingerprint`), by which the caches of ``msarm train``,
+  ``msarm compare`` and ``msarm bench diagnose`` tell their runs from another version's;
 - ``joints.png`` and ``tensions.png``: joint angles against the reference, cable tensions.
 
 A run that diverges keeps its partial log and reports the divergence in ``metrics.json``.
@@ -23,6 +26,7 @@ import numpy as np
 from msarm import plots
 from msarm.control import ArmControllerConfig, MuscleSpaceController
 from msarm.io.atomic import write_json_atomic
+from msarm.io.code_version import code_fingerprint
 from msarm.io.config import config_to_dict, write_config
 from msarm.io.logs import LogMetadata, RunLog, write_log, write_sidecar
 from msarm.model import RobotModel
@@ -125,6 +129,8 @@ def track(
     files["config"] = out_dir / "config.yaml"
     write_config(settings, files["config"])
     payload = {"task": task.name, "plant": settings.plant.name, **metrics.as_dict()}
+    # the code that made the run: a cache reuses it only under the same code
+    payload["code"] = code_fingerprint("simulation")
     if run.error is not None:
         payload["diverged"] = {"time": run.error.time, "message": str(run.error)}
     files["metrics"] = write_json_atomic(out_dir / "metrics.json", payload)
