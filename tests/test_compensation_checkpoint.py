@@ -72,6 +72,31 @@ def test_save_load_round_trip(compensator, tmp_path):
     assert [p.name for p in path.parent.iterdir()] == ["comp.pt"]
 
 
+def test_behaviour_hash_follows_what_the_compensator_does_not_its_training_record(tmp_path):
+    base = _compensator()
+    value = base.behaviour_sha256()
+    assert len(value) == 64 and value == _compensator().behaviour_sha256()  # deterministic
+    loaded = Compensator.load(base.save(tmp_path / "comp.pt"))
+    assert loaded.behaviour_sha256() == value  # a round trip keeps it
+    # the training's own record (losses, epochs, times) changes nothing it does
+    timed = _compensator()
+    timed.metadata["training"] = {"collect_time_s": 14.5, "history": [[1, 0.3, 0.4]]}
+    assert timed.behaviour_sha256() == value
+    timed.metadata["training"]["collect_time_s"] = 0.2
+    assert timed.behaviour_sha256() == value
+    # a weight, a normaliser, the config or the rest of the metadata does
+    nudged = _compensator()
+    name = next(iter(nudged._module.state_dict()))
+    with torch.no_grad():
+        nudged._module.state_dict()[name].view(-1)[0] += 1e-12
+    assert nudged.behaviour_sha256() != value
+    assert _compensator(seed=1).behaviour_sha256() != value
+    assert _compensator(activation="relu").behaviour_sha256() != value
+    staged = _compensator()
+    staged.metadata["sheath"] = {"parameters": {"mu": 0.1256}}
+    assert staged.behaviour_sha256() != value
+
+
 def test_predict_shapes_and_bad_inputs(compensator):
     x = _inputs(compensator, 5, seed=2)
     batch = compensator.predict(x)

@@ -138,6 +138,17 @@ def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, small
     assert payload["final_error_ratio_held_out"] > 1  # the compensator helps on held-out tasks
     assert all(Path(path).is_file() for path in payload["files"].values())
     assert {"error_statistics", "json", "trajectories_table1-1"} <= set(payload["files"])
+    # the same network retrained (its file records other times): every run is reused
+    retrained = Compensator.load(recipe.checkpoint)
+    retrained.metadata["training"] = {**retrained.metadata["training"], "collect_time_s": -1.0}
+    copy = retrained.save(tmp_path / "retrained.pt")
+    assert copy.read_bytes() != Path(recipe.checkpoint).read_bytes()
+    again = CliRunner().invoke(app, ["compare", "--ff", str(copy), "--out", str(out), "--json"])
+    assert again.exit_code == 0, again.output
+    labels = [line for line in again.stderr.splitlines() if line.startswith("compare [")]
+    assert len(labels) == 2 * len(payload["tasks"])
+    assert all(line.endswith("(cached)") for line in labels), labels
+    assert json.loads(again.stdout)["tasks"] == payload["tasks"]
     track_out = tmp_path / "track"
     ff = ["track", "--task", "table1-2", "--ff", recipe.checkpoint, "--out", str(track_out)]
     result = CliRunner().invoke(app, [*ff, "--json"])

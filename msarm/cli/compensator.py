@@ -222,7 +222,7 @@ def compare_command(
         typer.Option(
             "--fresh",
             help="Simulate every run again (by default a run already in --out with the same "
-            "task, plant, gains, seed, checkpoint and model is reused: an interrupted "
+            "task, plant, gains, seed, checkpoint, model and msarm code is reused: an interrupted "
             "comparison goes on where it stopped).",
         ),
     ] = False,
@@ -231,8 +231,6 @@ def compare_command(
     # the summary also gives the final error of the plant's true joint angles (simulation
     # only): the table's comes from the encoders, whose noise is a good part of a final error
     # of a tenth of a millimetre
-    import hashlib
-
     from msarm.compensation.checkpoint import CheckpointError
     from msarm.compensation.compare import SHEATH_ONLY, compare_feedforward
     from msarm.compensation.feedforward import (
@@ -308,7 +306,9 @@ def compare_command(
             seed=seed,
             progress=step,
             parts=variants,
-            feedforward_id=hashlib.sha256(ff.read_bytes()).hexdigest(),
+            # what the compensator does, not its file's bytes (a retraining to the same
+            # network writes other times in the file: its runs are still reused)
+            feedforward_id=feedforward.compensator.behaviour_sha256(),
             resume=not fresh,
         )
     if json_output:

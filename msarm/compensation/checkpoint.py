@@ -19,6 +19,8 @@ hashes shown) or another feature spec (the differing keys shown).
 
 from __future__ import annotations
 
+import hashlib
+import json
 import pickle
 import zipfile
 from collections.abc import Mapping
@@ -223,6 +225,33 @@ class Compensator:
             "output_normalizer": self.output_normalizer.to_dict(),
             "metadata": _plain_copy(self.metadata, "metadata"),
         }
+
+    def behaviour_sha256(self) -> str:
+        """SHA-256 (hex) of everything that decides what this compensator does in a run.
+
+        The weights, normalisers, network config and metadata (the robot model, feature and
+        target specs, the recipe with its controller gains, the sheath stage), but not the
+        training's own record (``metadata["training"]``: losses, epochs, times). Two trainings
+        that end in the same network thus have the same value, though their files differ in
+        their recorded times; ``msarm compare`` keys its runs with feedforward by it, so that
+        a retraining that changed nothing does not make it simulate them again.
+
+        Returns:
+            64 hex digits.
+        """
+        plain = self.to_dict()
+        plain["metadata"] = {k: v for k, v in plain["metadata"].items() if k != "training"}
+        digest = hashlib.sha256()
+
+        def tensor(value: torch.Tensor) -> str:
+            array = value.detach().cpu().contiguous().numpy()
+            digest.update(array.tobytes())
+            return f"tensor:{array.dtype}:{list(array.shape)}"
+
+        # the tensors' bytes go to the digest as they are met; the text records their order
+        text = json.dumps(plain, sort_keys=True, default=_encoder(tensor))
+        digest.update(text.encode())
+        return digest.hexdigest()
 
     def save(self, path: str | Path) -> Path:
         """Write the compensator atomically (temporary file in the same folder, then rename).
@@ -475,3 +504,18 @@ def _differences(recorded: Any, expected: Any, key: str) -> list[str]:
     if recorded != expected:
         return [f"{key}: compensator {recorded!r}, in use {expected!r}"]
     return []
+
+
+def _encoder(tensor: Any) -> Any:
+    """``json.dumps``'s ``default`` for a compensator's plain form: tensors through ``tensor``."""
+
+    def encode(value: Any) -> Any:
+        if isinstance(value, torch.Tensor):
+            return tensor(value)
+        if isinstance(value, np.ndarray):
+            return tensor(torch.from_numpy(value))
+        if isinstance(value, np.generic):
+            return value.item()
+        raise TypeError(f"cannot fingerprint a {type(value).__name__}")
+
+    return encode

@@ -151,9 +151,10 @@ def compare_feedforward(
         seed: Seed of the plant's noise for the Table I tasks (a random task uses its own).
         progress: Called with a label before each run.
         parts: More feedforwards to run on the same tasks, by label (e.g. :data:`SHEATH_ONLY`).
-        feedforward_id: What identifies the feedforward and its parts (e.g. the checkpoint
-            file's SHA-256), recorded in each run's config; runs with feedforward are reused
-            only when it is given and the same.
+        feedforward_id: What identifies the feedforward and its parts (``msarm compare``
+            gives :meth:`~msarm.compensation.checkpoint.Compensator.behaviour_sha256`),
+            recorded in each run's config; runs with feedforward are reused only when it is
+            given and the same.
         resume: Reuse a run already in ``out_dir`` when it is this one, whole, undiverged
             and of this model file (:func:`~msarm.compensation.dataset.reusable_run`): an
             interrupted comparison goes on where it stopped, with the same numbers (the
