@@ -121,11 +121,10 @@ def sim(
     arm = load_arm()
     feedforward = None
     if ff is not None:
-        from msarm.compensation.checkpoint import Compensator
         from msarm.compensation.feedforward import load_feedforward, trained_controller
 
         compensation = load_feedforward(ff, arm)
-        feedforward = (compensation, trained_controller(Compensator.load(ff), str(ff)))
+        feedforward = (compensation, trained_controller(compensation.compensator, str(ff)))
     result = run_sim_benchmark(arm, resolve_plant(plant), task, repeats, feedforward)
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))

@@ -241,17 +241,8 @@ class Compensator:
         """
         plain = self.to_dict()
         plain["metadata"] = {k: v for k, v in plain["metadata"].items() if k != "training"}
-        digest = hashlib.sha256()
-
-        def tensor(value: torch.Tensor) -> str:
-            array = value.detach().cpu().contiguous().numpy()
-            digest.update(array.tobytes())
-            return f"tensor:{array.dtype}:{list(array.shape)}"
-
-        # the tensors' bytes go to the digest as they are met; the text records their order
-        text = json.dumps(plain, sort_keys=True, default=_encoder(tensor))
-        digest.update(text.encode())
-        return digest.hexdigest()
+        text = json.dumps(plain, sort_keys=True, default=_hashable)
+        return hashlib.sha256(text.encode()).hexdigest()
 
     def save(self, path: str | Path) -> Path:
         """Write the compensator atomically (temporary file in the same folder, then rename).
@@ -506,16 +497,18 @@ def _differences(recorded: Any, expected: Any, key: str) -> list[str]:
     return []
 
 
-def _encoder(tensor: Any) -> Any:
-    """``json.dumps``'s ``default`` for a compensator's plain form: tensors through ``tensor``."""
+def _hashable(value: Any) -> Any:
+    """``json.dumps``'s ``default`` for :meth:`Compensator.behaviour_sha256`.
 
-    def encode(value: Any) -> Any:
-        if isinstance(value, torch.Tensor):
-            return tensor(value)
-        if isinstance(value, np.ndarray):
-            return tensor(torch.from_numpy(value))
-        if isinstance(value, np.generic):
-            return value.item()
-        raise TypeError(f"cannot fingerprint a {type(value).__name__}")
-
-    return encode
+    A tensor (or array) becomes its dtype, shape and the SHA-256 of its bytes; a numpy
+    scalar its Python number.
+    """
+    if isinstance(value, torch.Tensor):
+        value = value.detach().cpu().contiguous().numpy()
+    if isinstance(value, np.ndarray):
+        array = np.ascontiguousarray(value)
+        digest = hashlib.sha256(array.tobytes()).hexdigest()
+        return f"array:{array.dtype}:{list(array.shape)}:{digest}"
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot fingerprint a {type(value).__name__}")

@@ -44,28 +44,13 @@ _PACKAGE = Path(__file__).resolve().parent.parent
 #: Parts of msarm that never change a number: the command line and the plots.
 _NEVER_COUNTED = ("cli", "plots.py")
 
+#: Libraries that compute a simulated run (distribution names, as pip knows them).
+_SIMULATION_LIBRARIES = ("mujoco", "pin", "numpy", "scipy", "numba", "cvxpy", "torch", "pyarrow")
+
 #: Scope -> (msarm parts left out, libraries whose versions count).
 SCOPES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "simulation": (
-        (*_NEVER_COUNTED, "diagnose"),
-        ("mujoco", "pin", "numpy", "scipy", "numba", "cvxpy", "torch", "pyarrow"),
-    ),
-    "diagnosis": (
-        _NEVER_COUNTED,
-        (
-            "mujoco",
-            "pin",
-            "numpy",
-            "scipy",
-            "numba",
-            "cvxpy",
-            "torch",
-            "pyarrow",
-            "casadi",
-            "pysindy",
-            "scikit-learn",
-        ),
-    ),
+    "simulation": ((*_NEVER_COUNTED, "diagnose"), _SIMULATION_LIBRARIES),
+    "diagnosis": (_NEVER_COUNTED, (*_SIMULATION_LIBRARIES, "casadi", "pysindy", "scikit-learn")),
 }
 
 #: Every library some scope counts.
