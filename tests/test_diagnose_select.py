@@ -201,6 +201,14 @@ def test_too_few_runs_and_bad_input_are_refused(arm, noise_logs, tmp_path):
     missing = tmp_path / "missing.parquet"
     with pytest.raises(InputError, match=r"missing.parquet"):
         signals_from_logs(arm, [missing])
+    # a missing file is named before the run count: one log that does not exist is not
+    # reported as too few runs, and a held-out one is checked too
+    with pytest.raises(InputError, match=r"missing\.parquet: no such log file"):
+        diagnose_command([missing], None, False, None)
+    with pytest.raises(InputError, match=r"missing\.parquet: no such log file"):
+        diagnose_command(noise_logs[:2], [missing], False, None)
+    with pytest.raises(InputError, match=r"a folder, expected a log file"):
+        diagnose_command([tmp_path, *noise_logs[:1]], None, False, None)
     with pytest.raises(InputError, match="given more than once"):
         diagnose(arm, [noise_logs[0], noise_logs[0]], noise_logs[1:2])
     for threshold in (1.0, 5.0, -0.1, float("nan")):

@@ -281,10 +281,13 @@ def diagnose_command(
 ) -> None:
     """Find which candidate effects explain the sim-to-real gap, scored on held-out runs."""
     from msarm.compensation.target import TENSION_TIMINGS, TargetSpec
+    from msarm.diagnose.builder import check_log_file
     from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec
     from msarm.diagnose.select import diagnose
     from msarm.model import ARM_MODEL_PATH, load_robot
 
+    for path in [*logs, *(holdout or [])]:
+        check_log_file(path)
     train, held = split_runs(list(logs), holdout)
     if boot < 0:
         raise InputError(f"--boot: expected a number of draws >= 0, got {boot}")

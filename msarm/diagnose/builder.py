@@ -32,6 +32,7 @@ __all__ = [
     "GROUP_UNITS",
     "MIN_TRAVEL",
     "channels_from_logs",
+    "check_log_file",
     "check_same_rate",
     "signals_from_logs",
 ]
@@ -47,18 +48,27 @@ MIN_TRAVEL = 0.01
 GROUP_UNITS = {"joint": "N m", "drive": "N", "length": "m"}
 
 
+def check_log_file(path: Path) -> None:
+    """Refuse a log path that is not a file: missing, or a run's folder.
+
+    Raises:
+        InputError: ``path`` does not exist, or is a folder (named with the log file it holds).
+    """
+    if path.is_dir():
+        inside = (
+            " (it holds log.parquet: give that file)" if (path / "log.parquet").is_file() else ""
+        )
+        raise InputError(f"{path}: a folder, expected a log file (Parquet){inside}")
+    if not path.is_file():
+        raise InputError(f"{path}: no such log file")
+
+
 def _one_run(
     model: RobotModel, path: Path, spec: ResidualSpec
 ) -> tuple[dict[str, FloatArray], dict[str, FloatArray], float]:
     """Signal arrays and group residuals (valid samples only) and sample period of one log."""
     source = str(path)
-    if path.is_dir():
-        inside = (
-            " (it holds log.parquet: give that file)" if (path / "log.parquet").is_file() else ""
-        )
-        raise InputError(f"{source}: a folder, expected a log file (Parquet){inside}")
-    if not path.is_file():
-        raise InputError(f"{source}: no such log file")
+    check_log_file(path)
     log = read_log(path)
     residuals = residuals_from_log(model, log, source=source, spec=spec, with_geometry=True)
     valid = residuals.valid
