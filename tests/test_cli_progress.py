@@ -118,9 +118,11 @@ def test_diagnose_prints_a_line_a_step_where_no_spinner_shows(monkeypatch, tmp_p
         return SimpleNamespace(as_dict=lambda: {"selected": []})
 
     monkeypatch.setattr(select, "diagnose", fake)
-    logs = [str(tmp_path / f"run{k}.parquet") for k in range(2)]  # never opened by the fake
+    logs = [tmp_path / f"run{k}.parquet" for k in range(2)]  # never read by the fake
+    for log in logs:
+        log.write_bytes(log.name.encode())
     for extra in ([], ["--json"]):
-        result = CliRunner().invoke(app, ["diagnose", *logs, *extra])
+        result = CliRunner().invoke(app, ["diagnose", *map(str, logs), *extra])
         if extra:
             assert result.exit_code == 0, result.output
             assert json.loads(result.stdout) == {"selected": []}

@@ -10,7 +10,7 @@ import pytest
 from conftest import ideal_plant_with, short_move_logs
 
 from msarm.compensation.feedforward import LearnedFeedforward
-from msarm.compensation.identify import identify_sheath
+from msarm.compensation.identify import identify_sheath, reuse_or_identify_sheath
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec, delivered_torque, torque_error
 from msarm.control import ArmControllerConfig, MuscleSpaceController
@@ -196,7 +196,7 @@ def test_the_target_takes_off_what_the_stage_added(arm, tmp_path):
         np.testing.assert_allclose(difference[:, j], expected, rtol=1e-7, atol=1e-7)
 
 
-def test_the_logs_identify_the_plants_sheath_and_cables(arm, tmp_path):
+def test_the_logs_identify_the_plants_sheath_and_cables(arm, tmp_path, monkeypatch):
     plant = replace(
         DEFAULT_PLANT,
         effects=replace(
@@ -215,6 +215,37 @@ def test_the_logs_identify_the_plants_sheath_and_cables(arm, tmp_path):
     assert found.compliance < 1.0 / plant.effects.elasticity.stiffness
     with pytest.raises(InputError, match="training and validation"):
         identify_sheath(arm, logs[:1], [])
+    _check_the_identification_is_reused_only_for_the_same_input(
+        arm, logs, found, tmp_path, monkeypatch
+    )
+
+
+def _check_the_identification_is_reused_only_for_the_same_input(
+    arm, logs, found, tmp_path, monkeypatch
+):
+    import msarm.compensation.identify as identify
+
+    record = tmp_path / "record" / "sheath-identification.json"
+    assert reuse_or_identify_sheath(arm, logs[:2], logs[2:], record) == (found, False)
+    assert record.is_file()
+    assert reuse_or_identify_sheath(arm, logs[:2], logs[2:], record) == (found, True)
+    # another split, other code, or an unreadable record: identified again
+    again, reused = reuse_or_identify_sheath(arm, logs[1:], logs[:1], record)
+    assert not reused and again != found
+    assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, True)
+    with monkeypatch.context() as patch:
+        patch.setattr(identify, "code_fingerprint", lambda scope: "other code")
+        assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, False)
+    record.write_text("{not json")
+    assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, False)
+    # a log whose bytes changed (its name the same) is not the same input
+    copy = tmp_path / "changed.parquet"
+    copy.write_bytes(logs[0].read_bytes())
+    assert reuse_or_identify_sheath(arm, [copy, logs[1]], logs[2:], record) == (found, False)
+    copy.write_bytes(logs[2].read_bytes())
+    assert reuse_or_identify_sheath(arm, [copy, logs[1]], logs[2:], record)[1] is False
+    with pytest.raises(InputError, match="training and validation"):
+        reuse_or_identify_sheath(arm, logs[:1], [], record)
 
 
 def test_the_stage_brings_the_arm_closer_to_its_target_on_the_default_plant(arm):

@@ -24,7 +24,7 @@ from msarm.compensation.checkpoint import CheckpointError, Compensator
 from msarm.compensation.dataset import DataConfig, build_arrays, collect_runs, split_runs
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.feedforward import LearnedFeedforward
-from msarm.compensation.identify import identify_sheath
+from msarm.compensation.identify import reuse_or_identify_sheath
 from msarm.compensation.network import NetworkConfig, train_network
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec
@@ -209,7 +209,9 @@ def train_compensator(
 
     With the sheath stage on (``recipe.sheath.enabled``), the runs without feedforward are
     for identifying it only (``mu`` and the cable compliance, fitted on the training runs and
-    scored on the validation runs, :func:`~msarm.compensation.identify.identify_sheath`).
+    scored on the validation runs, :func:`~msarm.compensation.identify.identify_sheath`; the
+    answer is kept in ``data.folder``/``sheath-identification.json`` and reused for the same
+    logs, model and code, :func:`~msarm.compensation.identify.reuse_or_identify_sheath`).
     Every run is then collected again with the stage on, and the networks learn what the
     stage leaves (the target takes off what it added, see
     :mod:`msarm.compensation.target`); from round 1 on the stage and the previous round's
@@ -250,7 +252,9 @@ def train_compensator(
     saved_stage: dict | None = None  # the stage as the checkpoint keeps it
     stage_name = ""
     if recipe.sheath.enabled:
-        identified = identify_sheath(model, train_paths, val_paths)
+        identified, _ = reuse_or_identify_sheath(
+            model, train_paths, val_paths, Path(data.folder) / "sheath-identification.json"
+        )
         saved_stage = {"spec": asdict(recipe.sheath), "parameters": identified.as_dict()}
         text = json.dumps(saved_stage, sort_keys=True)
         stage_name = f"-sheath-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
