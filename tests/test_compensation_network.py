@@ -148,10 +148,18 @@ def test_resume_after_an_interruption(data, tmp_path):
     assert _states_equal(again.compensator.state_dict(), whole.compensator.state_dict())
 
 
-def test_resume_refuses_other_data_or_config(data, tmp_path):
+def test_resume_refuses_other_data_or_config(data, tmp_path, monkeypatch):
+    import msarm.compensation.network as network
+
     path = tmp_path / "state.pt"
     small = NetworkConfig(batch_size=256, max_epochs=1)
     train_network(*data, small, checkpoint_path=path)
+    # the same state resumes under the code that wrote it, not under other code
+    with monkeypatch.context() as patch:
+        patch.setattr(network, "code_fingerprint", lambda scope: "f" * 64)
+        with pytest.raises(CheckpointError, match=r"other code \(code fingerprint [0-9a-f]{12}…"):
+            train_network(*data, small, checkpoint_path=path, resume=True)
+    assert train_network(*data, small, checkpoint_path=path, resume=True).epochs_run == 1
     x, y, xv, yv = data
     y_other = y.copy()
     y_other[0, 0] += 1e-9

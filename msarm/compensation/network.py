@@ -23,7 +23,9 @@ own seeded ``torch.Generator``, runs with ``config.threads`` intra-op threads an
 algorithms (both restored afterwards). The same inputs and config give the same weights, bit for
 bit, on one machine. A training checkpoint holds everything needed to continue (weights,
 optimiser state, best weights, early-stopping state, generator state, history): a resumed run
-ends with the same weights as an uninterrupted one.
+ends with the same weights as an uninterrupted one, and only the code that wrote it resumes it
+(its :func:`~msarm.io.code_version.code_fingerprint`: an upgrade of msarm or torch between the
+interruption and the resume would continue another training).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError, MsarmWarning
 from msarm.io.atomic import atomic_path
+from msarm.io.code_version import code_fingerprint
 from msarm.io.config import config_to_dict
 
 if TYPE_CHECKING:
@@ -490,6 +493,7 @@ def train_network(
                 "format_version": TRAINING_CHECKPOINT_VERSION,
                 "config": config_to_dict(config),
                 "data_sha256": data_sha,
+                "code": code_fingerprint("simulation"),
                 "input_dim": d,
                 "output_dim": n,
                 "model": _clone_state(model.state_dict()),
@@ -780,7 +784,15 @@ def _check_resumable(
     path: Path,
     error: type[Exception],
 ) -> None:
-    """Refuse to resume a checkpoint made for other data, shapes or settings."""
+    """Refuse to resume a checkpoint made for other data, shapes, settings or code."""
+    code, written_by = code_fingerprint("simulation"), saved.get("code")
+    if written_by != code:
+        recorded = f"{written_by[:12]}…" if isinstance(written_by, str) else "not recorded"
+        raise error(
+            f"{path}: checkpoint was written by other code (code fingerprint {recorded}, the "
+            f"code in use {code[:12]}…: msarm's sources or the libraries' versions changed "
+            "since); resume needs the same code"
+        )
     if (saved["input_dim"], saved["output_dim"]) != (d, n):
         raise error(
             f"{path}: checkpoint was trained with {saved['input_dim']} inputs and "

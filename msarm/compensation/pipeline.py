@@ -222,7 +222,7 @@ def train_compensator(
         recipe: The recipe.
         plant: The plant the runs are collected on (resolved from ``recipe.data.plant``).
         resume: Continue an interrupted training from its state file, if one is there (a
-            state left by another recipe or other runs cannot be resumed: that round
+            state left by another recipe, other runs or other code cannot be resumed: that round
             starts over, with a warning).
         on_run: Progress of the data collection ``(done, total, reused)``.
         on_epoch: Progress of the training ``(epoch, max_epochs, train_loss, val_loss)``.
