@@ -11,6 +11,7 @@ the compensator.
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -151,7 +152,9 @@ def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, small
     assert json.loads(again.stdout)["tasks"] == payload["tasks"]
     track_out = tmp_path / "track"
     ff = ["track", "--task", "table1-2", "--ff", recipe.checkpoint, "--out", str(track_out)]
-    result = CliRunner().invoke(app, [*ff, "--json"])
+    with warnings.catch_warnings():  # on the plant it was trained on: no warning about it
+        warnings.filterwarnings("error", "was trained on the plant", MsarmWarning)
+        result = CliRunner().invoke(app, [*ff, "--json"])
     assert result.exit_code == 0, result.output
     metrics = json.loads(result.stdout)
     assert metrics["task"] == "table1-2" and metrics["final_error_mm"] < 1.0
@@ -159,6 +162,48 @@ def test_the_compare_and_track_commands_run_with_the_compensator(tmp_path, small
     assert names <= {p.name for p in track_out.iterdir()}
     # the run records the compensator it ran with
     assert f"feedforward: {recipe.checkpoint}" in (track_out / "config.yaml").read_text()
+    # on the plant it was trained on: no warning; on another: one that names the differences
+    other = [*ff[:-1], str(tmp_path / "track-ideal"), "--plant", "ideal", "--json"]
+    with pytest.warns(MsarmWarning) as caught:
+        result = CliRunner().invoke(app, other)
+    assert result.exit_code == 0, result.output
+    (warning,) = [str(w.message) for w in caught if "was trained on the plant" in str(w.message)]
+    assert "trained on the plant 'default'; this plant 'ideal' differs in 5" in warning
+    assert "effects.sheath_friction.enabled: True -> False" in warning
+
+
+def test_the_checkpoint_records_the_plant_it_was_trained_on(small):
+    from msarm.compensation.feedforward import (
+        plant_differences,
+        trained_plant,
+        warn_if_other_plant,
+    )
+    from msarm.io.config import config_to_dict
+    from msarm.plant import IDEAL_PLANT
+
+    recipe, _ = small
+    compensator = Compensator.load(recipe.checkpoint)
+    assert compensator.metadata["training"]["plant"] == config_to_dict(DEFAULT_PLANT)
+    assert trained_plant(compensator) == DEFAULT_PLANT
+    renamed = replace(DEFAULT_PLANT, name="my-robot")
+    assert plant_differences(DEFAULT_PLANT, renamed) == []  # names aside
+    slower = replace(DEFAULT_PLANT, timestep=0.0005)
+    assert plant_differences(DEFAULT_PLANT, slower) == ["timestep: 0.001 -> 0.0005"]
+    with pytest.warns(MsarmWarning, match=r"differs in 1 setting\(s\) \(timestep"):
+        assert warn_if_other_plant(compensator, slower, "mine.pt") == [
+            "timestep: 0.001 -> 0.0005"
+        ]
+    with pytest.warns(MsarmWarning, match=r"differs in 5 setting.*; and 2 more\)"):
+        warn_if_other_plant(compensator, IDEAL_PLANT, "mine.pt")
+    # a checkpoint from before the record: its recipe's preset, or nothing for a plant file
+    older = Compensator.load(recipe.checkpoint)
+    del older.metadata["training"]["plant"]
+    assert trained_plant(older) == DEFAULT_PLANT
+    older.metadata["recipe"]["data"]["plant"] = "my_plant.yaml"
+    assert trained_plant(older) is None
+    assert warn_if_other_plant(older, IDEAL_PLANT) == []
+    older.metadata["training"]["plant"] = {"timestep": "fast"}  # not a plant: unknown
+    assert trained_plant(older) is None
 
 
 def test_bench_sim_times_the_loop_with_the_compensator(small):

@@ -237,6 +237,7 @@ def compare_command(
         LearnedFeedforward,
         load_feedforward,
         trained_controller,
+        warn_if_other_plant,
     )
     from msarm.io.config import folder_instead_of_file
     from msarm.model import load_arm
@@ -279,6 +280,7 @@ def compare_command(
     held_out += [s for s in more if s not in held_out]
     gains = trained_controller(feedforward.compensator)
     plant_config = resolve_plant(plant)
+    warn_if_other_plant(feedforward.compensator, plant_config, str(ff))
     # before the output folder is made: the runner would refuse it at the start of a run
     check_control_period(
         gains,

@@ -180,9 +180,14 @@ def track_command(
         check_controller_file(arm, gains, controller)
     feedforward = None
     if ff is not None:
-        from msarm.compensation.feedforward import load_feedforward, trained_controller
+        from msarm.compensation.feedforward import (
+            load_feedforward,
+            trained_controller,
+            warn_if_other_plant,
+        )
 
         feedforward = load_feedforward(ff, arm)
+        warn_if_other_plant(feedforward.compensator, plant_config, str(ff))
         gains = gains or trained_controller(feedforward.compensator)
     if controller is not None:
         gains_from = f"gains from {controller}"

@@ -8,6 +8,7 @@ the checkpoint) also turns the wanted tensions into the drives' command.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -19,16 +20,20 @@ from msarm.compensation.fast import FastCompensator
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.control import ArmControllerConfig
-from msarm.errors import ConfigError, InputError
-from msarm.io.config import load_config
+from msarm.errors import ConfigError, InputError, MsarmWarning
+from msarm.io.config import config_to_dict, load_config
 from msarm.model import RobotModel
+from msarm.plant.config import PlantConfig
 
 __all__ = [
     "LearnedFeedforward",
     "feature_spec_of",
     "load_feedforward",
+    "plant_differences",
     "sheath_stage_of",
     "trained_controller",
+    "trained_plant",
+    "warn_if_other_plant",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -202,6 +207,106 @@ class LearnedFeedforward:
         """The tension command [N], ``(m,)``, the controller sent this tick (features)."""
         if self.extractor is not None:
             self.extractor.observe_command(tension_command)
+
+
+def trained_plant(compensator: Compensator) -> PlantConfig | None:
+    """The plant a compensator's training runs were collected on, if the checkpoint says.
+
+    ``msarm train`` records it (``metadata["training"]["plant"]``); a checkpoint from before
+    that is known only by its recipe's ``data.plant``, which names a preset (``default``,
+    ``ideal``) or a file that may have changed since: the preset is returned, a file gives
+    ``None``, as does a record that is not a valid plant.
+
+    Args:
+        compensator: A loaded compensator.
+
+    Returns:
+        The plant configuration, or ``None`` when the checkpoint does not tell.
+    """
+    from msarm.plant import DEFAULT_PLANT, IDEAL_PLANT
+
+    training = compensator.metadata.get("training")
+    recorded = training.get("plant") if isinstance(training, Mapping) else None
+    if isinstance(recorded, Mapping):
+        try:
+            return load_config(recorded, PlantConfig)
+        except (ConfigError, InputError, TypeError, ValueError):
+            return None
+    recipe = compensator.metadata.get("recipe")
+    data = recipe.get("data") if isinstance(recipe, Mapping) else None
+    spec = data.get("plant") if isinstance(data, Mapping) else None
+    return {"default": DEFAULT_PLANT, "ideal": IDEAL_PLANT}.get(spec) if spec else None
+
+
+def plant_differences(trained: PlantConfig, plant: PlantConfig) -> list[str]:
+    """The settings in which ``plant`` differs from ``trained``, names aside.
+
+    Args:
+        trained: The plant a compensator was trained on (:func:`trained_plant`).
+        plant: The plant it is about to run on.
+
+    Returns:
+        One ``"path: trained value -> this value"`` line per differing setting (dotted
+        paths, e.g. ``effects.sheath_friction.enabled: True -> False``), in the config's
+        order; empty when the plants are the same.
+    """
+
+    def flat(raw: Mapping, prefix: str = "") -> dict[str, object]:
+        out: dict[str, object] = {}
+        for key, value in raw.items():
+            path = f"{prefix}{key}"
+            if isinstance(value, Mapping):
+                out.update(flat(value, f"{path}."))
+            elif path != "name":
+                out[path] = value
+        return out
+
+    before, now = flat(config_to_dict(trained)), flat(config_to_dict(plant))
+    return [
+        f"{path}: {before.get(path)!r} -> {now.get(path)!r}"
+        for path in [*before, *(k for k in now if k not in before)]
+        if before.get(path) != now.get(path)
+    ]
+
+
+def warn_if_other_plant(
+    compensator: Compensator, plant: PlantConfig, source: str = "compensator", shown: int = 3
+) -> list[str]:
+    """Warn when ``plant`` is not the plant the compensator was trained on.
+
+    The feedforward learned the effects of its training plant; on another it compensates
+    effects that may not be there (the default plant's compensator on the ideal plant:
+    ``random-7`` ends 0.35 mm from its target instead of 3e-6 mm without it). Running it
+    there is allowed (to see how it carries over), with a :class:`~msarm.errors.MsarmWarning`
+    that names the first ``shown`` differing settings. No warning when the checkpoint does
+    not say which plant it was trained on (:func:`trained_plant`).
+
+    Args:
+        compensator: A loaded compensator.
+        plant: The plant it is about to run on.
+        source: What to call the compensator (its file).
+        shown: How many differing settings the warning names.
+
+    Returns:
+        The differences (:func:`plant_differences`); empty for the same plant or an unknown
+        one.
+    """
+    trained = trained_plant(compensator)
+    if trained is None:
+        return []
+    differences = plant_differences(trained, plant)
+    if differences:
+        more = f"; and {len(differences) - shown} more" if len(differences) > shown else ""
+        warnings.warn(
+            f"{source} was trained on the plant {trained.name!r}; this plant "
+            f"{plant.name!r} differs in {len(differences)} setting(s) "
+            f"({'; '.join(differences[:shown])}{more}): the feedforward compensates the "
+            "effects of the plant it was trained on and can track worse on another "
+            "(train one for this plant: data.plant in the recipe of msarm train)",
+            MsarmWarning,
+            stacklevel=2,
+        )
+    return differences
 
 
 def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:

@@ -378,6 +378,7 @@ def train_compensator(
         sheath=identified,
     )
     compensator.metadata["training"] = {
+        "plant": config_to_dict(plant),  # what it learned: see trained_plant
         "rounds": data.rounds,
         "samples": report.samples,
         "collect_time_s": collect_time,
