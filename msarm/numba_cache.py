@@ -25,7 +25,7 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["drop_stale_kernels", "msarm_imports"]
+__all__ = ["compiled_or_cached", "drop_stale_kernels", "msarm_imports"]
 
 _PACKAGE_ROOT = Path(__file__).resolve().parent
 _PACKAGE = _PACKAGE_ROOT.name
@@ -177,3 +177,24 @@ def drop_stale_kernels(module_file: str | Path) -> bool:
     except OSError:
         return False
     return dropped
+
+
+def compiled_or_cached(kernel: object) -> bool | None:
+    """Whether calling ``kernel`` will skip numba's compiler: compiled here, or on disk.
+
+    Args:
+        kernel: An ``@numba.njit(cache=True)`` dispatcher.
+
+    Returns:
+        True when the process has compiled it already or numba's cache holds its index file
+        (where numba keeps it: beside the source, or under ``NUMBA_CACHE_DIR``); False when
+        neither, so its next call compiles it (10-20 s for the arm's loop); None when the
+        dispatcher does not show its cache as numba 0.68 does (another numba version).
+    """
+    if getattr(kernel, "signatures", None):
+        return True
+    try:
+        index = Path(kernel._cache._cache_file._index_path)  # type: ignore[attr-defined]
+    except (AttributeError, TypeError):
+        return None
+    return index.is_file()

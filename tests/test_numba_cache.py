@@ -85,3 +85,49 @@ def test_a_changed_callee_is_compiled_again_into_its_caller(tmp_path):
     # ... the check drops it and compiles the caller again
     assert _call(checked) == 2
     assert _call(checked) == 2  # and caches the new one
+
+
+KERNEL = """
+import numba
+
+
+@numba.njit(cache=True)
+def twice(x):
+    return 2.0 * x
+"""
+
+
+def test_a_kernel_is_ready_once_compiled_here_or_cached_on_disk(tmp_path, monkeypatch):
+    import importlib
+
+    from msarm.numba_cache import compiled_or_cached
+
+    (tmp_path / "probe_ready_kernel.py").write_text(KERNEL)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("probe_ready_kernel")
+    try:
+        assert compiled_or_cached(module.twice) is False  # never compiled: its call compiles
+        assert module.twice(2.0) == 4.0
+        assert compiled_or_cached(module.twice) is True  # compiled in this process
+        module = importlib.reload(module)  # a new dispatcher, as in a new process
+        assert not module.twice.signatures
+        assert compiled_or_cached(module.twice) is True  # numba's cache on disk
+        for index in (tmp_path / "__pycache__").glob("probe_ready_kernel.twice-*.nbi"):
+            index.unlink()
+        module = importlib.reload(module)
+        assert compiled_or_cached(module.twice) is False
+        assert compiled_or_cached(len) is None  # not a numba dispatcher: no answer
+    finally:
+        sys.modules.pop("probe_ready_kernel", None)
+
+
+def test_the_commands_say_when_numba_compiles_the_loop_first(monkeypatch, capsys):
+    import msarm.tasks.compiled_loop as compiled_loop
+    from msarm.cli.common import note_first_compile
+
+    monkeypatch.setattr(compiled_loop, "compiled_loop_ready", lambda: False)
+    assert note_first_compile("track") is True
+    assert "msarm track: numba compiles the simulation loop" in capsys.readouterr().err
+    monkeypatch.setattr(compiled_loop, "compiled_loop_ready", lambda: True)
+    assert note_first_compile("track") is False
+    assert capsys.readouterr().err == ""

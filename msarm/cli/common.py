@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
@@ -247,6 +248,31 @@ def progress_lines(what: str, total: int | None = None, enabled: bool = True):
         print(f"{what} [{count}]: {label}", file=sys.stderr, flush=True)
 
     return line
+
+
+def note_first_compile(command: str) -> bool:
+    """Say on stderr that numba compiles the simulation loop first, when it will.
+
+    Once after an install or an update of msarm, the first compiled run spends 10-20 s in
+    numba's compiler before its progress moves
+    (:func:`msarm.tasks.compiled_loop.compiled_loop_ready`).
+
+    Args:
+        command: The command's name, for the line (``track``, ``train``, ``compare``).
+
+    Returns:
+        Whether the line was printed.
+    """
+    from msarm.tasks.compiled_loop import compiled_loop_ready
+
+    if compiled_loop_ready():
+        return False
+    print(
+        f"msarm {command}: numba compiles the simulation loop before the first run "
+        "(10-20 s, once after an install or an update of msarm)",
+        file=sys.stderr,
+    )
+    return True
 
 
 def seed_suffix(seed: int) -> str:

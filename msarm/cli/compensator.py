@@ -15,6 +15,7 @@ from msarm.cli.common import (
     PLANTS,
     check_control_period,
     console,
+    note_first_compile,
     output_folder,
     progress_bar,
     progress_lines,
@@ -93,6 +94,7 @@ def train_command(
         TimeRemainingColumn(),
     )
     # progress on stderr (a bar on a terminal, else a line a step), with --json too
+    note_first_compile("train")
     with progress_bar(*columns, transient=False) as bar:
         runs = bar.add_task("collect runs", total=recipe.data.n_runs, info="")
         epochs = bar.add_task("train", total=recipe.network.max_epochs, info="", visible=False)
@@ -291,6 +293,7 @@ def compare_command(
     out_dir = output_folder(out)
     n_runs = (2 + len(variants)) * (4 + len(held_out))
     line = progress_lines("compare", n_runs)
+    note_first_compile("compare")
     with progress_bar() as bar:
         job = bar.add_task("compare", total=n_runs)
 

@@ -15,6 +15,7 @@ from msarm.cli.common import (
     check_control_period,
     check_controller_file,
     console,
+    note_first_compile,
     output_folder,
     progress_bar,
     read_config_section,
@@ -219,6 +220,7 @@ def track_command(
     out_dir = output_folder(
         out or default_folder(task_obj.name, plant_config.name, seed, feedforward is not None)
     )
+    note_first_compile("track")
     with progress_bar() as bar:  # on stderr, with --json too
         job = bar.add_task(f"{task_obj.name} on {plant_config.name}", total=1.0)
         result = track(

@@ -56,7 +56,7 @@ from msarm.errors import InputError
 from msarm.mujoco_c import function_addresses
 from msarm.muscle.batch_kinematics import KINEMATICS_FUNCTIONS, jacobian_at, wrap_angles_into
 from msarm.muscle.fast import hill_parts
-from msarm.numba_cache import drop_stale_kernels
+from msarm.numba_cache import compiled_or_cached, drop_stale_kernels
 from msarm.plant.arm_plant import ArmPlant, SimulationDivergedError
 from msarm.plant.cable_kernel import step_plant
 from msarm.plant.effects import Delay, SensorNoise
@@ -72,6 +72,7 @@ __all__ = [
     "FeedforwardArrays",
     "PlantArrays",
     "Sensing",
+    "compiled_loop_ready",
     "compiled_loop_supported",
     "run_compiled",
     "run_ticks",
@@ -96,6 +97,16 @@ BAD_STAGE_COMMAND = 5
 
 #: The sensor effects the compiled loop renders, in the plant's order (noise, then delay).
 _SENSOR_EFFECTS = ([], [SensorNoise], [Delay], [SensorNoise, Delay])
+
+
+def compiled_loop_ready() -> bool:
+    """False when the next compiled run will first compile :func:`run_ticks` (10-20 s).
+
+    That happens once after an install or an update of msarm (numba then caches it on
+    disk, see :mod:`msarm.numba_cache`); the commands say so before their first run, so that
+    a progress bar that does not move is explained. True when numba does not tell.
+    """
+    return compiled_or_cached(run_ticks) is not False
 
 
 def compiled_loop_supported(
