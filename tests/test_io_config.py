@@ -10,7 +10,15 @@ import pytest
 import yaml
 
 from msarm.errors import ConfigError, MsarmError
-from msarm.io.config import config_to_dict, dump_config, load_config, write_config
+from msarm.io.config import (
+    MISSING,
+    config_to_dict,
+    dump_config,
+    join_differences,
+    load_config,
+    value_differences,
+    write_config,
+)
 
 
 @dataclass(frozen=True)
@@ -386,3 +394,19 @@ def test_an_output_folder_that_is_a_file_is_refused_up_front(tmp_path):
     with pytest.raises(InputError, match="cannot create the folder"):
         output_folder(taken / "inside")
     assert output_folder(tmp_path / "a" / "b").is_dir()
+
+
+def test_value_differences_name_each_differing_leaf_by_its_path():
+    before = {"a": 1, "b": {"c": True, "d": [1.0, 2.0]}, "e": [{"f": "x"}], "gone": 3}
+    after = {"a": 1.0, "b": {"c": 1, "d": [1.0, 2.5]}, "e": [{"f": "y"}], "new": None}
+    assert value_differences(before, after) == [
+        ("gone", 3, MISSING),  # keys only in before first
+        ("b.c", True, 1),  # a bool is not the number 1 here
+        ("b.d", [1.0, 2.0], [1.0, 2.5]),  # a list of numbers is one leaf
+        ("e[0].f", "x", "y"),  # a list of mappings: item by item
+        ("new", MISSING, None),
+    ]  # and 1 == 1.0: an int and a float of one value are alike
+    assert value_differences(before, before, "spec") == []
+    assert value_differences({"k": 1}, {"k": 2}, "spec") == [("spec.k", 1, 2)]
+    assert join_differences(["a", "b", "c"], 2) == "a; b; and 1 more"
+    assert join_differences(["a", "b"], 2) == "a; b"

@@ -11,7 +11,7 @@ from rich.console import Console
 
 from msarm.errors import InputError
 from msarm.io.config import folder_instead_of_file
-from msarm.plant.config import DEFAULT_PLANT, IDEAL_PLANT, PlantConfig
+from msarm.plant.config import DEFAULT_PLANT, PLANT_PRESETS, PlantConfig
 
 if TYPE_CHECKING:
     from msarm.control import ArmControllerConfig
@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 
 #: Plants known by name; anything else is read as a YAML file.
-PLANTS: dict[str, PlantConfig] = {"default": DEFAULT_PLANT, "ideal": IDEAL_PLANT}
+PLANTS: dict[str, PlantConfig] = PLANT_PRESETS
 
 
 def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) -> T:

@@ -42,7 +42,14 @@ from msarm.compensation.network import (
     check_finite,
 )
 from msarm.errors import ConfigError, InputError, MsarmError
-from msarm.io.config import config_to_dict, folder_instead_of_file, load_config
+from msarm.io.config import (
+    MISSING,
+    config_to_dict,
+    folder_instead_of_file,
+    join_differences,
+    load_config,
+    value_differences,
+)
 
 __all__ = ["COMPENSATOR_FORMAT", "COMPENSATOR_VERSION", "CheckpointError", "Compensator"]
 
@@ -432,15 +439,10 @@ class Compensator:
             recorded = _comparable(self.metadata["feature_spec"])
             diffs = _differences(recorded, expected, "feature_spec")
             if diffs:
-                shown = "; ".join(diffs[:_MAX_DIFFERENCES])
-                more = (
-                    f"; and {len(diffs) - _MAX_DIFFERENCES} more"
-                    if len(diffs) > _MAX_DIFFERENCES
-                    else ""
-                )
                 raise CheckpointError(
                     f"{source}: made for another feature spec ({len(diffs)} "
-                    f"difference{'s' if len(diffs) != 1 else ''}: {shown}{more})"
+                    f"difference{'s' if len(diffs) != 1 else ''}: "
+                    f"{join_differences(diffs, _MAX_DIFFERENCES)})"
                 )
 
     def __repr__(self) -> str:
@@ -464,37 +466,15 @@ def _comparable(value: Any) -> Any:
 
 def _differences(recorded: Any, expected: Any, key: str) -> list[str]:
     """Human-readable differences between two plain values, by dotted key path."""
-    if isinstance(recorded, dict) and isinstance(expected, dict):
-        out: list[str] = []
-        for k in recorded:
-            if k not in expected:
-                out.append(f"{key}.{k} only in the compensator ({recorded[k]!r})")
-        for k in expected:
-            if k not in recorded:
-                out.append(f"{key}.{k} only in the spec in use ({expected[k]!r})")
-            else:
-                out.extend(_differences(recorded[k], expected[k], f"{key}.{k}"))
-        return out
-    if (
-        isinstance(recorded, list)
-        and isinstance(expected, list)
-        and len(recorded) == len(expected)
-        and any(isinstance(v, dict | list) for v in recorded)
-    ):
-        out = []
-        for i, (a, b) in enumerate(zip(recorded, expected, strict=True)):
-            out.extend(_differences(a, b, f"{key}[{i}]"))
-        return out
-    if type(recorded) is not type(expected) and not (
-        isinstance(recorded, int | float)
-        and isinstance(expected, int | float)
-        and not isinstance(recorded, bool)
-        and not isinstance(expected, bool)
-    ):
-        return [f"{key}: compensator {recorded!r}, in use {expected!r}"]
-    if recorded != expected:
-        return [f"{key}: compensator {recorded!r}, in use {expected!r}"]
-    return []
+    out = []
+    for path, before, after in value_differences(recorded, expected, key):
+        if after is MISSING:
+            out.append(f"{path} only in the compensator ({before!r})")
+        elif before is MISSING:
+            out.append(f"{path} only in the spec in use ({after!r})")
+        else:
+            out.append(f"{path}: compensator {before!r}, in use {after!r}")
+    return out
 
 
 def _hashable(value: Any) -> Any:

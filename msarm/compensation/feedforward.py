@@ -21,9 +21,9 @@ from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.control import ArmControllerConfig
 from msarm.errors import ConfigError, InputError, MsarmWarning
-from msarm.io.config import config_to_dict, load_config
+from msarm.io.config import config_to_dict, join_differences, load_config, value_differences
 from msarm.model import RobotModel
-from msarm.plant.config import PlantConfig
+from msarm.plant.config import PLANT_PRESETS, PlantConfig
 
 __all__ = [
     "LearnedFeedforward",
@@ -223,8 +223,6 @@ def trained_plant(compensator: Compensator) -> PlantConfig | None:
     Returns:
         The plant configuration, or ``None`` when the checkpoint does not tell.
     """
-    from msarm.plant import DEFAULT_PLANT, IDEAL_PLANT
-
     training = compensator.metadata.get("training")
     recorded = training.get("plant") if isinstance(training, Mapping) else None
     if isinstance(recorded, Mapping):
@@ -235,7 +233,7 @@ def trained_plant(compensator: Compensator) -> PlantConfig | None:
     recipe = compensator.metadata.get("recipe")
     data = recipe.get("data") if isinstance(recipe, Mapping) else None
     spec = data.get("plant") if isinstance(data, Mapping) else None
-    return {"default": DEFAULT_PLANT, "ideal": IDEAL_PLANT}.get(spec) if spec else None
+    return PLANT_PRESETS.get(spec) if isinstance(spec, str) else None
 
 
 def plant_differences(trained: PlantConfig, plant: PlantConfig) -> list[str]:
@@ -250,22 +248,10 @@ def plant_differences(trained: PlantConfig, plant: PlantConfig) -> list[str]:
         paths, e.g. ``effects.sheath_friction.enabled: True -> False``), in the config's
         order; empty when the plants are the same.
     """
-
-    def flat(raw: Mapping, prefix: str = "") -> dict[str, object]:
-        out: dict[str, object] = {}
-        for key, value in raw.items():
-            path = f"{prefix}{key}"
-            if isinstance(value, Mapping):
-                out.update(flat(value, f"{path}."))
-            elif path != "name":
-                out[path] = value
-        return out
-
-    before, now = flat(config_to_dict(trained)), flat(config_to_dict(plant))
     return [
-        f"{path}: {before.get(path)!r} -> {now.get(path)!r}"
-        for path in [*before, *(k for k in now if k not in before)]
-        if before.get(path) != now.get(path)
+        f"{path}: {before!r} -> {after!r}"
+        for path, before, after in value_differences(config_to_dict(trained), config_to_dict(plant))
+        if path != "name"
     ]
 
 
@@ -296,11 +282,10 @@ def warn_if_other_plant(
         return []
     differences = plant_differences(trained, plant)
     if differences:
-        more = f"; and {len(differences) - shown} more" if len(differences) > shown else ""
         warnings.warn(
             f"{source} was trained on the plant {trained.name!r}; this plant "
             f"{plant.name!r} differs in {len(differences)} setting(s) "
-            f"({'; '.join(differences[:shown])}{more}): the feedforward compensates the "
+            f"({join_differences(differences, shown)}): the feedforward compensates the "
             "effects of the plant it was trained on and can track worse on another "
             "(train one for this plant: data.plant in the recipe of msarm train)",
             MsarmWarning,

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from msarm.compensation.sheath import SheathParameters
-from msarm.diagnose.builder import channels_from_logs, check_same_rate
+from msarm.diagnose.builder import channels_from_logs, check_log_file, check_same_rate
 from msarm.diagnose.cable_effects import CableElasticity
 from msarm.diagnose.effects import CableCapstanFriction
 from msarm.diagnose.fitting import fit
@@ -66,8 +66,7 @@ def identify_sheath(
         InputError: No logs on either side.
         LogError: A log the diagnosis cannot read (file and reason named).
     """
-    if not train_paths or not validation_paths:
-        raise InputError("identify_sheath needs training and validation logs, at least one each")
+    _require_logs(train_paths, validation_paths)
     train, residual, train_names = channels_from_logs(model, train_paths)
     held, held_residual, held_names = channels_from_logs(model, validation_paths)
     check_same_rate(train, train_names[0], held, held_names[0], ("training", "validation"))
@@ -104,6 +103,13 @@ def identify_sheath(
     )
 
 
+def _require_logs(
+    train_paths: Sequence[str | Path], validation_paths: Sequence[str | Path]
+) -> None:
+    if not train_paths or not validation_paths:
+        raise InputError("identify_sheath needs training and validation logs, at least one each")
+
+
 def _identification_key(
     model: RobotModel,
     train_paths: Sequence[str | Path],
@@ -112,6 +118,8 @@ def _identification_key(
     """What an identification depends on: the model, the code, each log's bytes, in order."""
 
     def digests(paths: Sequence[str | Path]) -> list[str]:
+        for path in paths:  # a missing log or a run's folder: the log reader's message
+            check_log_file(Path(path))
         return [hashlib.sha256(Path(path).read_bytes()).hexdigest() for path in paths]
 
     return {
@@ -150,8 +158,7 @@ def reuse_or_identify_sheath(
         InputError: No logs on either side, or a log that cannot be read.
         LogError: A log the diagnosis cannot read (file and reason named).
     """
-    if not train_paths or not validation_paths:
-        raise InputError("identify_sheath needs training and validation logs, at least one each")
+    _require_logs(train_paths, validation_paths)
     record = Path(record)
     try:
         key = _identification_key(model, train_paths, validation_paths)

@@ -46,7 +46,10 @@ __all__ = [
     "config_to_dict",
     "dump_config",
     "folder_instead_of_file",
+    "MISSING",
+    "join_differences",
     "load_config",
+    "value_differences",
     "write_config",
     "yaml_problem",
 ]
@@ -325,6 +328,57 @@ def write_config(obj: Any, path: str | Path) -> Path:
     path = Path(path)
     write_bytes_atomic(path, dump_config(obj).encode("utf-8"))
     return path
+
+
+#: Stands, in :func:`value_differences`, for a key that one side's mapping lacks.
+MISSING: Any = object()
+
+
+def value_differences(before: Any, after: Any, key: str = "") -> list[tuple[str, Any, Any]]:
+    """Where two plain values (:func:`config_to_dict`'s form) differ, by dotted key path.
+
+    Mappings are compared key by key (keys only in ``before`` first, then ``after``'s keys in
+    order), lists of the same length that hold mappings or lists item by item (``key[i]``);
+    anything else is a leaf, which differs when its values differ or its types do (an int and
+    a float of the same value are alike; a bool is not a number here).
+
+    Args:
+        before: One plain value (a dict, list, number, string, bool or None).
+        after: The other.
+        key: The path of both (the prefix of every path returned).
+
+    Returns:
+        ``(path, before_value, after_value)`` per differing leaf, :data:`MISSING` for a key
+        that side lacks; empty when the two are alike.
+    """
+    if isinstance(before, Mapping) and isinstance(after, Mapping):
+        out = [(_join(key, k), before[k], MISSING) for k in before if k not in after]
+        for k in after:
+            if k not in before:
+                out.append((_join(key, k), MISSING, after[k]))
+            else:
+                out.extend(value_differences(before[k], after[k], _join(key, k)))
+        return out
+    if (
+        isinstance(before, list)
+        and isinstance(after, list)
+        and len(before) == len(after)
+        and any(isinstance(v, Mapping | list) for v in before)
+    ):
+        out = []
+        for i, (a, b) in enumerate(zip(before, after, strict=True)):
+            out.extend(value_differences(a, b, f"{key}[{i}]"))
+        return out
+    numbers = all(isinstance(v, int | float) and not isinstance(v, bool) for v in (before, after))
+    if (type(before) is not type(after) and not numbers) or before != after:
+        return [(key, before, after)]
+    return []
+
+
+def join_differences(lines: list[str], shown: int) -> str:
+    """The first ``shown`` of ``lines`` joined by ``"; "``, then ``"; and N more"`` if cut."""
+    more = f"; and {len(lines) - shown} more" if len(lines) > shown else ""
+    return "; ".join(lines[:shown]) + more
 
 
 # --- building -------------------------------------------------------------------------------

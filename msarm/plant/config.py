@@ -37,6 +37,7 @@ from msarm.io.config import check_numbers, check_plant_name
 __all__ = [
     "DEFAULT_PLANT",
     "IDEAL_PLANT",
+    "PLANT_PRESETS",
     "CoggingConfig",
     "DelayConfig",
     "EffectsConfig",
@@ -311,3 +312,5 @@ def ideal_config(name: str = "ideal") -> PlantConfig:
 
 DEFAULT_PLANT = PlantConfig()
 IDEAL_PLANT = ideal_config()
+#: Plants known by name (``--plant default``, a recipe's ``data.plant: ideal``).
+PLANT_PRESETS: dict[str, PlantConfig] = {"default": DEFAULT_PLANT, "ideal": IDEAL_PLANT}
