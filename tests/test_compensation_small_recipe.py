@@ -190,9 +190,7 @@ def test_the_checkpoint_records_the_plant_it_was_trained_on(small):
     slower = replace(DEFAULT_PLANT, timestep=0.0005)
     assert plant_differences(DEFAULT_PLANT, slower) == ["timestep: 0.001 -> 0.0005"]
     with pytest.warns(MsarmWarning, match=r"differs in 1 setting\(s\) \(timestep"):
-        assert warn_if_other_plant(compensator, slower, "mine.pt") == [
-            "timestep: 0.001 -> 0.0005"
-        ]
+        assert warn_if_other_plant(compensator, slower, "mine.pt") == ["timestep: 0.001 -> 0.0005"]
     with pytest.warns(MsarmWarning, match=r"differs in 5 setting.*; and 2 more\)"):
         warn_if_other_plant(compensator, IDEAL_PLANT, "mine.pt")
     # a checkpoint from before the record: its recipe's preset, or nothing for a plant file
