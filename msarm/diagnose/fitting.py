@@ -202,10 +202,11 @@ class LinearSolver:
         self.shape = design.shape
         A = design.reshape(-1, design.shape[2])
         used = np.flatnonzero(np.any(A != 0.0, axis=1))
+        #: Indices of the rows that take part, or None for all of them.
         self.rows = None if used.size == A.shape[0] else used
-        rows = A if self.rows is None else A[self.rows]
-        self.scale = _column_scale(rows)  # zero rows add nothing to the norms
-        u, singular, vt = np.linalg.svd(rows / self.scale, full_matrices=False)
+        A_used = A if self.rows is None else A[self.rows]
+        self.scale = _column_scale(A_used)  # zero rows add nothing to the norms
+        u, singular, vt = np.linalg.svd(A_used / self.scale, full_matrices=False)
         cut = np.finfo(float).eps * max(A.shape) * float(singular.max(initial=0.0))
         keep = singular > cut
         self.ut = np.ascontiguousarray(u[:, keep].T)
