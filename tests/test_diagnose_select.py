@@ -134,6 +134,28 @@ def test_null_plant_names_nothing_and_never_reads_the_sidecar(
     assert all(sidecar_path(path).is_file() for path in noise_logs)
 
 
+def test_the_held_out_replay_takes_the_diagnosis_residual_settings(arm, friction_logs):
+    # the gap as motion replays with the window, steps and source the logs were read with,
+    # as the "where" step's replay residual does (it took the defaults before 2026-11-28)
+    from msarm.diagnose.residuals import ResidualSpec, replay_runs
+    from msarm.diagnose.select import load_data, select_effects
+    from msarm.diagnose.stack import pooled_rmse
+
+    train, held = friction_logs[:-1], friction_logs[-1:]
+    spec = ResidualSpec(replay_window=0.4, replay_source="tension", replay_substeps=2)
+    data = load_data(arm, train, held, candidates=["coulomb"], spec=spec)
+    assert data.spec is spec
+    result = select_effects(data, n_boot=0)
+    assert result.names == ("coulomb",)
+    assert result.replay["source"] == "tension" and result.replay["window_s"] == 0.4
+    hold = data.hold
+    before = replay_runs(arm, hold.q, hold.qd, hold.tension, hold.run, hold.dt, None, spec)
+    assert result.replay["joint_rmse_before"] == pytest.approx(pooled_rmse(before), rel=1e-12)
+    default = select_effects(load_data(arm, train, held, candidates=["coulomb"]), n_boot=0)
+    assert default.replay["source"] == "command" and default.replay["window_s"] == 0.2
+    assert default.replay["joint_rmse_before"] != result.replay["joint_rmse_before"]
+
+
 def test_the_score_is_taken_on_the_held_out_runs(arm, friction_logs, noise_logs):
     """Trained on runs with joint friction: held-out runs with friction name it, held-out runs
     without it (the same moves, only sensor noise) leave nothing a term predicts."""

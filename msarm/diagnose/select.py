@@ -277,11 +277,13 @@ def _shortlist(
 def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[str, Any]:
     """Replay the held-out runs' commands with the nominal model, without and with the effects.
 
-    The nominal dynamics start from the logged state every 0.2 s and are driven by the logged
-    tension commands (the tension each measured one answers) through ideal cables; "with the
-    effects" adds the selected drive terms' prediction to the commands (the tension the drives
-    then deliver) and subtracts the selected joint terms' torque. Without commands in the logs
-    the measured tensions drive the replay (drive terms then play no part).
+    The nominal dynamics start from the logged state every window (``data.spec.replay_window``,
+    0.2 s by default; integrated as ``data.spec`` says) and are driven by the logged tension
+    commands (the tension each measured one answers) through ideal cables; "with the effects"
+    adds the selected drive terms' prediction to the commands (the tension the drives then
+    deliver) and subtracts the selected joint terms' torque. Without commands in the logs, or
+    with ``data.spec.replay_source == "tension"``, the measured tensions drive the replay (drive
+    terms then play no part), as in the "where" step's replay residual.
 
     Args:
         data: The diagnosis data.
@@ -295,7 +297,7 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     """
     from msarm.tasks.evaluate import hand_position
 
-    spec = ResidualSpec()
+    spec = data.spec
     hold, model = data.hold, data.model
     per_window = max(1, round(spec.replay_window / hold.dt))
     ends = np.zeros(hold.n_samples, dtype=bool)
@@ -303,8 +305,9 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
         index = np.flatnonzero(hold.run == label)
         ends[index[per_window - 1 :: per_window]] = True
     p_log = hand_position(model, hold.q[ends])
-    source = "tension" if hold.tension_cmd is None else "command"
-    drive = hold.tension if hold.tension_cmd is None else hold.tension_cmd
+    use_command = spec.replay_source == "command" and hold.tension_cmd is not None
+    source = "command" if use_command else "tension"
+    drive = hold.tension_cmd if use_command else hold.tension
     lost = cumulative.get("joint")
     delivered = (
         drive + cumulative["drive"] if "drive" in cumulative and source == "command" else drive
@@ -765,6 +768,7 @@ def load_data(
         train_runs=train_names,
         holdout_runs=hold_names,
         channel_names={g: names[g] for g in layout.groups},
+        spec=spec,
     )
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from msarm.diagnose.builder import GROUPS
 from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect, NumpyOps, Ops
 from msarm.diagnose.fitting import LinearSolver, _NonlinearProblem
+from msarm.diagnose.residuals import ResidualSpec
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 from msarm.model import RobotModel
@@ -563,6 +564,8 @@ class DiagnosisData:
         train_runs: Training log names.
         holdout_runs: Held-out log names.
         channel_names: Channel names of each group.
+        spec: The residual settings the logs were read with; the held-out replay of the
+            result (the gap as motion) uses its window, steps and source too.
     """
 
     model: RobotModel
@@ -576,3 +579,4 @@ class DiagnosisData:
     train_runs: tuple[str, ...]
     holdout_runs: tuple[str, ...]
     channel_names: dict[str, tuple[str, ...]]
+    spec: ResidualSpec = field(default_factory=ResidualSpec)
