@@ -90,6 +90,21 @@ def test_train_refuses_a_checkpoint_in_a_file(monkeypatch, capsys, tmp_path, no_
     assert not (tmp_path / "data").exists()
 
 
+def test_train_refuses_features_that_read_another_drum_than_the_plants(
+    monkeypatch, capsys, tmp_path, no_training
+):
+    plant = tmp_path / "plant.yaml"
+    plant.write_text("name: big-drums\nwinch: {drum_radius: 0.005}\n")
+    recipe = _recipe(tmp_path, extra="features:\n  drum_radius: 0.003\n")
+    text = recipe.read_text().replace("data:\n", f"data:\n  plant: {plant}\n")
+    recipe.write_text(text)
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'features.drum_radius' is 0.003 m" in line
+    assert "'big-drums' has winch.drum_radius 0.005 m" in line
+    assert "set features.drum_radius: 0.005" in line
+    assert not (tmp_path / "data").exists()
+
+
 def test_train_refuses_a_checkpoint_that_is_a_folder(monkeypatch, capsys, tmp_path, no_training):
     folder = tmp_path / "a_folder"
     folder.mkdir()

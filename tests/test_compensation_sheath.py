@@ -14,7 +14,7 @@ from msarm.compensation.identify import identify_sheath, reuse_or_identify_sheat
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec, delivered_torque, torque_error
 from msarm.control import ArmControllerConfig, MuscleSpaceController
-from msarm.errors import InputError
+from msarm.errors import InputError, MsarmWarning
 from msarm.io.logs import RunLog, read_log
 from msarm.plant import DEFAULT_PLANT
 from msarm.plant.effects import SensorReadings
@@ -220,10 +220,37 @@ def test_the_logs_identify_the_plants_sheath_and_cables(arm, tmp_path, monkeypat
     )
 
 
+def test_the_identification_reads_motor_angles_with_the_plants_drums(arm, tmp_path):
+    # winch drums of 5 mm: read with the default 3 mm, a motor angle is 40 % less cable than
+    # it moved, and the length residual is then mostly that (the compliance found is not the
+    # cables'); read with the plant's radius it is the stretch again
+    from msarm.diagnose.residuals import ResidualSpec
+
+    plant = replace(
+        DEFAULT_PLANT,
+        winch=replace(DEFAULT_PLANT.winch, drum_radius=0.005),
+        effects=replace(
+            DEFAULT_PLANT.effects,
+            winch_friction=replace(DEFAULT_PLANT.effects.winch_friction, enabled=False),
+            joint_friction=replace(DEFAULT_PLANT.effects.joint_friction, enabled=False),
+        ),
+    )
+    logs = short_move_logs(arm, tmp_path, plant, 3)
+    stiffness = plant.effects.elasticity.stiffness
+    found = identify_sheath(arm, logs[:2], logs[2:], ResidualSpec(drum_radius=0.005))
+    assert 0.5 / stiffness < found.compliance < 1.0 / stiffness
+    assert found.compliance_share > 0.5
+    with pytest.warns(MsarmWarning, match="negative compliance"):
+        misread = identify_sheath(arm, logs[:2], logs[2:])
+    assert misread.compliance == 0.0
+    assert misread.compliance_share < found.compliance_share
+
+
 def _check_the_identification_is_reused_only_for_the_same_input(
     arm, logs, found, tmp_path, monkeypatch
 ):
     import msarm.compensation.identify as identify
+    from msarm.diagnose.residuals import ResidualSpec
 
     record = tmp_path / "record" / "sheath-identification.json"
     assert reuse_or_identify_sheath(arm, logs[:2], logs[2:], record) == (found, False)
@@ -233,6 +260,11 @@ def _check_the_identification_is_reused_only_for_the_same_input(
     again, reused = reuse_or_identify_sheath(arm, logs[1:], logs[:1], record)
     assert not reused and again != found
     assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, True)
+    # the logs read with other settings (another drum radius): not the same input
+    other = ResidualSpec(drum_radius=0.004)
+    assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record, other)[1] is False
+    assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record, other)[1] is True
+    assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, False)
     with monkeypatch.context() as patch:
         patch.setattr(identify, "code_fingerprint", lambda scope: "other code")
         assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, False)

@@ -49,6 +49,7 @@ def train_command(
     from msarm.compensation.pipeline import (
         CompensatorRecipe,
         check_recipe_paths,
+        check_recipe_plant,
         train_compensator,
     )
     from msarm.io.config import folder_instead_of_file, load_config
@@ -80,6 +81,7 @@ def train_command(
         raise InputError(f"{config}: data.plant: {exc}") from None
     # up front: found after collecting, these would lose the runs' minutes
     check_recipe_paths(recipe, source)
+    check_recipe_plant(recipe, plant, source)
     check_control_period(
         recipe.controller,
         plant,

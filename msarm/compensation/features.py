@@ -136,7 +136,8 @@ class FeatureSpec:
         groups: Feature groups, in order (names of :data:`FEATURE_GROUPS`).
         sign_joint_speed: ``eps_q`` of ``tanh(qdot / eps_q)`` [rad/s].
         sign_cable_speed: ``eps_l`` of ``tanh(ldot / eps_l)`` [m/s].
-        drum_radius: Winch drum radius ``r`` turning motor angles into cable length [m].
+        drum_radius: Winch drum radius ``r`` turning motor angles into cable length [m]: the
+            plant's ``winch.drum_radius`` (``msarm train`` refuses a recipe where they differ).
         memory_angle: Joint travel over which the joint direction memory forgets [rad].
         memory_length: Cable travel over which the cable direction memory forgets [m].
         source: Where the motion groups (``q``, ``qdot``, the signs, the memories) come

@@ -13,6 +13,11 @@ that ``msarm diagnose`` uses, and are scored on the validation runs:
   Without that residual (no motor encoders, or rigid cables) the compliance is 0; a negative
   fit (no stretch that grows with the tension) counts as 0 too, with a warning.
 
+The logs are read as :class:`~msarm.diagnose.residuals.ResidualSpec` says: the cable length
+residual turns motor angles into cable length with its ``drum_radius``, which must be the
+plant's (:func:`msarm.compensation.pipeline.train_compensator` passes the plant's winch and
+the recipe's target settings).
+
 The score of each is its held-out explained share on the validation runs, the diagnosis's
 score (:func:`msarm.diagnose.stack.group_scores`, ``1 - sum (r - pred)^2 / sum r^2``), so a
 recipe can see whether the logs support it.
@@ -29,6 +34,7 @@ import hashlib
 import json
 import warnings
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +44,7 @@ from msarm.diagnose.builder import channels_from_logs, check_log_file, check_sam
 from msarm.diagnose.cable_effects import CableElasticity
 from msarm.diagnose.effects import CableCapstanFriction
 from msarm.diagnose.fitting import fit
+from msarm.diagnose.residuals import ResidualSpec
 from msarm.diagnose.stack import Layout, group_scores
 from msarm.errors import InputError, MsarmWarning
 from msarm.io.atomic import write_json_atomic
@@ -51,6 +58,7 @@ def identify_sheath(
     model: RobotModel,
     train_paths: Sequence[str | Path],
     validation_paths: Sequence[str | Path],
+    spec: ResidualSpec | None = None,
 ) -> SheathParameters:
     """Fit ``mu`` and the cable compliance on ``train_paths``, score them on the others.
 
@@ -58,6 +66,9 @@ def identify_sheath(
         model: The nominal robot model the logs were recorded with.
         train_paths: Logs to fit on (runs without compensation), at least one.
         validation_paths: Logs to score on, at least one.
+        spec: How the logs are read: the filter of the joint encoders and the load cells'
+            timing (``target``) and the winch drums' radius [m] (``drum_radius``, the
+            plant's); the defaults (msarm's arm: 3 mm) when None.
 
     Returns:
         The identified parameters with their held-out shares.
@@ -67,8 +78,8 @@ def identify_sheath(
         LogError: A log the diagnosis cannot read (file and reason named).
     """
     _require_logs(train_paths, validation_paths)
-    train, residual, train_names = channels_from_logs(model, train_paths)
-    held, held_residual, held_names = channels_from_logs(model, validation_paths)
+    train, residual, train_names = channels_from_logs(model, train_paths, spec)
+    held, held_residual, held_names = channels_from_logs(model, validation_paths, spec)
     check_same_rate(train, train_names[0], held, held_names[0], ("training", "validation"))
     capstan = fit(
         CableCapstanFriction(n_cables=model.n_cables, n_joints=model.n_joints, fit_eps=True),
@@ -114,8 +125,9 @@ def _identification_key(
     model: RobotModel,
     train_paths: Sequence[str | Path],
     validation_paths: Sequence[str | Path],
+    spec: ResidualSpec,
 ) -> dict:
-    """What an identification depends on: the model, the code, each log's bytes, in order."""
+    """What an identification depends on: model, code, settings, each log's bytes, in order."""
 
     def digests(paths: Sequence[str | Path]) -> list[str]:
         for path in paths:  # a missing log or a run's folder: the log reader's message
@@ -125,6 +137,7 @@ def _identification_key(
     return {
         "model_sha256": model.sha256,
         "code": code_fingerprint("diagnosis"),
+        "spec": asdict(spec),
         "train": digests(train_paths),
         "validation": digests(validation_paths),
     }
@@ -135,21 +148,24 @@ def reuse_or_identify_sheath(
     train_paths: Sequence[str | Path],
     validation_paths: Sequence[str | Path],
     record: str | Path,
+    spec: ResidualSpec | None = None,
 ) -> tuple[SheathParameters, bool]:
     """:func:`identify_sheath`, reusing the answer ``record`` holds for the same input.
 
     The record (JSON) holds the parameters and what they were identified from: the model's
-    SHA-256, the ``"diagnosis"`` code fingerprint and the SHA-256 of each log file, training
-    and validation in order. The parameters are reused only when all of these are the
-    same, so the answer is the one :func:`identify_sheath` would give (the fit is
-    deterministic), to the bit. Otherwise (no record, another input, a record that cannot be
-    read) the parameters are identified and the record written anew, atomically.
+    SHA-256, the ``"diagnosis"`` code fingerprint, the settings the logs are read with
+    (``spec``) and the SHA-256 of each log file, training and validation in order. The
+    parameters are reused only when all of these are the same, so the answer is the one
+    :func:`identify_sheath` would give (the fit is deterministic), to the bit. Otherwise (no
+    record, another input, a record that cannot be read) the parameters are identified and
+    the record written anew, atomically.
 
     Args:
         model: The nominal robot model the logs were recorded with.
         train_paths: Logs to fit on (runs without compensation), at least one.
         validation_paths: Logs to score on, at least one.
         record: The JSON file to reuse and write.
+        spec: How the logs are read (see :func:`identify_sheath`); the defaults when None.
 
     Returns:
         ``(parameters, reused)``: the identified parameters and whether the record gave them.
@@ -160,8 +176,9 @@ def reuse_or_identify_sheath(
     """
     _require_logs(train_paths, validation_paths)
     record = Path(record)
+    spec = spec or ResidualSpec()
     try:
-        key = _identification_key(model, train_paths, validation_paths)
+        key = _identification_key(model, train_paths, validation_paths, spec)
     except OSError as exc:
         raise InputError(f"cannot read a log to identify the sheath stage: {exc}") from None
     try:
@@ -170,6 +187,6 @@ def reuse_or_identify_sheath(
             return SheathParameters.from_dict(kept["parameters"]), True
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         pass  # no record, or one that cannot be used: identify again
-    parameters = identify_sheath(model, train_paths, validation_paths)
+    parameters = identify_sheath(model, train_paths, validation_paths, spec)
     write_json_atomic(record, {"key": key, "parameters": parameters.as_dict()})
     return parameters, False

@@ -29,6 +29,7 @@ from msarm.compensation.network import NetworkConfig, train_network
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec
 from msarm.control import ArmControllerConfig
+from msarm.diagnose.residuals import ResidualSpec
 from msarm.errors import ConfigError, MsarmWarning
 from msarm.io.config import config_to_dict
 from msarm.model import RobotModel
@@ -40,6 +41,7 @@ __all__ = [
     "CompensatorRecipe",
     "TrainingReport",
     "check_recipe_paths",
+    "check_recipe_plant",
     "train_compensator",
 ]
 
@@ -148,6 +150,33 @@ def check_recipe_paths(recipe: CompensatorRecipe, source: str = "the recipe") ->
         )
 
 
+def check_recipe_plant(
+    recipe: CompensatorRecipe, plant: PlantConfig, source: str = "the recipe"
+) -> None:
+    """Refuse a recipe whose features read the motor angles with another drum than the plant's.
+
+    The cable length error input (``features.drum_radius``) and the sheath identification turn
+    motor angles into cable length with the winch drums' radius: with another radius than the
+    plant's, the length error would carry a share of each cable's travel that is not there.
+
+    Args:
+        recipe: The recipe.
+        plant: The plant its runs are collected on.
+        source: The recipe's file, for the message (``"the recipe"`` when it has none).
+
+    Raises:
+        ConfigError: ``features.drum_radius`` differs from the plant's ``winch.drum_radius``
+            (both named).
+    """
+    drum, plant_drum = recipe.features.drum_radius, plant.winch.drum_radius
+    if abs(drum - plant_drum) > 1e-12 * plant_drum:
+        raise ConfigError(
+            f"{source}: key 'features.drum_radius' is {drum:g} m, the plant {plant.name!r} has "
+            f"winch.drum_radius {plant_drum:g} m; expected the same radius (set "
+            f"features.drum_radius: {plant_drum:g} in the recipe)"
+        )
+
+
 @dataclass(frozen=True)
 class TrainingReport:
     """What :func:`train_compensator` did and measured.
@@ -235,9 +264,11 @@ def train_compensator(
 
     Raises:
         ConfigError: The recipe's ``data.folder`` or ``checkpoint`` cannot be written (see
-            :func:`check_recipe_paths`), found before any run is collected.
+            :func:`check_recipe_paths`), or its features' drum radius is not the plant's (see
+            :func:`check_recipe_plant`), found before any run is collected.
     """
     check_recipe_paths(recipe)
+    check_recipe_plant(recipe, plant)
     data = recipe.data
     collect_time = train_time = 0.0
     start = time.perf_counter()
@@ -252,8 +283,18 @@ def train_compensator(
     saved_stage: dict | None = None  # the stage as the checkpoint keeps it
     stage_name = ""
     if recipe.sheath.enabled:
+        # the logs read with the plant's winch drums and the network target's filter
+        reading = ResidualSpec(
+            target=recipe.target,
+            drum_radius=plant.winch.drum_radius,
+            drive_gain=plant.winch.drive_gain,
+        )
         identified, _ = reuse_or_identify_sheath(
-            model, train_paths, val_paths, Path(data.folder) / "sheath-identification.json"
+            model,
+            train_paths,
+            val_paths,
+            Path(data.folder) / "sheath-identification.json",
+            reading,
         )
         saved_stage = {"spec": asdict(recipe.sheath), "parameters": identified.as_dict()}
         text = json.dumps(saved_stage, sort_keys=True)
