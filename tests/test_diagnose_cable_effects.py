@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -173,6 +174,30 @@ def test_winch_friction_is_named_with_its_parameters(arm, winch_logs):
     replay = result.replay
     assert replay["source"] == "command"
     assert replay["hand_error_end_after"] < 0.5 * replay["hand_error_end_before"]
+
+
+def test_the_drive_gain_sets_the_units_of_the_winch_friction(winch_logs, capsys):
+    """``--drive-gain K``: a tension error e is a winch torque e r (1 + K); the choice the same."""
+    from msarm.cli.diagnose import diagnose_command
+
+    found = {}
+    for gain in (4.0, 9.0):
+        diagnose_command(
+            winch_logs[:2],
+            winch_logs[2:],
+            json_output=True,
+            out=None,
+            candidates=["winch_friction"],
+            boot=0,
+            drive_gain=gain,
+        )
+        answer = json.loads(capsys.readouterr().out)
+        assert [s["name"] for s in answer["selected"]] == ["winch_friction"]
+        found[gain] = answer["selected"][0]["parameters"]
+    for name, value in found[4.0].items():
+        assert found[9.0][name] == pytest.approx(value * (1 + 9.0) / (1 + 4.0), rel=1e-9)
+    with pytest.raises(InputError, match="--drive-gain: expected a gain >= 0, got -1"):
+        diagnose_command(winch_logs[:2], winch_logs[2:], True, None, drive_gain=-1.0)
 
 
 def test_a_drive_delay_is_named_and_timed(arm, delay_logs):

@@ -260,6 +260,16 @@ def diagnose_command(
             "positive) moves the cable by -r theta. Used for the cable-length residual.",
         ),
     ] = 0.003,
+    drive_gain: Annotated[
+        float,
+        typer.Option(
+            metavar="K",
+            help="Gain of the drives' own tension loop [-]: the motor torque is r (T_cmd + K "
+            "(T_cmd - T_load_cell)), so a winch friction torque tau shows as a tension error "
+            "tau / (r (1 + K)). Sets the units of the drive terms' parameters (winch friction, "
+            "motor cogging) in N m; 4 is msarm's drives.",
+        ),
+    ] = 4.0,
     filter_window: Annotated[
         int,
         typer.Option(
@@ -300,6 +310,8 @@ def diagnose_command(
         )
     if not (0 < drum_radius < float("inf")):
         raise InputError(f"--drum-radius: expected a radius > 0 in metres, got {drum_radius}")
+    if not (0 <= drive_gain < float("inf")):
+        raise InputError(f"--drive-gain: expected a gain >= 0, got {drive_gain}")
     if filter_window < 5 or filter_window % 2 == 0:
         raise InputError(
             f"--filter-window: expected an odd number of samples >= 5, got {filter_window}"
@@ -309,6 +321,7 @@ def diagnose_command(
     spec = ResidualSpec(
         target=TargetSpec(window=filter_window, tension_timing=tension_timing),
         drum_radius=drum_radius,
+        drive_gain=drive_gain,
     )
     options: dict = {
         "n_boot": int(boot),
