@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 from test_diagnose_effects import _make_signals
 
-from msarm.diagnose.effects import StribeckFriction, ViscousFriction
+from msarm.diagnose.effects import (
+    DahlFriction,
+    InertiaError,
+    StribeckFriction,
+    ViscousFriction,
+)
 from msarm.diagnose.stack import (
     DiagnosisData,
     Embedded,
@@ -194,3 +199,33 @@ def test_a_thinned_child_takes_its_parents_samples_and_designs(arm):
             v_term.design(data.train if split == "train" else data.hold)[child.rows[split]],
         )
     np.testing.assert_array_equal(child.residual["train"], data.r_train[child.rows["train"]])
+
+
+def test_a_memoryless_design_is_computed_on_the_samples_used_only(arm, monkeypatch):
+    # the mass-error regressor at a sample needs that sample alone: computed on the thinned
+    # rows, it is the whole runs' design at those rows, bit for bit, at a fraction of the cost
+    inertia, dahl = InertiaError(arm), DahlFriction()
+    assert inertia.memoryless and not dahl.memoryless  # Dahl's state runs over the runs
+    zeros = [np.zeros(t.n_parameters) for t in (inertia, dahl)]
+    data, (i_term, d_term) = _data(arm, [inertia, dahl], zeros)
+    assert i_term.memoryless and not d_term.memoryless
+    sampled = Sampled(data, 120, max_hold=100)
+    seen = []
+    for term in (inertia, dahl):
+        design = term.design
+
+        def spy(signals, design=design):
+            seen.append((signals.n_samples, signals.origin is not None))
+            return design(signals)
+
+        monkeypatch.setattr(term, "design", spy)
+    for split, whole in (("train", data.train), ("hold", data.hold)):
+        rows = sampled.rows[split]
+        assert len(rows) < whole.n_samples
+        seen.clear()
+        got = sampled.design(i_term, split)
+        assert seen == [(len(rows), True)]
+        np.testing.assert_array_equal(got, i_term.design(whole)[rows])
+        seen.clear()
+        sampled.design(d_term, split)
+        assert seen == [(whole.n_samples, whole.origin is not None)]  # the whole runs

@@ -275,6 +275,11 @@ class CandidateEffect(ABC):
     #: Parameter kinds that no physical effect of this kind has below zero (a friction level,
     #: a compliance, a play): a fit that lands below zero is flagged in the diagnosis.
     nonnegative: ClassVar[frozenset[str]] = frozenset()
+    #: Whether a linear term's design at a sample depends on that sample's signals alone (no
+    #: state, delay tap or per-run mean): the selection then computes it on the samples it
+    #: fits and scores on only, not on the whole runs first. False (the safe default) for a
+    #: term with memory.
+    memoryless: ClassVar[bool] = False
 
     def unit_of(self, parameter: str) -> str:
         """The unit of a parameter, by its kind (``""`` when the term states none).
@@ -1223,6 +1228,7 @@ class InertiaError(CandidateEffect):
         "joint-torque regressor (base set of masses and first moments, or of all parameters)"
     )
     linear = True
+    memoryless = True  # Pinocchio's regressor at each sample's q, qd, qdd
 
     def __init__(self, robot: Any, subset: str = "mass", n_probe: int = 200, seed: int = 0) -> None:
         """Build the term.

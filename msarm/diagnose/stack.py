@@ -113,6 +113,7 @@ class Embedded(CandidateEffect):
         self.name = term.name  # type: ignore[misc]
         self.description = term.description  # type: ignore[misc]
         self.linear = term.linear  # type: ignore[misc]
+        self.memoryless = term.memoryless  # type: ignore[misc]
         self.parameter_names = term.parameter_names
         self.channels = tuple(range(layout.width))
         self.groups = layout.groups
@@ -238,8 +239,9 @@ class Sampled:
 
     Long logs are thinned evenly to at most ``max_samples`` training and ``max_hold``
     held-out samples (designs are computed on the whole runs first, so terms with memory, such
-    as the Dahl state or the delay taps, see every sample; nonlinear terms are evaluated on
-    the thinned samples and must be per-sample).
+    as the Dahl state or the delay taps, see every sample; a ``memoryless`` term's design, on
+    the thinned samples only; nonlinear terms are evaluated on the thinned samples and must be
+    per-sample).
     """
 
     def __init__(
@@ -317,7 +319,10 @@ class Sampled:
             if self.parent is not None:
                 self._designs[key] = self.parent.design(term, split)[self.within[split]]
             else:
-                design = term.design(self.full[split])[self.rows[split]]
+                if term.memoryless:  # no need of the whole runs: only the rows used
+                    design = term.design(self.signals[split])
+                else:
+                    design = term.design(self.full[split])[self.rows[split]]
                 if not np.all(np.isfinite(design)):
                     row = int(np.argwhere(~np.isfinite(design))[0][0])
                     raise InputError(
