@@ -353,16 +353,18 @@ def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
     import msarm.diagnose.select as select
 
     data = _synthetic_data(arm)
-    joint_fits = []
+    joint_fits, final_fits = [], []
     fit_together = select.fit_together
 
     def counted(terms, *args, **kwargs):
-        joint_fits.append(len(terms))
+        # the search fits by blocks; the chosen terms' final fit (projection) comes after
+        (joint_fits if kwargs.get("method") == "blocks" else final_fits).append(len(terms))
         return fit_together(terms, *args, **kwargs)
 
     monkeypatch.setattr(select, "fit_together", counted)
     full = select.select_effects(data, n_boot=0, replay=False, shortlist=None)
     n_full = len(joint_fits)
+    assert final_fits == [len(full.names)]
     joint_fits.clear()
     said = []
     short = select.select_effects(data, n_boot=0, replay=False, shortlist=1, progress=said.append)

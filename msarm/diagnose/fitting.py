@@ -25,6 +25,7 @@ from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 
 __all__ = [
+    "IPOPT_OPTIONS",
     "BootstrapResult",
     "FitResult",
     "LinearSolver",
@@ -237,6 +238,25 @@ def _column_scale(A: FloatArray) -> FloatArray:
     return np.where(scale > 0, scale, 1.0)
 
 
+#: IPOPT's settings for the fits (``casadi.nlpsol`` options), on objectives normalised by the
+#: residual's weighted energy.
+IPOPT_OPTIONS: dict[str, object] = {
+    "ipopt.print_level": 0,
+    "ipopt.sb": "yes",
+    "print_time": False,
+    # 1e-10 on the normalised objective: parameters within 1e-6 relative of the optimum
+    # (1e-14 took a third more iterations for the same answer to 1e-9)
+    "ipopt.tol": 1e-10,
+    "ipopt.max_iter": 500,
+    # Start near the guess: the residual objective may be far below the default barrier
+    # parameter (0.1), which would push the iterate away from a good start.
+    "ipopt.mu_init": 1e-8,
+    "ipopt.warm_start_init_point": "yes",
+    "ipopt.bound_push": 1e-10,
+    "ipopt.bound_frac": 1e-10,
+}
+
+
 class _NonlinearProblem:
     """IPOPT problem of a nonlinear candidate on fixed samples, with per-sample weights.
 
@@ -258,24 +278,12 @@ class _NonlinearProblem:
         objective = casadi.dot(weights, squared) / casadi.fmax(
             casadi.dot(weights, reference), 1e-300
         )
-        options = {
-            "ipopt.print_level": 0,
-            "ipopt.sb": "yes",
-            "print_time": False,
-            # 1e-10 on this normalised objective: parameters within 1e-6 relative of the
-            # optimum (1e-14 took a third more iterations for the same answer to 1e-9)
-            "ipopt.tol": 1e-10,
-            "ipopt.max_iter": 500,
-            # Start near the guess: the residual objective may be far below the default
-            # barrier parameter (0.1), which would push the iterate away from a good start.
-            "ipopt.mu_init": 1e-8,
-            "ipopt.warm_start_init_point": "yes",
-            "ipopt.bound_push": 1e-10,
-            "ipopt.bound_frac": 1e-10,
-        }
         parameters = casadi.vertcat(weights, casadi.vec(target))
         self.solver = casadi.nlpsol(
-            f"fit_{effect.name}", "ipopt", {"x": theta, "p": parameters, "f": objective}, options
+            f"fit_{effect.name}",
+            "ipopt",
+            {"x": theta, "p": parameters, "f": objective},
+            IPOPT_OPTIONS,
         )
         self.lower, self.upper = effect.bounds()
 

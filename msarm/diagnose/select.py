@@ -14,11 +14,16 @@ step by step, tries each remaining candidate together with the terms already sel
   :data:`SCREEN_SAMPLES` evenly thinned samples.
 - **Joint fit** of the shortlist: the candidates with the largest screening gains
   (:data:`DEFAULT_SHORTLIST`) are refitted with the selected terms by
-  :func:`~msarm.diagnose.stack.fit_together`: all linear terms in one least-squares problem
-  on their stacked, group-normalised designs, each nonlinear term by IPOPT, the blocks
-  refitted in turn to what the others leave until the fit settles, on all the fitting
-  samples. Only the shortlist may be added. At the first step, unless the screening thinned
-  the samples, the screening fit is the joint fit. Fits use the training runs only.
+  :func:`~msarm.diagnose.stack.fit_together` by blocks: all linear terms in one
+  least-squares problem on their stacked, group-normalised designs, each nonlinear term by
+  IPOPT, the blocks refitted in turn to what the others leave until the fit settles (at most
+  10 rounds), on all the fitting samples. Only the shortlist may be added. At the first step,
+  unless the screening thinned the samples, the screening fit is the joint fit. Fits use the
+  training runs only.
+- **Final fit.** The selected terms are fitted once more, to their joint optimum (variable
+  projection, :mod:`msarm.diagnose.projection`, from where their last fit by blocks ended):
+  correlated blocks (a Dahl or viscous term beside a Stribeck term) stop short of it, by up
+  to 5 bootstrap standard deviations of a parameter on the withheld-effect benchmark.
 - **Score.** The held-out explained share of the residual: per group, ``1 - sum (r -
   pred)^2 / sum r^2`` over the held-out samples and the group's columns (energy about zero,
   so that a constant offset such as a load-cell bias counts as gap), then the mean over the
@@ -29,8 +34,9 @@ step by step, tries each remaining candidate together with the terms already sel
   0.02); otherwise the selection stops. A null plant (only
   sensor noise) leaves nothing a term can predict on held-out runs, so nothing is selected.
 
-**Confidence.** The final model is refitted on ``n_boot`` bootstrap draws of the training runs
-(the parameters' standard deviation comes from the same draws). An effect's confidence is the
+**Confidence.** The final model is refitted (to its joint optimum, from the final fit) on
+``n_boot`` bootstrap draws of the training runs (the parameters' standard deviation comes from
+the same draws). An effect's confidence is the
 share of (draw, held-out run) pairs in which leaving that effect out of the refitted model
 lowers the run's explained share on the effect's groups by more than the threshold: 1 when
 every resample of the training runs and every held-out run needs it, near 0 for a term that
@@ -130,8 +136,6 @@ DEFAULT_SHORTLIST = 3
 #: The screening fits use at most this many training (and held-out) samples, evenly thinned
 #: (see :func:`select_effects`).
 SCREEN_SAMPLES = 2500
-#: Rounds of the joint fit by blocks in each bootstrap draw (it starts from the full fit).
-BOOTSTRAP_ROUNDS = 2
 #: Cogging periods per motor revolution of the default cogging candidates (motor datasheet).
 DEFAULT_COGGING_PERIODS = 24
 #: The candidates tried by default, by name (see :func:`available_candidates`).
@@ -530,7 +534,7 @@ def _bootstrap(
         weights = np.zeros(train.n_samples)
         for k in rng.integers(0, labels.size, size=labels.size):
             weights[members[k]] += 1.0
-        refit = fit_together(terms, sampled, weights, model.parameters, BOOTSTRAP_ROUNDS)
+        refit = fit_together(terms, sampled, weights, model.parameters)
         for k, theta in enumerate(refit.parameters):
             samples[k][b] = theta
         parts = [sampled.predict(term, samples[k][b], "hold") for k, term in enumerate(terms)]
@@ -877,7 +881,10 @@ def select_effects(
             say(f"step {step}: fitting {names} with the {len(chosen)} effect(s) chosen")
             for candidate in finalists:
                 fitted = fits[candidate.name] = fit_together(
-                    [*chosen, candidate], sampled, initial=list(fits[candidate.name].parameters)
+                    [*chosen, candidate],
+                    sampled,
+                    initial=list(fits[candidate.name].parameters),
+                    method="blocks",
                 )
                 after[candidate.name], gain_of[candidate.name] = _held_out_gain(
                     layout,
@@ -901,8 +908,9 @@ def select_effects(
         explained.append(float(np.mean(list(current.values()))))
         gains.append(gain_of[best.name])
 
-    # the chosen terms' fit is the one their last step made
-    final = chosen_fit if chosen_fit is not None else fit_together(chosen, sampled)
+    # the chosen terms' joint optimum, from where their last step's fit by blocks ended
+    start = None if chosen_fit is None else list(chosen_fit.parameters)
+    final = fit_together(chosen, sampled, initial=start)
     if chosen and int(n_boot) >= 2:
         say(f"bootstrap: {int(n_boot)} refits of {', '.join(t.name for t in chosen)}")
     stds, confidence = _bootstrap(final, sampled, layout, int(n_boot), threshold, seed)

@@ -1,0 +1,177 @@
+"""The joint fit of a coupled set of terms: IPOPT on the nonlinear parameters, linear eliminated.
+
+A set of candidate terms whose predictions share residual columns (a Stribeck friction beside a
+Dahl friction on the same joints) has to be fitted jointly: fitting one block after the other
+(backfitting) converges slowly when the blocks are correlated and stops short of the optimum.
+Variable projection (Golub and Pereyra, 1973) finds the joint optimum in one solve: for fixed
+nonlinear parameters ``theta_N`` the best linear parameters are a weighted least squares, so the
+objective of ``theta_N`` alone is what that least squares leaves,
+
+``J(theta_N) = sum w e^2 - b^T G^+ b``,  ``e = r - f(theta_N)``,  ``b = A^T W e``,
+``G = A^T W A``,
+
+with ``A`` the linear terms' stacked design (columns normalised), ``W`` the per-sample weights
+and ``G^+`` the pseudo-inverse from the thin SVD of ``W^(1/2) A`` with
+:class:`~msarm.diagnose.fitting.LinearSolver`'s cut. IPOPT (exact Hessian, within the
+nonlinear terms' bounds) minimises ``J / sum w r^2``; the linear parameters are then the least
+squares at the optimum, ``G^+ b``. The problem is built once for a set of terms and samples and
+solved for any residual, weights and start (the weights, residual and ``G^+`` are NLP
+parameters), so a bootstrap reuses it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import casadi
+import numpy as np
+from numpy.typing import NDArray
+
+from msarm.diagnose.effects import CandidateEffect, CasadiOps
+from msarm.diagnose.fitting import IPOPT_OPTIONS, _column_scale
+from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
+
+__all__ = ["ProjectedProblem"]
+
+FloatArray = NDArray[np.float64]
+
+
+class ProjectedProblem:
+    """Variable projection of one coupled set on fixed training samples (see the module).
+
+    Args:
+        nonlinear: The nonlinear terms, each predicting the residual columns ``columns_of[k]``
+            (``term.torque(signals, theta, ops)`` gives those columns, ``(T, k)``).
+        columns_of: The residual columns of each nonlinear term, in its output's order.
+        columns: Every residual column of the set (the union of the nonlinear terms' and the
+            linear design's), ``(C,)``.
+        design: The linear terms' stacked design on ``columns``, ``(T, C, p)``, or None.
+        signals: The training samples' signals, ``T`` of them.
+    """
+
+    def __init__(
+        self,
+        nonlinear: Sequence[CandidateEffect],
+        columns_of: Sequence[NDArray[np.intp]],
+        columns: NDArray[np.intp],
+        design: FloatArray | None,
+        signals: Signals,
+    ) -> None:
+        if not nonlinear:
+            raise InputError("ProjectedProblem: the set has no nonlinear term")
+        self.nonlinear = tuple(nonlinear)
+        self.columns = np.asarray(columns, dtype=np.intp)
+        T, C = signals.n_samples, len(self.columns)
+        self.shape = (T, C)
+        self.sizes = [t.n_parameters for t in self.nonlinear]
+        p = 0 if design is None else design.shape[2]
+        if design is not None:
+            if design.shape[:2] != (T, C):
+                raise InputError(f"design: expected shape ({T}, {C}, p), got {design.shape}")
+            self.scale = _column_scale(design.reshape(-1, p))
+            self.design = design / self.scale  # normalised columns
+        position = {int(c): k for k, c in enumerate(self.columns)}
+        #: Where each nonlinear term's columns sit among ``columns``.
+        self._own = [np.array([position[int(c)] for c in own], dtype=np.intp) for own in columns_of]
+        ops = CasadiOps()
+        thetas = [casadi.MX.sym(f"theta{k}", n) for k, n in enumerate(self.sizes)]
+        parts: list[list[Any]] = [[] for _ in range(C)]
+        for term, own, theta in zip(self.nonlinear, columns_of, thetas, strict=True):
+            out = term.torque(signals, theta, ops)
+            for j, c in enumerate(own):
+                parts[position[int(c)]].append(out[:, j])
+        zero = casadi.DM.zeros(T, 1)
+        predicted = casadi.horzcat(*[sum(ps[1:], ps[0]) if ps else zero for ps in parts])
+        target = casadi.MX.sym("r", T, C)
+        weights = casadi.MX.sym("w", T)
+        inverse = casadi.MX.sym("g", p, p)
+        error = casadi.vec(target - predicted)  # column by column: the design's row order
+        w = casadi.repmat(weights, C, 1)
+        objective = casadi.dot(w, error * error)
+        if p:
+            flat = casadi.DM(self._flat(self.design)).T  # (p, C T)
+            b = casadi.mtimes(flat, w * error)
+            objective = objective - casadi.dot(b, casadi.mtimes(inverse, b))
+        reference = casadi.fmax(casadi.dot(w, casadi.vec(target) ** 2), 1e-300)
+        parameters = casadi.vertcat(weights, casadi.vec(target), casadi.vec(inverse))
+        self.solver = casadi.nlpsol(
+            "fit_projected",
+            "ipopt",
+            {"x": casadi.vertcat(*thetas), "p": parameters, "f": objective / reference},
+            IPOPT_OPTIONS,
+        )
+        bounds = [t.bounds() for t in self.nonlinear]
+        self.lower = np.concatenate([low for low, _ in bounds])
+        self.upper = np.concatenate([high for _, high in bounds])
+        self.p = p
+        self._unweighted: FloatArray | None = None
+
+    @staticmethod
+    def _flat(design: FloatArray) -> FloatArray:
+        """``(T, C, p)`` to ``(C T, p)``, column after column (casadi's ``vec`` order)."""
+        return np.ascontiguousarray(design.transpose(1, 0, 2)).reshape(-1, design.shape[2])
+
+    def _inverse(self, weights: FloatArray | None) -> FloatArray:
+        """``G^+`` of the weighted normalised design, ``(p, p)``."""
+        if weights is None and self._unweighted is not None:
+            return self._unweighted
+        A = self.design if weights is None else self.design * np.sqrt(weights)[:, None, None]
+        flat = self._flat(A)
+        used = np.any(flat != 0.0, axis=1)  # zero rows (runs left out) change nothing
+        _, singular, vt = np.linalg.svd(flat[used], full_matrices=False)
+        cut = np.finfo(float).eps * max(flat.shape) * float(singular.max(initial=0.0))
+        keep = singular > cut
+        inverse = (vt[keep].T / singular[keep] ** 2) @ vt[keep]
+        if weights is None:
+            self._unweighted = inverse
+        return inverse
+
+    def solve(
+        self,
+        residual: FloatArray,
+        predict: Sequence[Any],
+        initial: Sequence[FloatArray],
+        weights: FloatArray | None = None,
+    ) -> tuple[list[FloatArray], FloatArray, str]:
+        """The joint optimum for ``residual`` on the set's columns.
+
+        Args:
+            residual: The residual on ``columns``, ``(T, C)``.
+            predict: For each nonlinear term, a function of its parameters giving its
+                prediction on its columns ``(T, k)`` (numpy), to compute the linear part.
+            initial: Start of each nonlinear term's parameters.
+            weights: Per-sample weights ``(T,)``; all 1 when None.
+
+        Returns:
+            ``(nonlinear, linear, status)``: each nonlinear term's parameters, the linear
+            terms' stacked parameters ``(p,)`` (in the design's units) and IPOPT's status.
+        """
+        residual = np.asarray(residual, dtype=float)
+        if residual.shape != self.shape:
+            raise InputError(f"residual: expected shape {self.shape}, got {residual.shape}")
+        T, C = self.shape
+        w = np.ones(T) if weights is None else np.asarray(weights, dtype=float)
+        inverse = self._inverse(weights) if self.p else np.zeros((0, 0))
+        x0 = np.clip(np.concatenate([np.asarray(x, dtype=float) for x in initial]), *self.bounds)
+        values = np.concatenate(
+            [w, residual.reshape(-1, order="F"), inverse.reshape(-1, order="F")]
+        )
+        solution = self.solver(x0=x0, p=values, lbx=self.lower, ubx=self.upper)
+        status = str(self.solver.stats()["return_status"])
+        x = np.clip(np.asarray(solution["x"], dtype=float).reshape(-1), self.lower, self.upper)
+        thetas = np.split(x, np.cumsum(self.sizes)[:-1])
+        linear = np.zeros(0)
+        if self.p:
+            left = residual.copy()
+            for k, theta in enumerate(thetas):
+                left[:, self._own[k]] -= predict[k](theta)
+            b = self._flat(self.design).T @ (np.tile(w, C) * left.reshape(-1, order="F"))
+            linear = (inverse @ b) / self.scale
+        return thetas, linear, status
+
+    @property
+    def bounds(self) -> tuple[FloatArray, FloatArray]:
+        """Lower and upper bounds of the nonlinear parameters, stacked."""
+        return self.lower, self.upper
