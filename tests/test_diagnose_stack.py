@@ -54,15 +54,20 @@ def _data(arm, truth_terms, thetas):
     return data, data.candidates
 
 
+def _viscous_and_stribeck(arm):
+    """Data of an exact viscous + Stribeck residual: ``(data, terms, true parameters)``."""
+    v_true = np.array([0.05, 0.08, 0.04, 0.06])
+    s_true = np.tile([0.2, 0.35, 0.3], 4)  # coulomb, static, Stribeck velocity per joint
+    data, terms = _data(arm, [ViscousFriction(), StribeckFriction()], [v_true, s_true])
+    return data, terms, (v_true, s_true)
+
+
 def _train_error(sampled, model):
     return float(np.sum((sampled.residual["train"] - model.predict(sampled, "train")) ** 2))
 
 
 def test_blocks_refitted_in_turn_beat_one_pass(arm):
-    viscous, stribeck = ViscousFriction(), StribeckFriction()
-    v_true = np.array([0.05, 0.08, 0.04, 0.06])
-    s_true = np.tile([0.2, 0.35, 0.3], 4)  # coulomb, static, Stribeck velocity per joint
-    data, (v_term, s_term) = _data(arm, [viscous, stribeck], [v_true, s_true])
+    data, (v_term, s_term), (v_true, s_true) = _viscous_and_stribeck(arm)
     sampled = Sampled(data, 20_000)
     one_pass = fit_together([v_term, s_term], sampled, rounds=1, method="blocks")
     joint = fit_together([v_term, s_term], sampled, method="blocks")
@@ -87,10 +92,7 @@ def test_blocks_refitted_in_turn_beat_one_pass(arm):
 def test_the_projection_reaches_the_joint_optimum_from_a_cold_start(arm):
     # the default: IPOPT on the Stribeck parameters with the viscous ones eliminated finds the
     # truth (the least squares optimum of a noise-free residual) where backfitting stops
-    viscous, stribeck = ViscousFriction(), StribeckFriction()
-    v_true = np.array([0.05, 0.08, 0.04, 0.06])
-    s_true = np.tile([0.2, 0.35, 0.3], 4)
-    data, (v_term, s_term) = _data(arm, [viscous, stribeck], [v_true, s_true])
+    data, (v_term, s_term), (v_true, s_true) = _viscous_and_stribeck(arm)
     sampled = Sampled(data, 20_000)
     blocks = fit_together([v_term, s_term], sampled, method="blocks")
     joint = fit_together([v_term, s_term], sampled)
@@ -111,10 +113,7 @@ def test_the_projection_equals_the_blocks_run_to_convergence(arm, monkeypatch):
     # noisy: the optimum is not the truth; backfitting with no tolerance creeps to the
     # optimum that the projection solves for at once (here in about 2000 rounds: after 10,
     # the default cap, a viscous coefficient was 0.0376 where the optimum has -0.0015)
-    viscous, stribeck = ViscousFriction(), StribeckFriction()
-    v_true = np.array([0.05, 0.08, 0.04, 0.06])
-    s_true = np.tile([0.2, 0.35, 0.3], 4)
-    data, (v_term, s_term) = _data(arm, [viscous, stribeck], [v_true, s_true])
+    data, (v_term, s_term), (v_true, s_true) = _viscous_and_stribeck(arm)
     noise = np.random.default_rng(3).normal(0.0, 0.02, size=data.r_train.shape)
     noisy = replace(data, r_train=data.r_train + noise)
     v_term, s_term = noisy.candidates
@@ -140,10 +139,7 @@ def test_weights_and_a_single_block(arm):
 
 def test_a_none_start_leaves_that_term_to_its_own_guess(arm):
     """The selection's warm start: fitted terms start where they ended, a new one from None."""
-    viscous, stribeck = ViscousFriction(), StribeckFriction()
-    v_true = np.array([0.05, 0.08, 0.04, 0.06])
-    s_true = np.tile([0.2, 0.35, 0.3], 4)
-    data, (v_term, s_term) = _data(arm, [viscous, stribeck], [v_true, s_true])
+    data, (v_term, s_term), (v_true, s_true) = _viscous_and_stribeck(arm)
     sampled = Sampled(data, 20_000)
     for method in ("blocks", "projection"):
         cold = fit_together([v_term, s_term], sampled, method=method)
