@@ -30,6 +30,7 @@ __all__ = [
     "FitResult",
     "LinearSolver",
     "bootstrap",
+    "column_scale",
     "fit",
     "one_blas_thread",
 ]
@@ -206,7 +207,7 @@ class LinearSolver:
         #: Indices of the rows that take part, or None for all of them.
         self.rows = None if used.size == A.shape[0] else used
         A_used = A if self.rows is None else A[self.rows]
-        self.scale = _column_scale(A_used)  # zero rows add nothing to the norms
+        self.scale = column_scale(A_used)  # zero rows add nothing to the norms
         u, singular, vt = np.linalg.svd(A_used / self.scale, full_matrices=False)
         cut = np.finfo(float).eps * max(A.shape) * float(singular.max(initial=0.0))
         keep = singular > cut
@@ -227,12 +228,12 @@ def _solve_linear(design: FloatArray, residual: FloatArray) -> FloatArray:
     One solve: ``numpy.linalg.lstsq`` (cheaper than factoring for :class:`LinearSolver`).
     """
     A = design.reshape(-1, design.shape[2])
-    scale = _column_scale(A)
+    scale = column_scale(A)
     solution, *_ = np.linalg.lstsq(A / scale, residual.reshape(-1), rcond=None)
     return solution / scale
 
 
-def _column_scale(A: FloatArray) -> FloatArray:
+def column_scale(A: FloatArray) -> FloatArray:
     """Each column's norm (1 for a zero column): the least squares' normalisation, ``(p,)``."""
     scale = np.linalg.norm(A, axis=0)
     return np.where(scale > 0, scale, 1.0)

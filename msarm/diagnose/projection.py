@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.effects import CandidateEffect, CasadiOps
-from msarm.diagnose.fitting import IPOPT_OPTIONS, _column_scale
+from msarm.diagnose.fitting import IPOPT_OPTIONS, column_scale
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 
@@ -70,7 +70,7 @@ class ProjectedProblem:
         if design is not None:
             if design.shape[:2] != (T, C):
                 raise InputError(f"design: expected shape ({T}, {C}, p), got {design.shape}")
-            self.scale = _column_scale(design.reshape(-1, p))
+            self.scale = column_scale(design.reshape(-1, p))
             self.design = design / self.scale  # normalised columns
         position = {int(c): k for k, c in enumerate(self.columns)}
         #: Where each nonlinear term's columns sit among ``columns``.
