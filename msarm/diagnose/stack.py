@@ -73,8 +73,9 @@ BACKFIT_ROUNDS = 10
 BACKFIT_TOLERANCE = 1e-4
 #: The key of the linear block's prediction in :func:`fit_together` (no term's ``id``).
 _LINEAR_BLOCK = 0
-#: How many variable-projection problems a :class:`Sampled` keeps (the last built).
-_PROJECTIONS_KEPT = 4
+#: How many variable-projection problems a :class:`Sampled` keeps (the last built; each holds
+#: its set's design on the fitting samples, twice: numpy's and casadi's copy).
+_PROJECTIONS_KEPT = 2
 #: Of the fitting samples, every this many enter the confounding test.
 _CONFOUNDING_STRIDE = 8
 
