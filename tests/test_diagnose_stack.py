@@ -10,8 +10,11 @@ from test_diagnose_effects import _make_signals
 
 import msarm.diagnose.stack as stack
 from msarm.diagnose.effects import (
+    CableCapstanFriction,
+    CoulombFriction,
     DahlFriction,
     InertiaError,
+    SensorBiasScale,
     StribeckFriction,
     ViscousFriction,
 )
@@ -281,7 +284,6 @@ def test_a_memoryless_design_is_computed_on_the_samples_used_only(arm, monkeypat
 def test_two_nonlinear_terms_and_a_linear_one_on_shared_columns(arm):
     # a capstan friction (all joints), a Stribeck friction on two joints and a viscous
     # friction: one coupled set with two nonlinear terms, fitted in one projected problem
-    from msarm.diagnose.effects import CableCapstanFriction
     from msarm.diagnose.projection import ProjectedProblem
 
     capstan, stribeck, viscous = (
@@ -302,3 +304,39 @@ def test_two_nonlinear_terms_and_a_linear_one_on_shared_columns(arm):
         problem.solve(np.zeros((3, 4)), [], [])
     with pytest.raises(InputError, match="no nonlinear term"):
         ProjectedProblem([], [], np.arange(4), None, sampled.signals["train"])
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda arm: [CableCapstanFriction(fit_eps=True), CoulombFriction()],
+        lambda arm: [StribeckFriction(), SensorBiasScale(n_cables=9, n_joints=4)],
+        lambda arm: [StribeckFriction(joints=[1, 2]), CableCapstanFriction(), InertiaError(arm)],
+    ],
+    ids=["capstan+coulomb", "stribeck+sensor", "stribeck+capstan+inertia"],
+)
+def test_the_projection_is_the_optimum_the_blocks_cannot_improve(arm, make):
+    # noisy residuals of mixed sets: the projection's fit is no worse than the blocks', and
+    # blocks started there stay there (a fixed point of refitting each block to the rest)
+    rng = np.random.default_rng(1)
+    terms = make(arm)
+    truth = []
+    for term in terms:
+        if term.linear:
+            truth.append(rng.normal(0.0, 0.05, term.n_parameters))
+        else:
+            low, high = term.bounds()
+            guess = term.initial_guess(None) if not isinstance(term, StribeckFriction) else None
+            guess = np.tile([0.2, 0.35, 0.3], len(term.channels)) if guess is None else guess
+            truth.append(np.clip(guess * rng.uniform(0.8, 1.6, guess.shape), low, high))
+    data, _ = _data(arm, terms, truth)
+    noise = rng.normal(0.0, 0.1 * np.std(data.r_train), data.r_train.shape)
+    data = replace(data, r_train=data.r_train + noise)
+    sampled = Sampled(data, 20_000)
+    joint = fit_together(list(data.candidates), sampled)
+    blocks = fit_together(list(data.candidates), sampled, method="blocks")
+    again = fit_together(
+        list(data.candidates), sampled, initial=list(joint.parameters), method="blocks"
+    )
+    assert _train_error(sampled, joint) <= _train_error(sampled, blocks) * (1 + 1e-9)
+    assert _train_error(sampled, again) == pytest.approx(_train_error(sampled, joint), rel=1e-7)
