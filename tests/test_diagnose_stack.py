@@ -302,6 +302,9 @@ def test_two_nonlinear_terms_and_a_linear_one_on_shared_columns(arm):
     assert problem.p == 4 and list(problem.columns) == [0, 1, 2, 3]
     with pytest.raises(InputError, match="residual: expected shape"):
         problem.solve(np.zeros((3, 4)), [], [])
+    r = sampled.residual["train"]
+    with pytest.raises(InputError, match="weights: expected"):
+        problem.solve(r, [], [], weights=-np.ones(r.shape[0]))
     with pytest.raises(InputError, match="no nonlinear term"):
         ProjectedProblem([], [], np.arange(4), None, sampled.signals["train"])
 

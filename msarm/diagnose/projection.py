@@ -71,7 +71,8 @@ class ProjectedProblem:
             if design.shape[:2] != (T, C):
                 raise InputError(f"design: expected shape ({T}, {C}, p), got {design.shape}")
             self.scale = column_scale(design.reshape(-1, p))
-            self.design = design / self.scale  # normalised columns
+            #: The normalised design, column after column (casadi's ``vec`` order), ``(C T, p)``.
+            self.flat = np.ascontiguousarray(design.transpose(1, 0, 2)).reshape(-1, p) / self.scale
         position = {int(c): k for k, c in enumerate(self.columns)}
         #: Where each nonlinear term's columns sit among ``columns``.
         self._own = [np.array([position[int(c)] for c in own], dtype=np.intp) for own in columns_of]
@@ -91,8 +92,7 @@ class ProjectedProblem:
         w = casadi.repmat(weights, C, 1)
         objective = casadi.dot(w, error * error)
         if p:
-            flat = casadi.DM(self._flat(self.design)).T  # (p, C T)
-            b = casadi.mtimes(flat, w * error)
+            b = casadi.mtimes(casadi.DM(self.flat).T, w * error)
             objective = objective - casadi.dot(b, casadi.mtimes(inverse, b))
         reference = casadi.fmax(casadi.dot(w, casadi.vec(target) ** 2), 1e-300)
         parameters = casadi.vertcat(weights, casadi.vec(target), casadi.vec(inverse))
@@ -108,17 +108,12 @@ class ProjectedProblem:
         self.p = p
         self._unweighted: FloatArray | None = None
 
-    @staticmethod
-    def _flat(design: FloatArray) -> FloatArray:
-        """``(T, C, p)`` to ``(C T, p)``, column after column (casadi's ``vec`` order)."""
-        return np.ascontiguousarray(design.transpose(1, 0, 2)).reshape(-1, design.shape[2])
-
     def _inverse(self, weights: FloatArray | None) -> FloatArray:
         """``G^+`` of the weighted normalised design, ``(p, p)``."""
         if weights is None and self._unweighted is not None:
             return self._unweighted
-        A = self.design if weights is None else self.design * np.sqrt(weights)[:, None, None]
-        flat = self._flat(A)
+        C = self.shape[1]
+        flat = self.flat if weights is None else self.flat * np.tile(np.sqrt(weights), C)[:, None]
         used = np.any(flat != 0.0, axis=1)  # zero rows (runs left out) change nothing
         _, singular, vt = np.linalg.svd(flat[used], full_matrices=False)
         cut = np.finfo(float).eps * max(flat.shape) * float(singular.max(initial=0.0))
@@ -153,6 +148,8 @@ class ProjectedProblem:
             raise InputError(f"residual: expected shape {self.shape}, got {residual.shape}")
         T, C = self.shape
         w = np.ones(T) if weights is None else np.asarray(weights, dtype=float)
+        if w.shape != (T,) or not np.all(w >= 0):
+            raise InputError(f"weights: expected {T} values >= 0, got shape {w.shape}")
         inverse = self._inverse(weights) if self.p else np.zeros((0, 0))
         x0 = np.clip(np.concatenate([np.asarray(x, dtype=float) for x in initial]), *self.bounds)
         values = np.concatenate(
@@ -167,7 +164,7 @@ class ProjectedProblem:
             left = residual.copy()
             for k, theta in enumerate(thetas):
                 left[:, self._own[k]] -= predict[k](theta)
-            b = self._flat(self.design).T @ (np.tile(w, C) * left.reshape(-1, order="F"))
+            b = self.flat.T @ (np.tile(w, C) * left.reshape(-1, order="F"))
             linear = (inverse @ b) / self.scale
         return thetas, linear, status
 
