@@ -245,6 +245,31 @@ def test_a_cable_speed_beyond_the_friction_fit_is_refused_before_the_run(robot):
     check_cdpr_run(robot, DEFAULT_CDPR_PLANT, "hc-tau", fast, {"friction_model": False})
 
 
+def test_a_controller_modelling_other_winches_than_the_plants_is_warned_about(robot):
+    import warnings
+
+    from msarm.control.cdpr_controllers import WinchParameters
+    from msarm.errors import MsarmWarning
+    from msarm.tasks.cdpr_runner import check_cdpr_run
+
+    trajectory = get_cdpr_trajectory("triangle-12")
+    big = replace(
+        DEFAULT_CDPR_PLANT, name="big", winch=replace(DEFAULT_CDPR_PLANT.winch, drum_radius=0.03)
+    )
+    for controller in ("hc-tau", "hc-e"):
+        with pytest.warns(
+            MsarmWarning,
+            match=rf"'{controller}'.*drum radius \[m\] 0.02 \(the plant's 0.03\) on plant 'big'",
+        ):
+            check_cdpr_run(robot, big, controller, trajectory)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MsarmWarning)
+        check_cdpr_run(robot, big, "hc-f", trajectory)  # load cells: no winch model in the loop
+        check_cdpr_run(robot, big, "ikc", trajectory)
+        check_cdpr_run(robot, DEFAULT_CDPR_PLANT, "hc-e", trajectory)  # the same winches
+        check_cdpr_run(robot, big, "hc-e", trajectory, {"winch": WinchParameters(drum_radius=0.03)})
+
+
 def test_cdpr_run_refuses_bad_input_before_creating_its_folder(tmp_path):
     folder = tmp_path / "run"
     bad = CliRunner().invoke(app, ["cdpr", "run", "--controller", "foo", "--out", str(folder)])

@@ -228,6 +228,10 @@ def test_a_warning_about_many_logs_is_shown_once_then_summarised():
     assert repeats.first("a/run1.parquet: column 'q_ref.x' is missing: y")
     assert not repeats.first("b/run2.parquet: column 'q_ref.x' is missing: y")
     assert repeats.first("a/run1.parquet: another problem")
+    # a warning about no file is shown once, whoever repeats it
+    assert repeats.first("controller 'hc-e' models other winches")
+    assert not repeats.first("controller 'hc-e' models other winches")
+    assert repeats.first("controller 'hc-tau' models other winches")
     assert repeats.first("a warning about no file")
     assert repeats.summary() == [
         "the same (column 'q_ref.x' is missing: y) for 1 more log(s): b/run2.parquet"

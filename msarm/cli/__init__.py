@@ -89,19 +89,24 @@ class RepeatedWarnings:
     """Tells the first of a warning about several log files from its repeats.
 
     A warning ``"<file>.parquet: <what>"`` is shown for its first file; the same ``<what>``
-    for further files is only counted, and :meth:`summary` names those files once.
+    for further files is only counted, and :meth:`summary` names those files once. Any other
+    warning is shown once: the same words again (a check made before a run and again by
+    the run) add nothing.
     """
 
     _ABOUT_A_FILE = re.compile(r"^(?P<source>\S+\.parquet): (?P<what>.*)$", re.DOTALL)
 
     def __init__(self) -> None:
         self.sources: dict[str, list[str]] = {}
+        self.shown: set[str] = set()
 
     def first(self, text: str) -> bool:
         """Whether ``text`` is to be shown (not the repeat of a warning about another file)."""
         match = self._ABOUT_A_FILE.match(text)
         if match is None:
-            return True
+            new = text not in self.shown
+            self.shown.add(text)
+            return new
         sources = self.sources.setdefault(match["what"], [])
         sources.append(match["source"])
         return len(sources) == 1

@@ -23,6 +23,8 @@ nor NC, which keeps forces near its own mean force rather than at the distributi
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
@@ -32,7 +34,7 @@ from numpy.typing import NDArray
 from msarm.cdpr.forward_kinematics import platform_wrench
 from msarm.cdpr.robot_model import CableRobotModel
 from msarm.control.cdpr_controllers import CdprController, make_cdpr_controller
-from msarm.errors import InputError
+from msarm.errors import InputError, MsarmWarning
 from msarm.io.logs import columns_from_quantities
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import CdprPlantConfig
@@ -156,6 +158,37 @@ def _substeps(plant_config: CdprPlantConfig, cycle: float) -> int:
     return n
 
 
+def _warn_other_winch(ctrl: CdprController, name: str, plant_config: CdprPlantConfig) -> None:
+    """Warn when a torque or following-error controller models other winches than the plant's.
+
+    HC-tau and HC-e turn force set values into motor torques and following errors through
+    their own :class:`~msarm.control.cdpr_controllers.WinchParameters` (eq. 3 and 9: drum
+    radius and inertia); a plant file with other drums would otherwise leave them mis-modelled
+    without a word (a deliberate mismatch, to study it, is a use too: hence a warning).
+    """
+    if getattr(ctrl, "feedback", None) not in ("torque", "following_error"):
+        return
+    mine, plant = ctrl.winch, plant_config.winch
+    differ = [
+        f"{label} {own:g} (the plant's {theirs:g})"
+        for label, own, theirs in (
+            ("drum radius [m]", mine.drum_radius, plant.drum_radius),
+            ("inertia [kg m^2]", mine.drum_inertia, plant.inertia),
+        )
+        if not math.isclose(own, theirs, rel_tol=1e-9)
+    ]
+    if differ:
+        warnings.warn(
+            f"controller {name!r} models the winches with {', '.join(differ)} on plant "
+            f"{plant_config.name!r}: its torque and following-error set values (paper 000 eq. "
+            "3, 9) use its own; give it the robot's winch (Python: make_cdpr_controller(..., "
+            "winch=WinchParameters(drum_radius=..., drum_inertia=...))) unless the mismatch is "
+            "what you study",
+            MsarmWarning,
+            stacklevel=3,
+        )
+
+
 def _check_cable_speeds(
     model: CableRobotModel, ctrl: CdprController, name: str, trajectory: CdprTrajectory
 ) -> None:
@@ -216,6 +249,7 @@ def check_cdpr_run(
     _substeps(plant_config, ctrl.dt)
     check_feasible(model, trajectory, ctrl.f_min, ctrl.f_max)
     _check_cable_speeds(model, ctrl, controller, trajectory)
+    _warn_other_winch(ctrl, controller, plant_config)
     ctrl.reset()
     return ctrl
 
