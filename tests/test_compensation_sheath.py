@@ -10,7 +10,7 @@ import pytest
 from conftest import ideal_plant_with, short_move_logs
 
 from msarm.compensation.feedforward import LearnedFeedforward
-from msarm.compensation.identify import identify_sheath, reuse_or_identify_sheath
+from msarm.compensation.identify import identify_sheath, plant_reading, reuse_or_identify_sheath
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec, delivered_torque, torque_error
 from msarm.control import ArmControllerConfig, MuscleSpaceController
@@ -237,7 +237,9 @@ def test_the_identification_reads_motor_angles_with_the_plants_drums(arm, tmp_pa
     )
     logs = short_move_logs(arm, tmp_path, plant, 3)
     stiffness = plant.effects.elasticity.stiffness
-    found = identify_sheath(arm, logs[:2], logs[2:], ResidualSpec(drum_radius=0.005))
+    reading = plant_reading(plant.winch, TargetSpec())  # what msarm train passes
+    assert reading == ResidualSpec(drum_radius=0.005, drive_gain=plant.winch.drive_gain)
+    found = identify_sheath(arm, logs[:2], logs[2:], reading)
     assert 0.5 / stiffness < found.compliance < 1.0 / stiffness
     assert found.compliance_share > 0.5
     with pytest.warns(MsarmWarning, match="negative compliance"):

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from msarm.compensation.sheath import SheathParameters
+from msarm.compensation.target import TargetSpec
 from msarm.diagnose.builder import channels_from_logs, check_log_file, check_same_rate
 from msarm.diagnose.cable_effects import CableElasticity
 from msarm.diagnose.effects import CableCapstanFriction
@@ -50,8 +51,22 @@ from msarm.errors import InputError, MsarmWarning
 from msarm.io.atomic import write_json_atomic
 from msarm.io.code_version import code_fingerprint
 from msarm.model import RobotModel
+from msarm.plant.config import WinchConfig
 
-__all__ = ["identify_sheath", "reuse_or_identify_sheath"]
+__all__ = ["identify_sheath", "plant_reading", "reuse_or_identify_sheath"]
+
+
+def plant_reading(winch: WinchConfig, target: TargetSpec) -> ResidualSpec:
+    """How to read a simulated plant's logs: its winches' drum radius and drive gain.
+
+    Args:
+        winch: The plant's winch (``PlantConfig.winch``).
+        target: The joint encoders' filter and the load cells' timing (a recipe's ``target``).
+
+    Returns:
+        The residual settings for :func:`identify_sheath`.
+    """
+    return ResidualSpec(target=target, drum_radius=winch.drum_radius, drive_gain=winch.drive_gain)
 
 
 def identify_sheath(

@@ -24,12 +24,11 @@ from msarm.compensation.checkpoint import CheckpointError, Compensator
 from msarm.compensation.dataset import DataConfig, build_arrays, collect_runs, split_runs
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.feedforward import LearnedFeedforward
-from msarm.compensation.identify import reuse_or_identify_sheath
+from msarm.compensation.identify import plant_reading, reuse_or_identify_sheath
 from msarm.compensation.network import NetworkConfig, train_network
 from msarm.compensation.sheath import SheathInverse, SheathParameters, SheathSpec
 from msarm.compensation.target import TargetSpec
 from msarm.control import ArmControllerConfig
-from msarm.diagnose.residuals import ResidualSpec
 from msarm.errors import ConfigError, MsarmWarning
 from msarm.io.config import config_to_dict
 from msarm.model import RobotModel
@@ -284,17 +283,12 @@ def train_compensator(
     stage_name = ""
     if recipe.sheath.enabled:
         # the logs read with the plant's winch drums and the network target's filter
-        reading = ResidualSpec(
-            target=recipe.target,
-            drum_radius=plant.winch.drum_radius,
-            drive_gain=plant.winch.drive_gain,
-        )
         identified, _ = reuse_or_identify_sheath(
             model,
             train_paths,
             val_paths,
             Path(data.folder) / "sheath-identification.json",
-            reading,
+            plant_reading(plant.winch, recipe.target),
         )
         saved_stage = {"spec": asdict(recipe.sheath), "parameters": identified.as_dict()}
         text = json.dumps(saved_stage, sort_keys=True)
