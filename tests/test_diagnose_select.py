@@ -375,6 +375,8 @@ def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
     assert full.search["shortlist"] is None and short.search["shortlist"] == 1
     assert "fits every one jointly" in full.to_markdown()
     assert "fits the best 1 jointly" in short.to_markdown()
+    assert short.search["final_fit"] == "projection"
+    assert "are their joint optimum (variable projection)" in short.to_markdown()
     assert json.loads(json.dumps(short.as_dict()))["search"]["screen_samples"] == 2500
     # the first step fits each candidate alone either way: the same scores, bit for bit
     assert short.step_scores[0] == full.step_scores[0]

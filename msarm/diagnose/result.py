@@ -119,12 +119,14 @@ class Diagnosis:
             from the terms already selected (see :data:`CONFOUNDING_LIMIT`), with the term
             and the canonical correlation.
         replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
-            dynamics driven by the logged commands over 0.2 s windows, without and with the
-            selected drive and joint terms; None when not computed.
+            dynamics driven by the logged commands over windows (0.2 s by default), without
+            and with the selected drive and joint terms; None when not computed.
         search: The selection's settings besides the threshold: ``shortlist`` (None: every
             candidate fitted jointly), ``screen_samples``, ``max_samples`` (training samples
-            the fits use), ``max_score_samples`` (held-out samples the scores use), ``n_boot``
-            and ``seed`` (empty when not recorded).
+            the fits use), ``max_score_samples`` (held-out samples the scores use), ``n_boot``,
+            ``seed`` and ``final_fit`` (``"projection"``: the named effects' final fit and the
+            bootstrap's at their joint optimum; absent from answers made before 2026-11-28)
+            (empty when not recorded).
     """
 
     selected: tuple[SelectedEffect, ...]
@@ -300,6 +302,12 @@ class Diagnosis:
                 + (
                     f", scored on at most {self.search['max_score_samples']} held-out ones"
                     if "max_score_samples" in self.search
+                    else ""
+                )
+                + (
+                    " (by blocks); the named effects' parameters, and each bootstrap draw's, are "
+                    "their joint optimum (variable projection)"
+                    if self.search.get("final_fit") == "projection"
                     else ""
                 )
                 + f"; {self.search.get('n_boot')} bootstrap draws (seed {self.search.get('seed')})."

@@ -968,5 +968,6 @@ def select_effects(
             "max_score_samples": int(max_score_samples),
             "n_boot": int(n_boot),
             "seed": int(seed),
+            "final_fit": "projection",
         },
     )
