@@ -11,8 +11,8 @@ objective of ``theta_N`` alone is what that least squares leaves,
 ``G = A^T W A``,
 
 with ``A`` the linear terms' stacked design (columns normalised), ``W`` the per-sample weights
-and ``G^+`` the pseudo-inverse from the thin SVD of ``W^(1/2) A`` with
-:class:`~msarm.diagnose.fitting.LinearSolver`'s cut. IPOPT (exact Hessian, within the
+and ``G^+`` the pseudo-inverse from :class:`~msarm.diagnose.fitting.LinearSolver`'s thin SVD
+of ``W^(1/2) A`` (its cut, its zero rows left out). IPOPT (exact Hessian, within the
 nonlinear terms' bounds) minimises ``J / sum w r^2``; the linear parameters are then the least
 squares at the optimum, ``G^+ b``. The problem is built once for a set of terms and samples and
 solved for any residual, weights and start (the weights, residual and ``G^+`` are NLP
@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.effects import CandidateEffect, CasadiOps
-from msarm.diagnose.fitting import IPOPT_OPTIONS, column_scale
+from msarm.diagnose.fitting import IPOPT_OPTIONS, LinearSolver, column_scale
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 
@@ -106,22 +106,17 @@ class ProjectedProblem:
         self.lower = np.concatenate([low for low, _ in bounds])
         self.upper = np.concatenate([high for _, high in bounds])
         self.p = p
-        self._unweighted: FloatArray | None = None
+        self._unweighted: LinearSolver | None = None
 
-    def _inverse(self, weights: FloatArray | None) -> FloatArray:
-        """``G^+`` of the weighted normalised design, ``(p, p)``."""
-        if weights is None and self._unweighted is not None:
+    def _solver(self, root: FloatArray | None) -> LinearSolver:
+        """The least squares of the normalised design weighted by rows ``root`` (``sqrt w``)."""
+        if root is None and self._unweighted is not None:
             return self._unweighted
-        C = self.shape[1]
-        flat = self.flat if weights is None else self.flat * np.tile(np.sqrt(weights), C)[:, None]
-        used = np.any(flat != 0.0, axis=1)  # zero rows (runs left out) change nothing
-        _, singular, vt = np.linalg.svd(flat[used], full_matrices=False)
-        cut = np.finfo(float).eps * max(flat.shape) * float(singular.max(initial=0.0))
-        keep = singular > cut
-        inverse = (vt[keep].T / singular[keep] ** 2) @ vt[keep]
-        if weights is None:
-            self._unweighted = inverse
-        return inverse
+        flat = self.flat if root is None else self.flat * root[:, None]
+        solver = LinearSolver(flat[:, None, :])
+        if root is None:
+            self._unweighted = solver
+        return solver
 
     def solve(
         self,
@@ -150,7 +145,12 @@ class ProjectedProblem:
         w = np.ones(T) if weights is None else np.asarray(weights, dtype=float)
         if w.shape != (T,) or not np.all(w >= 0):
             raise InputError(f"weights: expected {T} values >= 0, got shape {w.shape}")
-        inverse = self._inverse(weights) if self.p else np.zeros((0, 0))
+        root = None if weights is None else np.tile(np.sqrt(w), C)  # by row of the flat design
+        inverse = np.zeros((0, 0))
+        if self.p:  # G^+ = M M^T of the factored weighted design, M = V S^-1 / its scale
+            solver = self._solver(root)
+            factor = solver.v_over_s / solver.scale[:, None]
+            inverse = factor @ factor.T
         x0 = np.clip(np.concatenate([np.asarray(x, dtype=float) for x in initial]), *self.bounds)
         values = np.concatenate(
             [w, residual.reshape(-1, order="F"), inverse.reshape(-1, order="F")]
@@ -164,8 +164,8 @@ class ProjectedProblem:
             left = residual.copy()
             for k, theta in enumerate(thetas):
                 left[:, self._own[k]] -= predict[k](theta)
-            b = self.flat.T @ (np.tile(w, C) * left.reshape(-1, order="F"))
-            linear = (inverse @ b) / self.scale
+            b = left.reshape(-1, 1, order="F")
+            linear = solver.solve(b if root is None else b * root[:, None]) / self.scale
         return thetas, linear, status
 
     @property
