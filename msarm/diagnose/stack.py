@@ -12,7 +12,7 @@ the diagnosis's internals: their interface may change.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -364,6 +364,22 @@ class Sampled:
                 self._solvers[key] = LinearSolver(self.joint_design(terms))
         return self._solvers[key]
 
+    def weighted_solver(
+        self, terms: Sequence[CandidateEffect], weights: FloatArray | None
+    ) -> Callable[[FloatArray], FloatArray]:
+        """Least squares of linear terms' joint training design with per-sample weights.
+
+        Returns:
+            A function of a training residual ``(T, W)`` giving the terms' stacked parameters:
+            :meth:`solver`'s (kept) without weights; with them, a weighted design factored
+            once for this call's repeated solves (a bootstrap draw).
+        """
+        if weights is None:
+            return self.solver(terms).solve
+        root = np.sqrt(np.asarray(weights, dtype=float))[:, None]
+        solver = LinearSolver(self.joint_design(terms) * root[:, :, None])
+        return lambda residual: solver.solve(residual * root)
+
     def projection(
         self, linear: Sequence[Embedded], nonlinear: Sequence[Embedded]
     ) -> ProjectedProblem:
@@ -500,12 +516,7 @@ def fit_together(
                 for term, part in zip(linear, Stacked(linear).split(stacked), strict=True):
                     parameters[id(term)], messages[id(term)] = part, "least squares (joint)"
     if alone:
-        design = sampled.joint_design(alone)
-        if weights is None:
-            theta = sampled.solver(alone).solve(r)
-        else:
-            root = np.sqrt(np.asarray(weights, dtype=float))[:, None]
-            theta = LinearSolver(design * root[:, :, None]).solve(r * root)
+        theta = sampled.weighted_solver(alone, weights)(r)
         for term, part in zip(alone, Stacked(alone).split(theta), strict=True):
             parameters[id(term)], messages[id(term)] = part, "least squares (joint)"
     return FittedModel(
@@ -558,11 +569,7 @@ def _fit_by_blocks(
     }
     design = sampled.joint_design(linear) if linear else None
     if design is not None:
-        if weights is None:
-            solver = sampled.solver(linear)
-        else:
-            root = np.sqrt(w)[:, None]
-            solver = LinearSolver(design * root[:, :, None])  # the weighted design, once
+        solve = sampled.weighted_solver(linear, weights)  # the weighted design factored once
 
     def left_by(block: int | None) -> FloatArray:
         """The residual less every block's prediction but ``block``'s (all when None)."""
@@ -572,7 +579,7 @@ def _fit_by_blocks(
     for _ in range(rounds if _coupled(linear, nonlinear) else 1):
         if design is not None:
             left = left_by(_LINEAR_BLOCK)
-            theta = solver.solve(left if weights is None else left * root)
+            theta = solve(left)
             for term, part in zip(linear, Stacked(linear).split(theta), strict=True):
                 parameters[id(term)] = part
             prediction[_LINEAR_BLOCK] = np.einsum("tnp,p->tn", design, theta)
