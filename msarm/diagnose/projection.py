@@ -151,7 +151,8 @@ class ProjectedProblem:
             solver = self._solver(root)
             factor = solver.v_over_s / solver.scale[:, None]
             inverse = factor @ factor.T
-        x0 = np.clip(np.concatenate([np.asarray(x, dtype=float) for x in initial]), *self.bounds)
+        start = np.concatenate([np.asarray(x, dtype=float) for x in initial])
+        x0 = np.clip(start, self.lower, self.upper)
         values = np.concatenate(
             [w, residual.reshape(-1, order="F"), inverse.reshape(-1, order="F")]
         )
@@ -167,8 +168,3 @@ class ProjectedProblem:
             b = left.reshape(-1, 1, order="F")
             linear = solver.solve(b if root is None else b * root[:, None]) / self.scale
         return thetas, linear, status
-
-    @property
-    def bounds(self) -> tuple[FloatArray, FloatArray]:
-        """Lower and upper bounds of the nonlinear parameters, stacked."""
-        return self.lower, self.upper
