@@ -532,3 +532,40 @@ def test_the_fits_run_with_one_blas_thread_whatever_the_settings():
         assert one_blas_thread(blas_threads)() == {1}
     for entry in (select_effects, sindy_baseline):
         assert entry.__wrapped__ is not entry  # both entry points are wrapped
+
+
+def test_the_bootstrap_fits_each_distinct_draw_of_runs_once(arm, monkeypatch):
+    """A draw of the same runs as an earlier one reuses its refit: the same std and confidence."""
+    import msarm.diagnose.select as select
+    from msarm.diagnose.stack import Sampled
+
+    data = _synthetic_data(arm)  # two training runs: three distinct draws of two
+    weighted = []
+    fit_together = select.fit_together
+
+    def counted(terms, sampled, weights=None, *args, **kwargs):
+        if weights is not None:
+            weighted.append(weights.copy())
+        return fit_together(terms, sampled, weights, *args, **kwargs)
+
+    monkeypatch.setattr(select, "fit_together", counted)
+    result = select.select_effects(data, n_boot=12, seed=3, replay=False)
+    assert len(result.names) >= 2
+    distinct = {w.tobytes() for w in weighted}
+    assert 1 < len(weighted) == len(distinct) <= 3  # each distinct draw once
+    # the slow reference: every one of the 12 draws refitted from the final fit
+    sampled = Sampled(data, 5000, max_hold=data.hold.n_samples)
+    terms = [c for name in result.names for c in data.candidates if c.name == name]
+    final = fit_together(terms, sampled)
+    rng = np.random.default_rng(3)
+    runs = sampled.signals["train"].run
+    labels = np.unique(runs)
+    draws = []
+    for _ in range(12):
+        weights = np.zeros(runs.size)
+        for k in rng.integers(0, labels.size, size=labels.size):
+            weights[runs == labels[k]] += 1.0
+        draws.append(fit_together(terms, sampled, weights, final.parameters).parameters)
+    for k, effect in enumerate(result.selected):
+        spread = np.std([d[k] for d in draws], axis=0, ddof=1)
+        np.testing.assert_allclose(effect.std, spread, rtol=1e-9, atol=1e-15)

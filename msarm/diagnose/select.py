@@ -509,6 +509,28 @@ def _usable(
     return usable, skipped
 
 
+def _needed(
+    terms: Sequence[Embedded],
+    thetas: Sequence[FloatArray],
+    sampled: Sampled,
+    layout: Layout,
+    hold_runs: Sequence[NDArray[np.bool_]],
+    threshold: float,
+) -> FloatArray:
+    """For each term, the held-out runs whose explained share drops by > threshold without it."""
+    r_hold = sampled.residual["hold"]
+    pairs = zip(terms, thetas, strict=True)
+    parts = [sampled.predict(term, theta, "hold") for term, theta in pairs]
+    full = np.sum(parts, axis=0)
+    count = np.zeros(len(terms))
+    for mask in hold_runs:
+        with_all = group_scores(layout, r_hold[mask], full[mask])
+        for k, term in enumerate(terms):
+            without = group_scores(layout, r_hold[mask], (full - parts[k])[mask])
+            count[k] += own_gain(term.term.groups, without, with_all) > threshold
+    return count
+
+
 def _bootstrap(
     model: FittedModel,
     sampled: Sampled,
@@ -520,7 +542,6 @@ def _bootstrap(
     """Bootstrap over training runs: each term's parameter std and its confidence."""
     terms = model.terms
     train, hold = sampled.signals["train"], sampled.signals["hold"]
-    r_hold = sampled.residual["hold"]
     nan_std = [np.full(t.n_parameters, np.nan) for t in terms]
     labels = np.unique(train.run)
     if n_boot < 2 or labels.size < 2 or not terms:
@@ -530,20 +551,21 @@ def _bootstrap(
     hold_runs = [hold.run == label for label in np.unique(hold.run)]
     samples = [np.empty((n_boot, t.n_parameters)) for t in terms]
     needed = np.zeros(len(terms))
+    # a draw of the same runs as an earlier one (with 4 runs, about 1 draw in 4) gets the
+    # same weights, so the same (deterministic) refit and scores: they are computed once
+    seen: dict[tuple[int, ...], tuple[list[FloatArray], FloatArray]] = {}
     for b in range(n_boot):
-        weights = np.zeros(train.n_samples)
-        for k in rng.integers(0, labels.size, size=labels.size):
-            weights[members[k]] += 1.0
-        refit = fit_together(terms, sampled, weights, model.parameters)
-        for k, theta in enumerate(refit.parameters):
+        draw = tuple(sorted(int(k) for k in rng.integers(0, labels.size, size=labels.size)))
+        if draw not in seen:
+            weights = np.zeros(train.n_samples)
+            for k in draw:
+                weights[members[k]] += 1.0
+            thetas = fit_together(terms, sampled, weights, model.parameters).parameters
+            seen[draw] = (thetas, _needed(terms, thetas, sampled, layout, hold_runs, threshold))
+        thetas, count = seen[draw]
+        for k, theta in enumerate(thetas):
             samples[k][b] = theta
-        parts = [sampled.predict(term, samples[k][b], "hold") for k, term in enumerate(terms)]
-        full = np.sum(parts, axis=0)
-        for mask in hold_runs:
-            with_all = group_scores(layout, r_hold[mask], full[mask])
-            for k, term in enumerate(terms):
-                without = group_scores(layout, r_hold[mask], (full - parts[k])[mask])
-                needed[k] += own_gain(term.term.groups, without, with_all) > threshold
+        needed += count
     stds = [s.std(axis=0, ddof=1) for s in samples]
     return stds, [float(n / (n_boot * len(hold_runs))) for n in needed]
 
