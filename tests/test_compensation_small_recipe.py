@@ -217,3 +217,4 @@ def test_bench_sim_times_the_loop_with_the_compensator(small):
     # msarm's entry point prints it as "msarm: error: ..." (exit status 2)
     assert isinstance(missing.exception, CheckpointError)
     assert "no/such/compensator.pt: compensator file not found" in str(missing.exception)
+    assert "run `msarm train`, or `make demo`, to make one" in str(missing.exception)

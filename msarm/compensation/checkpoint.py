@@ -295,7 +295,11 @@ class Compensator:
         path = Path(path)
         if not path.is_file():
             folder = folder_instead_of_file(path, _EXPECTED)
-            raise CheckpointError(folder or f"{path}: compensator file not found")
+            raise CheckpointError(
+                folder
+                or f"{path}: compensator file not found; expected {_EXPECTED} (run "
+                "`msarm train`, or `make demo`, to make one)"
+            )
         if not zipfile.is_zipfile(path):  # torch.save writes a zip archive
             raise CheckpointError(
                 f"{path}: not a readable compensator file (not the zip archive that "
