@@ -221,6 +221,27 @@ def test_a_delay_kernel_is_also_given_in_milliseconds():
     assert notes == ("the weights make a delay of 8 ms (dt times the weighted tap, dt = 4 ms)",)
 
 
+def test_drive_terms_named_with_elasticity_say_they_may_be_its_drive_lag():
+    from msarm.diagnose.cable_effects import CommandDelay, WinchFriction
+    from msarm.diagnose.effects import ViscousFriction
+
+    delay = CommandDelay(n_cables=9)
+    winch = WinchFriction(drum_radius=0.003, drive_gain=4.0, n_cables=9)
+    taps, levels = np.array([0.0, 1.0, 0.0, 0.0]), np.full(winch.n_parameters, 0.01)
+    for term, theta in ((delay, taps), (winch, levels)):
+        alone = _notes(term, theta, np.zeros(theta.size), ("drive",), 0.004, (term.name,))
+        with_elastic = _notes(
+            term, theta, np.zeros(theta.size), ("drive",), 0.004, ("elasticity", term.name)
+        )
+        assert len(with_elastic) == len(alone) + 1
+        extra = with_elastic[-1]
+        assert extra.startswith("named with elasticity: to change an elastic cable's tension")
+        assert ("kernel may be that lag" in extra) == (term is delay)
+        assert ("viscous part may be that lag" in extra) == (term is winch)
+    viscous = ViscousFriction()
+    assert _notes(viscous, np.full(4, 0.1), np.zeros(4), ("joint",), 0.004, ("elasticity",)) == ()
+
+
 def test_a_warning_about_many_logs_is_shown_once_then_summarised():
     from msarm.cli import RepeatedWarnings
 

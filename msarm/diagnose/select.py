@@ -359,19 +359,38 @@ def _resolve(
     return out, True
 
 
+#: What a drive-side term named with cable elasticity may stand for (:func:`_notes`), with
+#: what the withheld-effect benchmark's elastic plants (no delay, no winch friction) gave.
+_ELASTIC_DRIVE_NOTES = {
+    "command_delay": (
+        "this kernel may be that lag rather than a delay (on the withheld-effect benchmark's "
+        "elastic plants, which have no delay, it is named with taps near 0.8, -0.1, -0.5, -0.1, "
+        "not the single tap of a whole-sample delay)"
+    ),
+    "winch_friction": (
+        "its viscous part may be that lag (on the withheld-effect benchmark's elastic plants, "
+        "which have no winch friction, it is named with a Coulomb level near 0.0003 N m and a "
+        "viscous coefficient of 0.0003-0.0005 N m s/rad)"
+    ),
+}
+
+
 def _notes(
     term: CandidateEffect,
     theta: FloatArray,
     std: FloatArray,
     groups: Sequence[str],
     dt: float | None = None,
+    named: Sequence[str] = (),
 ) -> tuple[str, ...]:
     """What a reader should know about a selected term's answer (see ``SelectedEffect.notes``).
 
     A parameter of a kind that is never negative physically (``term.nonnegative``) fitted
     below zero (by more than twice its bootstrap std, when there is one); a load-cell error
     named without the drive residual, where it cannot be told from a loss in the sheaths; the
-    delay in seconds that a delay kernel's weights make (with the sample period ``dt`` [s]).
+    delay in seconds that a delay kernel's weights make (with the sample period ``dt`` [s]);
+    a drive lag or winch friction named with cable elasticity (``named``: every selected
+    term's name), which the elastic cables' drive dynamics give too.
     """
     notes = []
     if isinstance(term, CommandDelay) and dt is not None:
@@ -403,6 +422,12 @@ def _notes(
             "the logs have no drive residual (no tension_cmd.<cable> columns): a load-cell "
             "scale error and a loss in proportion to the tension (sheath friction) act alike "
             "on the joint residual, so this may be friction in the sheaths"
+        )
+    if term.name in _ELASTIC_DRIVE_NOTES and "elasticity" in named:
+        notes.append(
+            "named with elasticity: to change an elastic cable's tension the drive has to turn "
+            "the winch, so the load cell follows the command late and through the winch's "
+            "inertia; " + _ELASTIC_DRIVE_NOTES[term.name]
         )
     return tuple(notes)
 
@@ -947,6 +972,7 @@ def select_effects(
     if replay:
         say("replaying the held-out runs with the nominal model, without and with the effects")
     motion = _replay_gap(data, layout.unstack(cumulative)) if replay else None
+    final_names = tuple(t.name for t in final.terms)
     selected = tuple(
         SelectedEffect(
             name=term.name,
@@ -960,7 +986,7 @@ def select_effects(
             confidence=confidence[k],
             message=message,
             parameter_units=tuple(term.term.unit_of(p) for p in term.parameter_names),
-            notes=_notes(term.term, theta, std, layout.groups, data.train.dt),
+            notes=_notes(term.term, theta, std, layout.groups, data.train.dt, final_names),
         )
         for k, (term, theta, std, message) in enumerate(
             zip(final.terms, final.parameters, stds, final.messages, strict=True)
