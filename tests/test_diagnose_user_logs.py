@@ -432,3 +432,16 @@ def test_one_training_run_says_why_there_is_no_confidence(logs, monkeypatch, cap
     assert "no bootstrap ran (it redraws the training runs, so it needs at least 2 of them, " in (
         " ".join(out.split())
     )
+
+
+def test_an_effect_few_bootstrap_draws_need_is_flagged():
+    from msarm.diagnose.effects import CoulombFriction
+    from msarm.diagnose.select import LOW_CONFIDENCE
+
+    coulomb, theta, std = CoulombFriction(), np.full(4, 0.1), np.full(4, 0.01)
+    assert LOW_CONFIDENCE == 0.5
+    (note,) = _notes(coulomb, theta, std, ("joint",), confidence=0.35)
+    assert note.startswith("confidence 0.35: leaving it out lowers the held-out explained share")
+    assert "in only 35 % of the (bootstrap draw, held-out run) pairs" in note
+    for sure in (0.5, 1.0, float("nan")):  # nan: no bootstrap
+        assert _notes(coulomb, theta, std, ("joint",), confidence=sure) == ()

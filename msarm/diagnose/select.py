@@ -359,6 +359,8 @@ def _resolve(
     return out, True
 
 
+#: A named effect whose confidence is below this gets a note that it may fit by chance.
+LOW_CONFIDENCE = 0.5
 #: What a drive-side term named with cable elasticity may stand for (:func:`_notes`), with
 #: what the withheld-effect benchmark's elastic plants (no delay, no winch friction) gave.
 _ELASTIC_DRIVE_NOTES = {
@@ -382,6 +384,7 @@ def _notes(
     groups: Sequence[str],
     dt: float | None = None,
     named: Sequence[str] = (),
+    confidence: float = float("nan"),
 ) -> tuple[str, ...]:
     """What a reader should know about a selected term's answer (see ``SelectedEffect.notes``).
 
@@ -390,9 +393,17 @@ def _notes(
     named without the drive residual, where it cannot be told from a loss in the sheaths; the
     delay in seconds that a delay kernel's weights make (with the sample period ``dt`` [s]);
     a drive lag or winch friction named with cable elasticity (``named``: every selected
-    term's name), which the elastic cables' drive dynamics give too.
+    term's name), which the elastic cables' drive dynamics give too; a ``confidence`` below
+    :data:`LOW_CONFIDENCE`.
     """
     notes = []
+    if confidence < LOW_CONFIDENCE:
+        notes.append(
+            f"confidence {confidence:.2f}: leaving it out lowers the held-out explained share "
+            f"by more than the threshold in only {100 * confidence:.0f} % of the (bootstrap "
+            "draw, held-out run) pairs, so it may fit these runs by chance; more runs, or other "
+            "held-out runs, would tell"
+        )
     if isinstance(term, CommandDelay) and dt is not None:
         notes.append(
             f"the weights make a delay of {1e3 * term.delay(theta, dt):.3g} ms "
@@ -986,7 +997,9 @@ def select_effects(
             confidence=confidence[k],
             message=message,
             parameter_units=tuple(term.term.unit_of(p) for p in term.parameter_names),
-            notes=_notes(term.term, theta, std, layout.groups, data.train.dt, final_names),
+            notes=_notes(
+                term.term, theta, std, layout.groups, data.train.dt, final_names, confidence[k]
+            ),
         )
         for k, (term, theta, std, message) in enumerate(
             zip(final.terms, final.parameters, stds, final.messages, strict=True)
