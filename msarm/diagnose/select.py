@@ -366,7 +366,7 @@ LOW_CONFIDENCE = 0.5
 _ELASTIC_DRIVE_NOTES = {
     "command_delay": (
         "this kernel may be that lag rather than a delay (on the withheld-effect benchmark's "
-        "elastic plants, which have no delay, it is named with taps near 0.8, -0.1, -0.5, -0.1, "
+        "elastic plants, which have no delay, it is named with taps such as 0.8, -0.1, -0.5, -0.1, "
         "not the single tap of a whole-sample delay)"
     ),
     "winch_friction": (
