@@ -37,6 +37,33 @@ def test_a_log_named_twice_is_refused_before_the_split(tmp_path):
     )
 
 
+def test_a_log_also_held_out_is_held_out_only_and_named(tmp_path):
+    from msarm.diagnose.residuals import DiagnosisWarning
+
+    a, b, c = (tmp_path / f"{name}.parquet" for name in "abc")
+    with pytest.warns(DiagnosisWarning) as caught:
+        train, held = split_runs([a, b, c], [tmp_path / "." / "c.parquet"])
+    assert train == [a, b] and held == [tmp_path / "." / "c.parquet"]
+    (warning,) = caught
+    assert str(warning.message) == (
+        f"{c}: given as a log and in --holdout: held out, not trained on (2 training log(s) left)"
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overlap, no warning
+        assert split_runs([a, b], [c]) == ([a, b], [c])
+
+
+def test_the_threshold_option_is_checked_before_the_logs_are_read(tmp_path):
+    from msarm.cli.diagnose import diagnose_command
+
+    logs = [tmp_path / "a.parquet", tmp_path / "b.parquet"]
+    for log in logs:
+        log.write_bytes(b"not read")  # the option is refused before any log is parsed
+    for bad in (1.0, 1.5, -0.1, float("nan")):
+        with pytest.raises(InputError, match=r"--threshold: expected a value in \[0, 1\)"):
+            diagnose_command(logs, None, False, None, threshold=bad)
+
+
 def test_a_copy_of_a_training_log_is_not_taken_as_a_held_out_run(arm, tmp_path):
     # refused from the bytes alone, before any log is parsed
     first, second, copy = (tmp_path / f"{name}.parquet" for name in ("a", "b", "copy_of_a"))

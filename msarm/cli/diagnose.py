@@ -45,6 +45,9 @@ def split_runs(logs: list[Path], holdout: list[Path] | None) -> tuple[list[Path]
     Without ``holdout`` the logs are split by file, in the given order: the last
     ``max(1, len(logs) // 4)`` are held out, the rest trained on.
 
+    A log in both ``logs`` and ``holdout`` (a glob of every run, say) is held out only, with
+    a :class:`~msarm.diagnose.residuals.DiagnosisWarning` that names it.
+
     Raises:
         InputError: A log given twice, fewer than 2 logs without ``holdout``, or no training
             log left.
@@ -61,6 +64,16 @@ def split_runs(logs: list[Path], holdout: list[Path] | None) -> tuple[list[Path]
         train = [p for p in logs if p.resolve() not in held]
         if not train:
             raise InputError("logs: every log is also in --holdout; nothing is left to fit on")
+        both = [str(p) for p in logs if p.resolve() in held]
+        if both:  # e.g. a glob of every run with some of them held out
+            from msarm.diagnose.residuals import DiagnosisWarning
+
+            warnings.warn(
+                f"{', '.join(both)}: given as a log and in --holdout: held out, not trained on "
+                f"({len(train)} training log(s) left)",
+                DiagnosisWarning,
+                stacklevel=2,
+            )
         return train, list(holdout)
     if len(logs) < 2:
         raise InputError(
@@ -301,6 +314,11 @@ def diagnose_command(
     train, held = split_runs(list(logs), holdout)
     if boot < 0:
         raise InputError(f"--boot: expected a number of draws >= 0, got {boot}")
+    if not 0 <= threshold < 1:  # before the logs are read (diagnose() checks it too)
+        raise InputError(
+            f"--threshold: expected a value in [0, 1) (a rise of the held-out explained "
+            f"share), got {threshold}"
+        )
     if shortlist < 0:
         raise InputError(f"--shortlist: expected a number of candidates >= 0, got {shortlist}")
     if tension_timing not in TENSION_TIMINGS:

@@ -300,7 +300,9 @@ def residuals_from_log(
         cables,
         source,
         "no drive residual (the winch-friction, motor-cogging and command-delay terms cannot "
-        "be fitted); the joint-torque and cable-length residuals are still computed",
+        "be fitted) and no commanded tensions for the sheath-stiction term "
+        "(capstan_hysteresis); the joint-torque and cable-length residuals are still "
+        "computed",
     )
     segments = _segments(log, source, spec.target.window)
 
