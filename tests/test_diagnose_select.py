@@ -266,6 +266,16 @@ def test_held_out_logs_without_a_channel_skip_the_terms_that_need_it(arm, noise_
     reason = data.skipped["capstan_hysteresis"]
     assert reason.startswith("in the held-out logs") and "tension_cmd" in reason
     assert "coulomb" not in data.skipped
+    # the answer keeps what the logs lacked (shown as a warning too), not the skip list
+    with pytest.warns(DiagnosisWarning) as shown:
+        result = diagnose(arm, noise_logs[:2], [held], candidates=["coulomb"], n_boot=0)
+    (lacked,) = result.log_warnings
+    assert lacked.startswith(f"{held}: column 'tension_cmd.")
+    assert lacked in [str(w.message) for w in shown]
+    assert json.loads(json.dumps(result.as_dict()))["log_warnings"] == [lacked]
+    assert f"## What the logs lacked (warnings)\n\n- {lacked}" in result.to_markdown()
+    clean = diagnose(arm, noise_logs[:2], noise_logs[2:3], candidates=["coulomb"], n_boot=0)
+    assert clean.log_warnings == () and "What the logs lacked" not in clean.to_markdown()
     # a term the user asked for: an error that says so
     with pytest.raises(InputError, match=r"capstan_hysteresis cannot be fitted.*held-out logs"):
         with pytest.warns(DiagnosisWarning):

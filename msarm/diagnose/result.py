@@ -127,6 +127,10 @@ class Diagnosis:
             ``seed`` and ``final_fit`` (``"projection"``: the named effects' final fit and the
             bootstrap's at their joint optimum; absent from answers made before 2026-11-28)
             (empty when not recorded).
+        log_warnings: What the logs lacked or held that the diagnosis worked around (a
+            missing channel, a time gap, a sensor that holds one value), as the
+            :class:`~msarm.diagnose.residuals.DiagnosisWarning` messages said it, each once
+            (the candidates not tried are in ``skipped``).
     """
 
     selected: tuple[SelectedEffect, ...]
@@ -146,6 +150,7 @@ class Diagnosis:
     replay: dict[str, Any] | None = None
     confounded: dict[str, str] = field(default_factory=dict)
     search: dict[str, Any] = field(default_factory=dict)
+    log_warnings: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -268,6 +273,7 @@ class Diagnosis:
             "replay": self.replay,
             "confounded": dict(self.confounded),
             "search": dict(self.search),
+            "log_warnings": list(self.log_warnings),
         }
 
     def to_markdown(self) -> str:
@@ -389,4 +395,7 @@ class Diagnosis:
         if self.skipped:
             lines += ["", "## Candidates not tried", ""]
             lines += [f"- {name}: {why}" for name, why in self.skipped.items()]
+        if self.log_warnings:
+            lines += ["", "## What the logs lacked (warnings)", ""]
+            lines += [f"- {text}" for text in self.log_warnings]
         return "\n".join(lines) + "\n"

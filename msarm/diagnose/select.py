@@ -54,6 +54,7 @@ from __future__ import annotations
 import hashlib
 import warnings
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -359,6 +360,8 @@ def _resolve(
     return out, True
 
 
+#: How the warning about the candidates the logs cannot support begins.
+_NOT_TRIED = "candidates not tried: "
 #: A named effect whose confidence is below this gets a note that it may fit by chance.
 LOW_CONFIDENCE = 0.5
 #: What a drive-side term named with cable elasticity may stand for (:func:`_notes`), with
@@ -538,7 +541,7 @@ def _usable(
                 warn.append(term.name)
     if warn:
         warnings.warn(
-            "candidates not tried: " + "; ".join(f"{name} ({skipped[name]})" for name in warn),
+            _NOT_TRIED + "; ".join(f"{name} ({skipped[name]})" for name in warn),
             DiagnosisWarning,
             stacklevel=3,
         )
@@ -655,8 +658,25 @@ def diagnose(
     """
     if progress is not None:
         progress(f"reading {len(train_paths) + len(holdout_paths)} log(s)")
-    data = load_data(model, train_paths, holdout_paths, candidates, spec, groups, extra_candidates)
-    return select_effects(data, threshold, n_boot, seed, shortlist=shortlist, progress=progress)
+    caught: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            data = load_data(
+                model, train_paths, holdout_paths, candidates, spec, groups, extra_candidates
+            )
+            result = select_effects(
+                data, threshold, n_boot, seed, shortlist=shortlist, progress=progress
+            )
+    finally:  # shown as they would have been (also when the diagnosis stops with an error)
+        for w in caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+    said = [
+        str(w.message)
+        for w in caught
+        if issubclass(w.category, DiagnosisWarning) and not str(w.message).startswith(_NOT_TRIED)
+    ]
+    # kept with the answer, each once
+    return replace(result, log_warnings=tuple(dict.fromkeys(said)))
 
 
 def _warn_still_joints(model: RobotModel, signals: Signals, names: Sequence[str]) -> None:
