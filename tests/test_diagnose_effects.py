@@ -94,6 +94,8 @@ def _make_signals(arm, seed: int = 0) -> Signals:
         dt=DT,
         run=cat["run"],
         tension_cmd=cat["F"],  # drives that render their commands exactly
+        # the drums' speed, as the logs' motor angles give it (the cable speed over the radius)
+        motor_speed=-np.einsum("tmn,tn->tm", jac, cat["qd"]) / DRUM,
     )
 
 

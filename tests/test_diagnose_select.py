@@ -282,6 +282,30 @@ def test_held_out_logs_without_a_channel_skip_the_terms_that_need_it(arm, noise_
             load_data(arm, noise_logs[:2], [held], candidates=["coulomb", "capstan_hysteresis"])
 
 
+def test_logs_without_motor_angles_skip_the_cogging_terms(arm, noise_logs, tmp_path):
+    """Without motor encoders the cogging terms are not fitted to stand-in zero angles."""
+    from msarm.diagnose.residuals import DiagnosisWarning
+    from msarm.diagnose.select import load_data
+    from msarm.io.logs import RunLog, read_log, write_log
+
+    stripped = []
+    for k, path in enumerate(noise_logs[:3]):
+        log = read_log(path)
+        columns = {c: v for c, v in log.columns.items() if not c.startswith("motor_angle.")}
+        stripped.append(write_log(tmp_path / f"no_motor{k}.parquet", RunLog(columns, log.metadata)))
+    with pytest.warns(DiagnosisWarning) as caught:
+        data = load_data(arm, stripped[:2], stripped[2:])
+    said = [str(w.message) for w in caught]
+    assert any("encoder skew and motor cogging are left out" in text for text in said)
+    assert any(text.startswith("candidates not tried: ") for text in said)
+    assert "motor_angle.<cable> columns" in data.skipped["motor_cogging"]
+    assert "motor_cogging" not in [c.name for c in data.candidates]
+    for name in ("cogging", "motor_cogging"):  # the joint-torque form too, when named
+        with pytest.raises(InputError, match=f"{name} cannot be fitted"):
+            with pytest.warns(DiagnosisWarning):
+                load_data(arm, stripped[:2], stripped[2:], candidates=["coulomb", name])
+
+
 def test_cli_writes_the_report(arm, noise_logs, tmp_path, capsys):
     out = tmp_path / "report"
     diagnose_command(noise_logs[:2], noise_logs[2:3], True, out)

@@ -172,6 +172,9 @@ class DriveCogging(CandidateEffect):
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_cables(signals, self.n_cables)
+        # the motor speed is there exactly when every log has its motor angles (else they
+        # would be zeros standing in for the missing columns)
+        signals.require("motor_speed", self.name)
         angle = self.n_periods * signals.motor_angle
         columns = [self.factor * np.sin(angle), self.factor * np.cos(angle)]
         return _per_cable_or_shared(columns, self.shared)

@@ -1055,6 +1055,9 @@ class MotorCogging(CandidateEffect):
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)
         self._check_cables(signals, self.n_cables)
+        # the motor speed is there exactly when every log has its motor angles (else they
+        # would be zeros standing in for the missing columns)
+        signals.require("motor_speed", self.name)
         angle = self.n_periods * signals.motor_angle
         T, m, n = signals.jacobian.shape
         out = np.empty((T, n, 2 * m))

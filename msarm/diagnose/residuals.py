@@ -281,10 +281,9 @@ def residuals_from_log(
         "motor_angle",
         cables,
         source,
-        "no cable-length residual and no motor speed, so the length terms, winch friction and "
-        "encoder skew are left out (for every log diagnosed with this one) and the cogging "
-        "terms take its motor angles as zero; the joint-torque and replay residuals are still "
-        "computed",
+        "no cable-length residual and no motor speed, so the length terms, winch friction, "
+        "encoder skew and motor cogging are left out (for every log diagnosed with this one); "
+        "the joint-torque and replay residuals are still computed",
     )
     has_reference = _has_channels(
         log,
