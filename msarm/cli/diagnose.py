@@ -306,7 +306,7 @@ def diagnose_command(
     from msarm.compensation.target import TENSION_TIMINGS, TargetSpec
     from msarm.diagnose.builder import check_log_file
     from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec
-    from msarm.diagnose.select import diagnose
+    from msarm.diagnose.select import check_threshold, diagnose
     from msarm.model import ARM_MODEL_PATH, load_robot
 
     for path in [*logs, *(holdout or [])]:
@@ -314,11 +314,7 @@ def diagnose_command(
     train, held = split_runs(list(logs), holdout)
     if boot < 0:
         raise InputError(f"--boot: expected a number of draws >= 0, got {boot}")
-    if not 0 <= threshold < 1:  # before the logs are read (diagnose() checks it too)
-        raise InputError(
-            f"--threshold: expected a value in [0, 1) (a rise of the held-out explained "
-            f"share), got {threshold}"
-        )
+    check_threshold(threshold, "--threshold")  # before the logs are read
     if shortlist < 0:
         raise InputError(f"--shortlist: expected a number of candidates >= 0, got {shortlist}")
     if tension_timing not in TENSION_TIMINGS:

@@ -57,7 +57,7 @@ from msarm.diagnose.scenarios import (
     generate_logs,
     scenario_tasks,
 )
-from msarm.diagnose.select import DEFAULT_THRESHOLD, load_data, select_effects
+from msarm.diagnose.select import DEFAULT_THRESHOLD, check_threshold, load_data, select_effects
 from msarm.errors import InputError, MsarmWarning
 from msarm.io.atomic import write_json_atomic
 from msarm.io.code_version import code_fingerprint
@@ -148,8 +148,7 @@ def _check(settings: BenchSettings) -> None:
         raise InputError(f"n_null: expected an integer >= 0, got {settings.n_null}")
     if not settings.duration > 0:
         raise InputError(f"duration: expected > 0 s, got {settings.duration}")
-    if not (0 <= settings.threshold < 1):  # select_effects' own check, before any simulation
-        raise InputError(f"threshold: expected a value in [0, 1), got {settings.threshold}")
+    check_threshold(settings.threshold)  # select_effects' own check, before any simulation
     check_setting("sindy_threshold", settings.sindy_threshold)  # before any simulation
 
 

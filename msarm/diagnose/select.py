@@ -121,6 +121,7 @@ __all__ = [
     "DiagnosisData",
     "SelectedEffect",
     "available_candidates",
+    "check_threshold",
     "default_candidates",
     "diagnose",
     "load_data",
@@ -854,6 +855,25 @@ def load_data(
     )
 
 
+def check_threshold(value: float, name: str = "threshold") -> float:
+    """The selection threshold as a float, checked (also before any log is read or simulated).
+
+    Args:
+        value: The least rise of the held-out explained share for a term to be named [-].
+        name: How the caller's user names it (``"--threshold"`` on the command line).
+
+    Raises:
+        InputError: ``value`` is outside [0, 1) (a gain in explained share is at most 1) or NaN.
+    """
+    threshold = float(value)
+    if not (0 <= threshold < 1):
+        raise InputError(
+            f"{name}: expected a value in [0, 1) (a rise of the held-out explained share; "
+            f"a gain never reaches 1), got {threshold}"
+        )
+    return threshold
+
+
 @one_blas_thread
 def select_effects(
     data: DiagnosisData,
@@ -906,12 +926,7 @@ def select_effects(
             raise InputError(f"{name}: expected an integer >= 100, got {value}")
     if shortlist is not None and (int(shortlist) != shortlist or shortlist < 1):
         raise InputError(f"shortlist: expected None or an integer >= 1, got {shortlist}")
-    threshold = float(threshold)
-    if not (0 <= threshold < 1):  # a gain in explained share is at most 1
-        raise InputError(
-            f"threshold: expected a value in [0, 1) (a rise of the held-out explained share; "
-            f"a gain never reaches 1), got {threshold}"
-        )
+    threshold = check_threshold(threshold)
     hold, layout = data.hold, data.layout
     r_hold = data.r_hold
     sampled = Sampled(data, int(max_samples), max_hold=int(max_score_samples))
