@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from dataclasses import replace
 
@@ -308,10 +309,11 @@ def test_held_out_logs_of_another_sample_rate_are_refused(logs, arm, tmp_path):
         load_data(arm, logs[:2], [slow], candidates=["coulomb"])
 
 
-def _with_non_finite(path, out, column, rows, value):
+def _with_missing(path, out, column, rows, value):
     """The log at ``path`` copied to ``out`` with ``column[rows] = value``, metadata kept.
 
-    Written with pyarrow: msarm's own ``RunLog`` refuses to hold such a column.
+    ``value`` None writes nulls (as pandas writes a NaN). Written with pyarrow: msarm's own
+    ``RunLog`` refuses to hold a missing value.
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -319,33 +321,141 @@ def _with_non_finite(path, out, column, rows, value):
     table = pq.read_table(path)
     index = table.column_names.index(column)
     values = table.column(column).to_numpy().copy()
-    values[rows] = value
-    table = table.set_column(index, table.schema.field(index), pa.array(values, pa.float64()))
+    mask = np.zeros(len(values), dtype=bool)
+    mask[rows] = True
+    if value is not None:
+        values[mask] = value
+    array = pa.array(values, pa.float64(), mask=mask if value is None else None)
+    table = table.set_column(index, pa.field(column, pa.float64()), array)
     pq.write_table(table, out)
     return out
 
 
-def test_a_log_with_nan_or_inf_is_refused_naming_file_column_and_row(logs, arm, tmp_path):
-    """README ("Bad input"): non-finite values are refused, named by file and sample. The
-    whole log is refused (no sample of it is diagnosed), in the training or held-out logs."""
+def _without_rows(path, out, rows):
+    """The log at ``path`` with ``rows`` deleted, written by msarm (the reference)."""
+    log = read_log(path)
+    keep = np.ones(len(log), dtype=bool)
+    keep[rows] = False
+    return write_log(out, RunLog({k: v[keep] for k, v in log.columns.items()}, log.metadata))
+
+
+def _residual_arrays(residuals):
+    return {
+        name: getattr(residuals, name)
+        for name in ("t", "joint_torque", "cable_length", "drive", "valid")
+    }
+
+
+def _assert_same_residuals(got, expected):
+    for name, value in _residual_arrays(expected).items():
+        np.testing.assert_array_equal(_residual_arrays(got)[name], value, err_msg=name)
+
+
+@pytest.mark.parametrize(
+    ("column", "value"),
+    [("q.elbow", np.nan), ("tension_motor.biceps", None), ("motor_angle.triceps", -np.inf)],
+)
+def test_missing_values_in_a_column_read_are_left_out_as_a_dropout(
+    logs, arm, tmp_path, column, value
+):
+    """README ("Bad input"): rows with a missing value (NaN, a null, an infinity) in a column
+    the diagnosis reads are left out with a warning naming the file, the column and the first
+    row, and the log is diagnosed around them: as the same log with those rows deleted."""
     spec = ResidualSpec(replay=False)
-    # the copy is a valid log as long as no value is changed: the rewrite keeps the metadata
-    same = _with_non_finite(logs[0], tmp_path / "same.parquet", "tension_motor.biceps", [], 0.0)
-    residuals_from_log(arm, same, spec=spec)
-    bad = _with_non_finite(
-        logs[0], tmp_path / "nan.parquet", "tension_motor.biceps", slice(200, 205), np.nan
+    rows = [200, 201, 202, 203, 204, 600]
+    holed = _with_missing(logs[0], tmp_path / "holes.parquet", column, rows, value)
+    with pytest.raises(LogError, match=rf"holes\.parquet: column '{column}' has "):
+        read_log(holed)  # the log schema has no missing values
+    named = (
+        rf"holes\.parquet: column '{re.escape(column)}' has missing values \(NaN, null or "
+        rf"infinite; 6 in '{re.escape(column)}', the first at row 200, t = 0\.8 s\); the 6 "
+        r"row\(s\) with a missing value in a column the diagnosis reads \(0\.6 % of the log\) "
+        "are left out, and the log is diagnosed around them as around a time gap"
     )
-    named = r"nan\.parquet: column 'tension_motor\.biceps' has nan \(not finite\) at row 200"
-    with pytest.raises(LogError, match=named):
-        residuals_from_log(arm, bad, spec=spec)
-    with pytest.raises(LogError, match=named):
-        diagnose(arm, [bad, logs[1]], logs[2:], candidates=["coulomb"], n_boot=0)
-    with pytest.raises(LogError, match=named):
-        diagnose(arm, logs[:2], [bad], candidates=["coulomb"], n_boot=0)
-    infinite = _with_non_finite(logs[0], tmp_path / "inf.parquet", "q.elbow", [7], -np.inf)
-    with pytest.raises(LogError, match=r"inf\.parquet: column 'q\.elbow' has -inf .* row 7"):
-        residuals_from_log(arm, infinite, spec=spec)
-    # a log built in memory cannot hold one either
+    with pytest.warns(DiagnosisWarning) as caught:
+        got = residuals_from_log(arm, holed, spec=spec)
+    said = [str(w.message) for w in caught]
+    assert any(re.search(named, m) for m in said), said
+    assert any("column 't' has 2 gap(s)" in m for m in said), said  # as the reference has
+    reference = _without_rows(logs[0], tmp_path / "cut.parquet", rows)
+    with pytest.warns(DiagnosisWarning, match="gap"):
+        expected = residuals_from_log(arm, reference, spec=spec)
+    _assert_same_residuals(got, expected)
+    assert len(got.t) == len(read_log(logs[0])) - len(rows)
+
+
+def test_a_diagnosis_runs_on_logs_with_missing_values_and_keeps_the_warning(logs, arm, tmp_path):
+    holed = _with_missing(logs[0], tmp_path / "nan.parquet", "q.elbow", slice(200, 205), np.nan)
+    held = _with_missing(logs[2], tmp_path / "held.parquet", "tension_cmd.biceps", [99], None)
+    with pytest.warns(DiagnosisWarning, match="left out") as caught:
+        result = diagnose(arm, [holed, logs[1]], [held], candidates=["coulomb"], n_boot=0)
+    lacked = "\n".join(result.log_warnings)
+    assert "nan.parquet: column 'q.elbow' has missing values" in lacked
+    assert "held.parquet: column 'tension_cmd.biceps' has missing values" in lacked
+    assert str(holed) in map(str, result.train_runs)
+    assert any("has 1 gap(s)" in str(w.message) for w in caught)
+
+
+def test_missing_values_in_a_column_not_read_change_nothing(logs, arm, tmp_path):
+    spec = ResidualSpec(replay=False)
+    unread = "tau_cmd.elbow"
+    assert unread in read_log(logs[0]).columns
+    holed = _with_missing(logs[0], tmp_path / "unread.parquet", unread, slice(10, 30), np.nan)
+    with pytest.warns(
+        DiagnosisWarning,
+        match=r"unread\.parquet: column 'tau_cmd\.elbow' has missing values \(NaN, null or "
+        r"infinite; 20 in 'tau_cmd\.elbow', the first at row 10, .*\); the diagnosis does not "
+        "read it and leaves it out",
+    ):
+        got = residuals_from_log(arm, holed, spec=spec)
+    _assert_same_residuals(got, residuals_from_log(arm, logs[0], spec=spec))
+
+
+def test_an_optional_column_with_no_value_is_taken_as_not_logged(logs, arm, tmp_path):
+    """An empty ``tension_cmd`` column leaves the channel out (no drive residual), as a log
+    without it; missing values in the channel's other columns then drop no row."""
+    spec = ResidualSpec(replay=False)
+    empty = _with_missing(logs[0], tmp_path / "e.parquet", "tension_cmd.biceps", slice(None), None)
+    both = _with_missing(empty, tmp_path / "both.parquet", "tension_cmd.triceps", [5], np.nan)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = residuals_from_log(arm, both, spec=spec)
+    said = [str(w.message) for w in caught]
+    assert any(
+        "column 'tension_cmd.biceps' has no value in any row (NaN, null or infinite "
+        "throughout); the diagnosis leaves it out, as if not logged" in m
+        for m in said
+    ), said
+    assert any("'tension_cmd.triceps' has missing values" in m for m in said)
+    assert any("does not read it and leaves it out" in m for m in said)
+    assert any("column 'tension_cmd.biceps' is missing: no drive residual" in m for m in said)
+    assert got.drive is None
+    expected = residuals_from_log(arm, logs[0], spec=spec)
+    np.testing.assert_array_equal(got.joint_torque, expected.joint_torque)
+    np.testing.assert_array_equal(got.cable_length, expected.cable_length)
+
+
+def test_a_needed_column_with_no_value_or_a_missing_time_is_refused(logs, arm, tmp_path):
+    spec = ResidualSpec(replay=False)
+    empty = _with_missing(logs[0], tmp_path / "q.parquet", "q.elbow", slice(None), np.nan)
+    with pytest.raises(
+        LogError,
+        match=r"q\.parquet: column 'q\.elbow' has no value in any row .*; the diagnosis needs "
+        r"q\.<joint> for every joint",
+    ):
+        residuals_from_log(arm, empty, spec=spec)
+    no_time = _with_missing(logs[0], tmp_path / "t.parquet", "t", [7], np.nan)
+    with pytest.raises(LogError, match=r"t\.parquet: column 't' has nan \(not finite\) at row 7"):
+        residuals_from_log(arm, no_time, spec=spec)
+    with pytest.raises(LogError, match=r"t\.parquet: column 't' has a null at row 7"):
+        residuals_from_log(arm, _with_missing(logs[0], tmp_path / "t.parquet", "t", [7], None))
+    everywhere = _with_missing(logs[0], tmp_path / "all.parquet", "q.elbow", [0], np.inf)
+    everywhere = _with_missing(everywhere, everywhere, "tension_motor.biceps", slice(1, None), None)
+    with pytest.raises(LogError, match=r"every row has a missing value .* nothing is left"):
+        residuals_from_log(arm, everywhere, spec=spec)
+
+
+def test_a_log_in_memory_holds_no_missing_value(logs):
     log = read_log(logs[0])
     columns = dict(log.columns)
     columns["tension_motor.biceps"] = columns["tension_motor.biceps"].copy()

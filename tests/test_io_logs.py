@@ -18,6 +18,7 @@ from msarm.io.logs import (
     LogMetadata,
     RunLog,
     read_log,
+    read_log_with_missing_values,
     read_sidecar,
     sidecar_path,
     write_log,
@@ -227,6 +228,33 @@ def test_nan_names_column_and_first_row(tmp_path):
     path = _write_raw(tmp_path / "nan.parquet", {"t": [0.0, 1.0, 2.0, 3.0], "q.elbow": q}, _kv())
     with pytest.raises(LogError, match=r"nan\.parquet: column 'q.elbow' has nan .* row 2"):
         read_log(path)
+
+
+def test_missing_values_are_read_for_a_reader_that_works_around_them(tmp_path):
+    """``read_log_with_missing_values`` keeps NaN and infinities and reads a null as NaN; the
+    rest of the schema is checked as by ``read_log``, and ``t`` may hold no missing value."""
+    columns = {"t": [0.0, 1.0, 2.0, 3.0], "q.elbow": [0.0, None, np.nan, -np.inf]}
+    path = _write_raw(tmp_path / "holes.parquet", columns, _kv())
+    got, metadata = read_log_with_missing_values(path)
+    assert list(got) == ["t", "q.elbow"] and metadata == _metadata()
+    np.testing.assert_array_equal(got["q.elbow"], [0.0, np.nan, np.nan, -np.inf])
+    assert got["q.elbow"].dtype == np.float64
+    with pytest.raises(LogError, match=r"holes\.parquet: column 'q.elbow' has a null at row 1"):
+        read_log(path)
+    clean = write_log(tmp_path / "clean.parquet", _log())
+    got, metadata = read_log_with_missing_values(clean)
+    assert RunLog(got, metadata) == read_log(clean)
+    for value, message in ((None, "a null at row 2"), (np.nan, r"nan \(not finite\) at row 2")):
+        times = _write_raw(
+            tmp_path / "t.parquet", {"t": [0.0, 1.0, value], "q.elbow": [0.0] * 3}, _kv()
+        )
+        with pytest.raises(LogError, match=rf"t\.parquet: column 't' has {message}"):
+            read_log_with_missing_values(times)
+    unit = _write_raw(
+        tmp_path / "unit.parquet", {"t": [0.0, 1.0], "qd.elbow": [1.0, np.nan]}, _kv()
+    )
+    with pytest.raises(LogError, match=r"unit\.parquet: no unit for quantity 'qd'"):
+        read_log_with_missing_values(unit)
 
 
 def test_wrong_dtype_null_and_unit_errors_name_the_column(tmp_path):

@@ -5,7 +5,8 @@ Modules:
 - ``residuals``: per-sample residuals of a log against the nominal model (the joint-torque
   residual ``tau_MS - ID``, the drive residual ``F - F_cmd``, the cable length error, a
   short-window replay of the nominal dynamics driven by the logged tensions); never opens the
-  ground-truth sidecar.
+  ground-truth sidecar; ``missing_values`` reads a log whose samples have gaps (NaN, nulls)
+  and leaves them out as a dropout, with a warning.
 - ``where``: the residual energy broken down by channel, phase of motion, load and region of
   posture, as a ranked table and a heat map.
 - ``signals``, ``effects``, ``cable_effects``, ``fitting``: the library of candidate effects

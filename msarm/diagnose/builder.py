@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from msarm.diagnose.missing_values import read_log_for_diagnosis
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, residuals_from_log
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError, LogError
-from msarm.io.logs import read_log
 from msarm.model import RobotModel
 
 __all__ = [
@@ -69,7 +69,7 @@ def _one_run(
     """Signal arrays and group residuals (valid samples only) and sample period of one log."""
     source = str(path)
     check_log_file(path)
-    log = read_log(path)
+    log = read_log_for_diagnosis(model, path, source)
     residuals = residuals_from_log(model, log, source=source, spec=spec, with_geometry=True)
     valid = residuals.valid
     if not valid.any():

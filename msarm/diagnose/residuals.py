@@ -45,8 +45,9 @@ from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
 from msarm.compensation.target import TargetSpec, filtered_motion, torque_error
+from msarm.diagnose.missing_values import read_log_for_diagnosis
 from msarm.errors import LogError, MsarmWarning
-from msarm.io.logs import TIME, RunLog, check_standard_units, read_log
+from msarm.io.logs import TIME, RunLog, check_standard_units
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 
@@ -236,8 +237,9 @@ def residuals_from_log(
 
     Args:
         model: The nominal robot model.
-        log: The log, or its Parquet file (read with :func:`msarm.io.logs.read_log`; the
-            sidecar is never opened).
+        log: The log, or its Parquet file (read with
+            :func:`msarm.diagnose.missing_values.read_log_for_diagnosis`, which leaves out
+            missing values with a warning; the sidecar is never opened).
         source: Name of the log in messages; default the file name, or ``"log"``.
         spec: Filter, drum radius and replay settings.
         with_geometry: Also keep the nominal cable lengths, Jacobians and wrap angles at each
@@ -256,7 +258,7 @@ def residuals_from_log(
     spec = spec or ResidualSpec()
     if not isinstance(log, RunLog):
         source = source or str(log)
-        log = read_log(log)
+        log = read_log_for_diagnosis(model, log, source)
     source = source or "log"
     if log.metadata.model_sha256.lower() != model.sha256.lower():
         raise LogError(

@@ -80,6 +80,7 @@ __all__ = [
     "TruthSidecar",
     "check_standard_units",
     "read_log",
+    "read_log_with_missing_values",
     "read_model_sha256",
     "read_sidecar",
     "sidecar_path",
@@ -517,8 +518,12 @@ def columns_from_quantities(
     return columns
 
 
-def _checked_columns(columns: Mapping[str, ArrayLike], source: str) -> dict[str, FloatArray]:
+def _checked_columns(
+    columns: Mapping[str, ArrayLike], source: str, missing_values: bool = False
+) -> dict[str, FloatArray]:
     """Check columns against the schema; returns them as float64 arrays, ``t`` first.
+
+    With ``missing_values``, a channel column may hold NaN or infinities (``t`` may not).
 
     Raises:
         LogError: Naming ``source`` and the column.
@@ -555,7 +560,7 @@ def _checked_columns(columns: Mapping[str, ArrayLike], source: str) -> dict[str,
                 f"{source}: column {name!r} has {len(arr)} rows, column '{TIME}' has {n_rows}"
             )
         bad = ~np.isfinite(arr)
-        if bad.any():
+        if bad.any() and (name == TIME or not missing_values):
             row = int(np.argmax(bad))
             raise LogError(f"{source}: column {name!r} has {arr[row]} (not finite) at row {row}")
         out[name] = arr
@@ -631,8 +636,13 @@ def _write_parquet_atomic(path: Path, table: pa.Table) -> None:
         pq.write_table(table, tmp)
 
 
-def _read_parquet(path: Path) -> tuple[dict[str, FloatArray], dict[str, str]]:
-    """Columns (float64 arrays) and string key-value metadata of a Parquet file."""
+def _read_parquet(
+    path: Path, missing_values: bool = False
+) -> tuple[dict[str, FloatArray], dict[str, str]]:
+    """Columns (float64 arrays) and string key-value metadata of a Parquet file.
+
+    With ``missing_values``, nulls are read as NaN instead of refused (not in ``t``).
+    """
     label = str(path)
     if not path.is_file():
         raise LogError(f"{label}: file not found" if not path.exists() else f"{label}: not a file")
@@ -657,10 +667,10 @@ def _read_parquet(path: Path) -> tuple[dict[str, FloatArray], dict[str, str]]:
                 f"{label}: column {name!r} has type {col.type}, expected double (float64); "
                 "write every column as float64"
             )
-        if col.null_count:
+        if col.null_count and (name == TIME or not missing_values):
             row = int(np.argmax(col.is_null().to_numpy(zero_copy_only=False)))
             raise LogError(f"{label}: column {name!r} has a null at row {row}")
-        columns[name] = col.to_numpy()
+        columns[name] = col.to_numpy()  # a null becomes NaN
     return columns, kv
 
 
@@ -731,9 +741,35 @@ def read_log(path: str | Path) -> RunLog:
             not strictly increasing; a column is not float64, has a null, NaN or infinity
             (column and first row named); a quantity has no unit. Each names the file.
     """
-    path = Path(path)
+    columns, metadata = _read_log_file(Path(path), missing_values=False)
+    return RunLog(columns, metadata)
+
+
+def read_log_with_missing_values(path: str | Path) -> tuple[dict[str, FloatArray], LogMetadata]:
+    """Read a run log whose channels may have missing values (never its sidecar).
+
+    A reader that can work around missing samples (the diagnosis treats them as a dropout)
+    uses this, then builds a :class:`RunLog` from what it keeps: a ``RunLog`` holds no
+    missing value.
+
+    Args:
+        path: The log's Parquet file.
+
+    Returns:
+        ``(columns, metadata)``: column name -> float64 samples of shape ``(T,)``, ``t``
+        first, with a null read as NaN and NaN and infinities as they are.
+
+    Raises:
+        LogError: As :func:`read_log`, except for a null, NaN or infinity in a channel
+            column; ``t`` must still be finite.
+    """
+    return _read_log_file(Path(path), missing_values=True)
+
+
+def _read_log_file(path: Path, missing_values: bool) -> tuple[dict[str, FloatArray], LogMetadata]:
+    """Columns and metadata of a log file, checked (see :func:`read_log`)."""
     label = str(path)
-    columns, kv = _read_parquet(path)
+    columns, kv = _read_parquet(path, missing_values)
     if _TRUTH_PREFIX + "schema_version" in kv:
         raise LogError(f"{label}: this is a ground-truth sidecar, not a log; read_sidecar reads it")
     version = _decode(kv, _PREFIX + "schema_version", label)
@@ -754,9 +790,9 @@ def read_log(path: str | Path) -> RunLog:
         metadata = LogMetadata(**fields)
     except InputError as exc:
         raise LogError(f"{label}: metadata: {exc}") from None
-    checked = _checked_columns(columns, label)
+    checked = _checked_columns(columns, label, missing_values)
     _check_units(checked, metadata.units, label)
-    return RunLog(checked, metadata)
+    return checked, metadata
 
 
 #: Metadata fields of a log -> whether the file must have them.
