@@ -15,6 +15,7 @@ from msarm.cli.bench import bench_app
 from msarm.cli.cdpr import cdpr_app
 from msarm.cli.compensator import compare_command, train_command
 from msarm.cli.diagnose import diagnose_command
+from msarm.cli.log import log_app
 from msarm.cli.track import track_command
 from msarm.errors import InputError
 
@@ -32,6 +33,7 @@ app.command("compare")(compare_command)
 app.command("diagnose")(diagnose_command)
 app.add_typer(bench_app, name="bench")
 app.add_typer(cdpr_app, name="cdpr")
+app.add_typer(log_app, name="log")
 
 
 #: Options of a sub-command that take several values after one flag (``--holdout A B C``),

@@ -83,6 +83,7 @@ __all__ = [
     "read_log_with_missing_values",
     "read_model_sha256",
     "read_sidecar",
+    "same_unit",
     "sidecar_path",
     "split_channel",
     "write_log",
@@ -578,6 +579,19 @@ def _checked_columns(
 def _unit_key(unit: str) -> str:
     """A unit's spelling without spaces, dots, ``*`` and ``^`` (``N m`` is ``N·m``)."""
     return re.sub(r"[\s·*^]", "", unit)
+
+
+def same_unit(a: str, b: str) -> bool:
+    """Whether two spellings name one unit: they differ only by spaces, ``·``, ``*`` and ``^``.
+
+    Args:
+        a: A unit, e.g. ``"N m"``.
+        b: Another, e.g. ``"N·m"``.
+
+    Returns:
+        True when they are the same unit spelt two ways.
+    """
+    return _unit_key(a) == _unit_key(b)
 
 
 def check_standard_units(log: RunLog, quantities: Sequence[str], source: str) -> None:

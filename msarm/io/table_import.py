@@ -1,0 +1,320 @@
+"""A robot's own recordings (CSV or columns) turned into msarm logs.
+
+A real robot logs in its own way: a CSV file a run, a time column in milliseconds, joint
+angles in degrees. :func:`log_from_columns` turns such columns into a :class:`RunLog` of the
+log schema (:mod:`msarm.io.logs`) for a robot model, and :func:`read_csv_log` reads a CSV file
+first; ``msarm log import`` writes the result as Parquet, ready for ``msarm diagnose``.
+
+What it does, and refuses (each error names the file, the column and what was expected):
+
+- the time column (``t`` unless told) becomes ``t`` in seconds (``time_unit`` ``s``, ``ms``
+  or ``us``); it must be strictly increasing;
+- every other column is a channel ``<quantity>.<name>``. Its unit is the one given for the
+  quantity (``units``), else msarm's (:data:`~msarm.io.logs.STANDARD_UNITS`); a unit other
+  than msarm's SI unit is converted to it by the factors of :data:`CONVERSIONS` (``deg`` to
+  ``rad``, ``kN`` to ``N``, ``mm`` to ``m``, ...), and one without a known factor is refused.
+  A quantity msarm does not know needs a unit, and keeps it;
+- a channel of a quantity that runs over the joints (``q``, ``q_ref``, ``tau_cmd``, ...) or
+  the cables (``tension_motor``, ``motor_angle``, ...) must name one of the model's joints or
+  cables (a misspelt ``q.Elbow`` would otherwise leave ``q.elbow`` missing); the channels of
+  a quantity are put in the model's order;
+- a missing value (an empty field, NaN, an infinity) is refused with its column, count and
+  first row, or with ``drop_missing`` its rows are left out (said in a warning): the log
+  schema has no missing values;
+- the sample rate is the one given, or ``1 / median step`` of the time column (rounded to
+  six significant digits).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from msarm.errors import InputError, LogError, MsarmWarning
+from msarm.io.logs import STANDARD_UNITS, TIME, LogMetadata, RunLog, same_unit, split_channel
+
+if TYPE_CHECKING:
+    from msarm.model import RobotModel
+
+__all__ = [
+    "CABLE_QUANTITIES",
+    "CONVERSIONS",
+    "JOINT_QUANTITIES",
+    "TIME_UNITS",
+    "LogImportWarning",
+    "log_from_columns",
+    "read_csv_log",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Quantities with a channel per joint of the model.
+JOINT_QUANTITIES = frozenset(
+    ("q", "qd", "qdd", "qdot_est", "q_ref", "qd_ref", "qdd_ref", "tau", "tau_cmd", "tau_ff")
+)
+#: Quantities with a channel per cable of the model.
+CABLE_QUANTITIES = frozenset(
+    (
+        "tension_cmd",
+        "tension_ff",
+        "tension_motor",
+        "motor_angle",
+        "motor_torque",
+        "cable_length",
+        "activation",
+        "excitation",
+    )
+)
+#: SI unit -> {another unit: factor}: a value in the other unit times the factor is in SI.
+CONVERSIONS: Mapping[str, Mapping[str, float]] = {
+    "rad": {"deg": math.pi / 180.0, "mrad": 1e-3},
+    "rad/s": {"deg/s": math.pi / 180.0, "rpm": 2.0 * math.pi / 60.0},
+    "rad/s^2": {"deg/s^2": math.pi / 180.0},
+    "N": {"kN": 1e3, "mN": 1e-3},
+    "N m": {"N mm": 1e-3, "mN m": 1e-3},
+    "m": {"mm": 1e-3, "cm": 1e-2, "um": 1e-6},
+    "1": {"%": 1e-2},
+}
+#: Units of the time column -> factor to seconds.
+TIME_UNITS: Mapping[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+#: Significant digits of a sample rate taken from the time column.
+_RATE_DIGITS = 6
+
+
+class LogImportWarning(MsarmWarning):
+    """Something was left out while turning a recording into a log (rows with a gap)."""
+
+
+def log_from_columns(
+    columns: Mapping[str, ArrayLike],
+    model: RobotModel,
+    sample_rate_hz: float | None = None,
+    units: Mapping[str, str] | None = None,
+    time_column: str = TIME,
+    time_unit: str = "s",
+    drop_missing: bool = False,
+    source: str = "table",
+    extra: Mapping[str, Any] | None = None,
+) -> RunLog:
+    """A log of ``model`` from a robot's own columns (see the module docstring).
+
+    Args:
+        columns: Column name -> values, each of shape ``(T,)``: the time column and channels
+            ``<quantity>.<name>``.
+        model: The robot model the recording is of (its name, hash, joints and cables).
+        sample_rate_hz: Nominal sample rate [Hz]; None: ``1 / median step`` of the time.
+        units: Quantity -> the unit its columns are in (e.g. ``{"q": "deg"}``); quantities
+            not given are taken to be in msarm's SI units.
+        time_column: Name of the time column.
+        time_unit: Unit of the time column, one of :data:`TIME_UNITS`.
+        drop_missing: Leave out the rows with a missing value (with an :class:`LogImportWarning`)
+            instead of refusing them.
+        source: Name of the recording in messages (its file).
+        extra: Anything worth keeping with the log (``msarm.extra``).
+
+    Returns:
+        The log: ``t`` [s], then each quantity's channels in the model's order, in SI.
+
+    Raises:
+        InputError: A column that is not a channel, names no joint or cable of the model,
+            holds a value that is not a number or a missing value (without
+            ``drop_missing``); a unit that cannot be converted; a bad time unit or rate.
+        LogError: The time is not strictly increasing (the row named).
+    """
+    if time_unit not in TIME_UNITS:
+        raise InputError(
+            f"{source}: time unit {time_unit!r} is not known; expected one of "
+            f"{', '.join(TIME_UNITS)}"
+        )
+    if time_column not in columns:
+        raise InputError(
+            f"{source}: no time column {time_column!r}; columns: "
+            f"{', '.join(map(str, columns)) or '-'} (name the time column, e.g. "
+            "--time-column)"
+        )
+    declared = dict(units or {})
+    arrays = {name: _numbers(values, name, source) for name, values in columns.items()}
+    lengths = {len(values) for values in arrays.values()}
+    if len(lengths) > 1:
+        raise InputError(f"{source}: the columns have different lengths: {sorted(lengths)}")
+    time = arrays.pop(time_column) * TIME_UNITS[time_unit]
+    by_quantity: dict[str, dict[str, FloatArray]] = {}
+    for name, values in arrays.items():
+        try:
+            quantity, channel = split_channel(name)
+        except InputError as exc:
+            raise InputError(
+                f"{source}: {exc} (the time column is {time_column!r}: --time-column names another)"
+            ) from None
+        by_quantity.setdefault(quantity, {})[channel] = values
+    unknown_units = sorted(set(declared) - set(by_quantity))
+    if unknown_units:
+        raise InputError(
+            f"{source}: a unit is given for {', '.join(map(repr, unknown_units))}, which no "
+            f"column has; quantities: {', '.join(by_quantity) or '-'}"
+        )
+    out: dict[str, FloatArray] = {TIME: time}
+    log_units: dict[str, str] = {}
+    for quantity, channels in by_quantity.items():
+        unit, factor = _si_unit(quantity, declared.get(quantity), source)
+        log_units[quantity] = unit
+        for channel in _in_model_order(quantity, channels, model, source):
+            out[f"{quantity}.{channel}"] = channels[channel] * factor
+    out = _without_missing(out, drop_missing, source)
+    rate = _sample_rate(out[TIME], sample_rate_hz, source)
+    metadata = LogMetadata.for_model(model, rate, units=log_units, extra=extra)
+    try:
+        return RunLog(out, metadata)
+    except LogError as exc:
+        raise LogError(str(exc).replace("RunLog", source, 1)) from None
+
+
+def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
+    """A log of ``model`` from a CSV file with a header row (see :func:`log_from_columns`).
+
+    Args:
+        path: The CSV file: a header of column names, then one row per sample; an empty
+            field is a missing value.
+        model: The robot model the recording is of.
+        **options: Those of :func:`log_from_columns` but ``columns`` and ``source``.
+
+    Returns:
+        The log, its ``msarm.extra`` recording the file's name as ``imported_from``.
+
+    Raises:
+        InputError: The file is missing or not CSV, or what :func:`log_from_columns` refuses.
+    """
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    path = Path(path)
+    source = str(path)
+    if not path.is_file():
+        what = "a folder, expected a CSV file" if path.is_dir() else "no such CSV file"
+        raise InputError(f"{source}: {what}")
+    try:
+        table = pacsv.read_csv(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{source}: not a readable CSV file: {exc}") from None
+    names = table.column_names
+    if len(set(names)) != len(names):
+        twice = next(n for n in names if names.count(n) > 1)
+        raise InputError(f"{source}: column {twice!r} appears more than once in the header")
+    columns = {}
+    for name, column in zip(names, table.columns, strict=True):
+        if not (pa.types.is_integer(column.type) or pa.types.is_floating(column.type)):
+            if column.null_count == len(column):  # an empty column: every value missing
+                columns[name] = np.full(len(column), np.nan)
+                continue
+            raise InputError(
+                f"{source}: column {name!r} holds values that are not numbers (read as "
+                f"{column.type}; first value {column[0].as_py()!r}); expected numbers"
+            )
+        columns[name] = column.to_numpy().astype(np.float64)
+    extra = {"imported_from": path.name, **dict(options.pop("extra", None) or {})}
+    return log_from_columns(columns, model, source=source, extra=extra, **options)
+
+
+def _numbers(values: ArrayLike, name: str, source: str) -> FloatArray:
+    try:
+        array = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{source}: column {name!r} holds values that are not numbers") from None
+    if array.ndim != 1:
+        raise InputError(f"{source}: column {name!r} must be 1-D, got shape {array.shape}")
+    return array
+
+
+def _si_unit(quantity: str, given: str | None, source: str) -> tuple[str, float]:
+    """The unit a quantity is logged in and the factor from the recording's unit to it."""
+    standard = STANDARD_UNITS.get(quantity)
+    if standard is None:
+        if given is None:
+            raise InputError(
+                f"{source}: no unit for quantity {quantity!r} (not one of msarm's: "
+                f"{', '.join(STANDARD_UNITS)}); give it, e.g. --unit {quantity}=N"
+            )
+        return given, 1.0
+    if given is None or same_unit(given, standard):
+        return standard, 1.0
+    for other, factor in CONVERSIONS.get(standard, {}).items():
+        if same_unit(given, other):
+            return standard, factor
+    known = ", ".join([standard, *CONVERSIONS.get(standard, {})])
+    raise InputError(
+        f"{source}: quantity {quantity!r} in {given!r} cannot be converted to {standard!r} "
+        f"(msarm's unit for it); units known for it: {known}"
+    )
+
+
+def _in_model_order(
+    quantity: str, channels: Mapping[str, FloatArray], model: RobotModel, source: str
+) -> list[str]:
+    """The channel names of a quantity, in the model's order.
+
+    Only for a quantity that runs over the joints or cables (each name must then be one of
+    them); any other keeps its columns' order.
+    """
+    if quantity in JOINT_QUANTITIES:
+        known, kind = list(model.joint_names), "joint"
+    elif quantity in CABLE_QUANTITIES:
+        known, kind = list(model.cable_names), "cable"
+    else:
+        return list(channels)
+    strangers = [name for name in channels if name not in known]
+    if strangers:
+        raise InputError(
+            f"{source}: column '{quantity}.{strangers[0]}' names no {kind} of the model "
+            f"{model.name!r}; its {kind}s: {', '.join(known)}"
+        )
+    return [name for name in known if name in channels]
+
+
+def _without_missing(
+    columns: dict[str, FloatArray], drop_missing: bool, source: str
+) -> dict[str, FloatArray]:
+    """The columns, or without the rows that have a missing value (``drop_missing``)."""
+    missing = {name: ~np.isfinite(values) for name, values in columns.items()}
+    missing = {name: rows for name, rows in missing.items() if rows.any()}
+    if not missing:
+        return columns
+    name, rows = next(iter(missing.items()))
+    where = f"{int(rows.sum())} in {name!r}, the first at row {int(np.argmax(rows))}"
+    if not drop_missing:
+        raise InputError(
+            f"{source}: {len(missing)} column(s) have missing values (empty, NaN or infinite; "
+            f"{where}); the log schema has none: fill them, or leave those rows out "
+            "(--drop-missing; the diagnosis then sees a time gap there)"
+        )
+    drop = np.logical_or.reduce(list(missing.values()))
+    if drop.all():
+        raise InputError(f"{source}: every row has a missing value ({where}); nothing is left")
+    warnings.warn(
+        f"{source}: {int(drop.sum())} row(s) with a missing value left out ({where}; "
+        f"{len(missing)} column(s) in all)",
+        LogImportWarning,
+        stacklevel=3,
+    )
+    return {name: values[~drop] for name, values in columns.items()}
+
+
+def _sample_rate(t: FloatArray, given: float | None, source: str) -> float:
+    """The sample rate given, or ``1 / median step`` of ``t`` to six significant digits."""
+    if given is not None:
+        if not (math.isfinite(given) and given > 0):
+            raise InputError(f"{source}: sample rate must be finite and > 0 [Hz], got {given}")
+        return float(given)
+    steps = np.diff(t)
+    if len(steps) == 0 or not np.median(steps) > 0:
+        raise InputError(
+            f"{source}: the sample rate cannot be taken from the time column (fewer than two "
+            "increasing samples); give it (--rate)"
+        )
+    rate = 1.0 / float(np.median(steps))
+    return float(f"{rate:.{_RATE_DIGITS}g}")

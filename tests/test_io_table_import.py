@@ -1,0 +1,269 @@
+"""A robot's own CSV recordings as msarm logs (``msarm.io.table_import``, ``msarm log import``)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pytest
+
+from msarm.errors import InputError, LogError
+from msarm.io.logs import STANDARD_UNITS, LogMetadata, RunLog, read_log, write_log
+from msarm.io.table_import import LogImportWarning, log_from_columns, read_csv_log
+
+RATE = 250.0
+T = 200
+
+
+def _recording(arm, seed: int = 0) -> RunLog:
+    """A log of the arm in msarm's units: q, tension_motor, tension_cmd, motor_angle."""
+    rng = np.random.default_rng(seed)
+    n, m = len(arm.joint_names), len(arm.cable_names)
+    t = np.arange(T) / RATE
+    channels = {
+        "q": (arm.joint_names, rng.uniform(-1.0, 1.0, (T, n))),
+        "tension_motor": (arm.cable_names, rng.uniform(5.0, 80.0, (T, m))),
+        "tension_cmd": (arm.cable_names, rng.uniform(5.0, 80.0, (T, m))),
+        "motor_angle": (arm.cable_names, rng.uniform(-20.0, 20.0, (T, m))),
+    }
+    return RunLog.from_quantities(t, channels, LogMetadata.for_model(arm, RATE))
+
+
+def _write_csv(path, columns: dict) -> str:
+    pacsv.write_csv(pa.table({k: pa.array(v, pa.float64()) for k, v in columns.items()}), path)
+    return path
+
+
+def _as_a_robot_writes_it(log: RunLog) -> dict:
+    """The log's columns as another robot's software might write them: time in ms, angles
+    in degrees, tensions in kN, the channels of each quantity in reverse order."""
+    out = {"time_ms": 1e3 * log.t}
+    for name in reversed(list(log.columns)):
+        values = log.columns[name]
+        if name.startswith(("q.", "motor_angle.")):
+            out[name] = np.degrees(values)
+        elif name.startswith("tension_"):
+            out[name] = values / 1e3
+        elif name != "t":
+            out[name] = values
+    return out
+
+
+UNITS = {"q": "deg", "motor_angle": "deg", "tension_motor": "kN", "tension_cmd": "kN"}
+
+
+def test_a_csv_in_other_units_and_order_becomes_the_log_it_records(arm, tmp_path):
+    log = _recording(arm)
+    path = _write_csv(tmp_path / "run.csv", _as_a_robot_writes_it(log))
+    got = read_csv_log(path, arm, units=UNITS, time_column="time_ms", time_unit="ms")
+    assert sorted(got.columns) == sorted(log.columns) and next(iter(got.columns)) == "t"
+    for quantity in UNITS:  # each quantity's channels in the model's order
+        assert [c for c in got.columns if c.startswith(quantity + ".")] == [
+            c for c in log.columns if c.startswith(quantity + ".")
+        ]
+    for name, values in log.columns.items():
+        np.testing.assert_allclose(got.columns[name], values, rtol=1e-13, atol=0, err_msg=name)
+    assert got.metadata.sample_rate_hz == RATE  # from the median step
+    assert got.metadata.model_sha256 == arm.sha256 and got.metadata.robot_model == arm.name
+    assert dict(got.metadata.units) == {q: STANDARD_UNITS[q] for q in UNITS}
+    assert got.metadata.extra == {"imported_from": "run.csv"}
+    # written and read back, it is a log like any other
+    assert read_log(write_log(tmp_path / "run.parquet", got)) == got
+
+
+def test_units_are_converted_by_their_factor_or_refused_by_name(arm):
+    t = np.arange(5) / RATE
+    got = log_from_columns(
+        {"t": t, "q.elbow": [0.0, 90.0, 180.0, -90.0, 1.0], "cable_length.biceps": [1.0] * 5},
+        arm,
+        units={"q": "deg", "cable_length": "mm"},
+    )
+    np.testing.assert_allclose(
+        got.columns["q.elbow"], [0, math.pi / 2, math.pi, -math.pi / 2, math.pi / 180]
+    )
+    np.testing.assert_allclose(got.columns["cable_length.biceps"], 1e-3)
+    same = log_from_columns({"t": t, "tau.elbow": np.ones(5)}, arm, units={"tau": "N·m"})
+    np.testing.assert_array_equal(same.columns["tau.elbow"], 1.0)
+    assert same.metadata.units["tau"] == "N m"
+    with pytest.raises(
+        InputError,
+        match=r"table: quantity 'q' in 'grad' cannot be converted to 'rad' "
+        r".*known for it: rad, deg, mrad",
+    ):
+        log_from_columns({"t": t, "q.elbow": np.ones(5)}, arm, units={"q": "grad"})
+    with pytest.raises(InputError, match=r"no unit for quantity 'pressure' .* --unit pressure=N"):
+        log_from_columns({"t": t, "pressure.pump": np.ones(5)}, arm)
+    own = log_from_columns({"t": t, "pressure.pump": np.ones(5)}, arm, units={"pressure": "Pa"})
+    assert own.metadata.units == {"pressure": "Pa"}  # a quantity msarm does not know: as given
+    with pytest.raises(InputError, match=r"a unit is given for 'tension_cmd', which no column has"):
+        log_from_columns({"t": t, "q.elbow": np.ones(5)}, arm, units={"tension_cmd": "kN"})
+
+
+def test_channels_must_name_the_models_joints_and_cables(arm):
+    t = np.arange(5) / RATE
+    with pytest.raises(InputError, match=r"column 'q\.Elbow' names no joint of the model .*elbow"):
+        log_from_columns({"t": t, "q.Elbow": np.ones(5)}, arm)
+    with pytest.raises(InputError, match=r"column 'tension_motor\.bicep' names no cable"):
+        log_from_columns({"t": t, "tension_motor.bicep": np.ones(5)}, arm)
+    with pytest.raises(InputError, match=r"table: channel column 'elbow'.*--time-column"):
+        log_from_columns({"t": t, "elbow": np.ones(5)}, arm)
+    with pytest.raises(InputError, match=r"no time column 'time'; columns: t, q\.elbow"):
+        log_from_columns({"t": t, "q.elbow": np.ones(5)}, arm, time_column="time")
+    with pytest.raises(InputError, match=r"time unit 'min' is not known; expected one of s, ms"):
+        log_from_columns({"t": t}, arm, time_unit="min")
+
+
+def test_missing_values_are_refused_or_their_rows_left_out(arm, tmp_path):
+    log = _recording(arm)
+    columns = {name: values.copy() for name, values in log.columns.items()}
+    columns["q.elbow"][[3, 4]] = np.nan
+    columns["tension_cmd.biceps"][9] = np.inf
+    with pytest.raises(
+        InputError,
+        match=r"table: 2 column\(s\) have missing values \(empty, NaN or infinite; 2 in "
+        r"'q\.elbow', the first at row 3\).*--drop-missing",
+    ):
+        log_from_columns(columns, arm)
+    with pytest.warns(LogImportWarning, match=r"3 row\(s\) with a missing value left out"):
+        got = log_from_columns(columns, arm, drop_missing=True)
+    keep = np.ones(T, dtype=bool)
+    keep[[3, 4, 9]] = False
+    assert list(got.columns) == list(log.columns)
+    for name, values in log.columns.items():
+        np.testing.assert_array_equal(got.columns[name], values[keep], err_msg=name)
+    # an empty CSV field is a missing value too; so is a column left empty
+    csv = tmp_path / "gaps.csv"
+    csv.write_text("t,q.elbow,q.shoulder_flexion\n0,1,\n0.004,,\n0.008,2,\n0.012,3,\n")
+    with pytest.raises(InputError, match=r"gaps\.csv: 2 column\(s\) have missing values"):
+        read_csv_log(csv, arm)
+    csv.write_text("t,q.elbow\n0,1\n0.004,\n0.008,2\n0.012,3\n")
+    with pytest.warns(LogImportWarning, match=r"gaps\.csv: 1 row\(s\)"):
+        got = read_csv_log(csv, arm, drop_missing=True)
+    np.testing.assert_array_equal(got.columns["q.elbow"], [1.0, 2.0, 3.0])
+
+
+def test_bad_files_and_times_are_named(arm, tmp_path):
+    with pytest.raises(InputError, match=r"nope\.csv: no such CSV file"):
+        read_csv_log(tmp_path / "nope.csv", arm)
+    with pytest.raises(InputError, match=r"a folder, expected a CSV file"):
+        read_csv_log(tmp_path, arm)
+    words = tmp_path / "words.csv"
+    words.write_text("t,q.elbow\n0,up\n1,down\n")
+    with pytest.raises(
+        InputError, match=r"words\.csv: column 'q\.elbow' holds values that are not numbers .*'up'"
+    ):
+        read_csv_log(words, arm)
+    twice = tmp_path / "twice.csv"
+    twice.write_text("t,q.elbow,q.elbow\n0,1,2\n")
+    with pytest.raises(InputError, match=r"column 'q\.elbow' appears more than once"):
+        read_csv_log(twice, arm)
+    back = tmp_path / "back.csv"
+    back.write_text("t,q.elbow\n0,1\n0.004,2\n0.002,3\n")
+    with pytest.raises(
+        LogError, match=r"back\.csv: column 't' is not strictly increasing at row 2"
+    ):
+        read_csv_log(back, arm)
+    one = tmp_path / "one.csv"
+    one.write_text("t,q.elbow\n0,1\n")
+    with pytest.raises(InputError, match=r"sample rate cannot be taken .*\(--rate\)"):
+        read_csv_log(one, arm)
+    assert read_csv_log(one, arm, sample_rate_hz=100).metadata.sample_rate_hz == 100
+
+
+def test_the_sample_rate_is_taken_from_jittered_times_to_six_digits(arm):
+    rng = np.random.default_rng(3)
+    t = np.arange(400) / 1000.0 + rng.uniform(-2e-6, 2e-6, 400)
+    got = log_from_columns({"t": t, "q.elbow": np.zeros(400)}, arm)
+    assert abs(got.metadata.sample_rate_hz - 1000.0) < 1.0
+    assert got.metadata.sample_rate_hz == float(f"{got.metadata.sample_rate_hz:.6g}")
+
+
+def _main(monkeypatch, capsys, *args):
+    from msarm.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["msarm", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_msarm_log_import_writes_logs_the_diagnosis_reads(arm, tmp_path, monkeypatch, capsys):
+    log = _recording(arm)
+    robot = tmp_path / "robot"
+    robot.mkdir()
+    csv = _write_csv(robot / "run1.csv", _as_a_robot_writes_it(log))
+    columns = {k: v for k, v in log.columns.items() if not k.startswith("tension_cmd.")}
+    other = _write_csv(robot / "run2.csv", columns)
+    options = ["--unit", "q=deg", "--unit", "motor_angle=deg", "--unit", "tension_motor=kN"]
+    options += ["--unit", "tension_cmd=kN", "--time-column", "time_ms", "--time-unit", "ms"]
+    code, out, err = _main(monkeypatch, capsys, "log", "import", str(csv), *options, "--json")
+    assert code == 0, err
+    report = json.loads(out)
+    written = report["logs"][0]
+    assert written["log"] == str(robot / "run1.parquet")  # next to the CSV by default
+    assert written["samples"] == T and written["sample_rate_hz"] == RATE
+    assert written["diagnosis"] == {"joint": True, "drive": True, "length": True, "q_ref": False}
+    assert sorted(read_log(robot / "run1.parquet").columns) == sorted(log.columns)
+    # a run without tension commands: the drive residual is said to be unavailable
+    code, out, err = _main(
+        monkeypatch, capsys, "log", "import", str(other), "--out", str(tmp_path / "logs")
+    )
+    assert code == 0, err
+    assert "drive: the drive residual" in out
+    code, out, err = _main(
+        monkeypatch, capsys, "log", "import", str(other), "--out", str(tmp_path / "logs"), "--json"
+    )
+    support = json.loads(out)["logs"][0]["diagnosis"]
+    assert support == {"joint": True, "drive": False, "length": True, "q_ref": False}
+    assert (tmp_path / "logs" / "run2.parquet").is_file()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--unit", "q"], "--unit: expected QUANTITY=UNIT (e.g. q=deg), got 'q'"),
+        (
+            ["--unit", "q=deg", "--unit", "q=rad"],
+            "--unit: quantity 'q' given twice ('deg' and 'rad')",
+        ),
+        (["--time-unit", "h"], "--time-unit: expected one of s, ms, us, got 'h'"),
+        (["--rate", "0"], "--rate: expected a sample rate > 0 in Hz, got 0.0"),
+    ],
+)
+def test_msarm_log_import_checks_its_options(tmp_path, monkeypatch, capsys, args, message):
+    csv = tmp_path / "run.csv"
+    csv.write_text("t,q.elbow\n0,1\n0.004,2\n")
+    code, _, err = _main(monkeypatch, capsys, "log", "import", str(csv), *args)
+    assert code == 2 and err.strip() == f"msarm: error: {message}"
+
+
+def test_msarm_log_import_writes_nothing_when_one_file_is_bad(tmp_path, monkeypatch, capsys):
+    good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
+    good.write_text("t,q.elbow\n0,1\n0.004,2\n")
+    bad.write_text("t,q.knee\n0,1\n0.004,2\n")
+    code, _, err = _main(monkeypatch, capsys, "log", "import", str(good), str(bad))
+    assert code == 2 and "bad.csv: column 'q.knee' names no joint" in err
+    assert not (tmp_path / "good.parquet").exists()
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    for folder in "ab":
+        (tmp_path / folder / "run.csv").write_text("t,q.elbow\n0,1\n0.004,2\n")
+    code, _, err = _main(
+        monkeypatch,
+        capsys,
+        "log",
+        "import",
+        str(tmp_path / "a" / "run.csv"),
+        str(tmp_path / "b" / "run.csv"),
+        "--out",
+        str(tmp_path / "out"),
+    )
+    assert code == 2 and "several files named 'run' would write one log" in err
