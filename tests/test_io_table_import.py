@@ -125,7 +125,8 @@ def test_missing_values_are_refused_or_their_rows_left_out(arm, tmp_path):
     with pytest.raises(
         InputError,
         match=r"table: 2 column\(s\) have missing values \(empty, NaN or infinite; 2 in "
-        r"'q\.elbow', the first at row 3\).*--drop-missing",
+        r"'q\.elbow' \(first at row 3\), 1 in 'tension_cmd\.biceps' \(first at row 9\); "
+        r"rows count from 0, the header not counted\).*--drop-missing",
     ):
         log_from_columns(columns, arm)
     with pytest.warns(LogImportWarning, match=r"3 row\(s\) with a missing value left out"):
@@ -152,9 +153,11 @@ def test_bad_files_and_times_are_named(arm, tmp_path):
     with pytest.raises(InputError, match=r"a folder, expected a CSV file"):
         read_csv_log(tmp_path, arm)
     words = tmp_path / "words.csv"
-    words.write_text("t,q.elbow\n0,up\n1,down\n")
+    words.write_text("t,q.elbow\n0,1\n1,up\n2,down\n")
     with pytest.raises(
-        InputError, match=r"words\.csv: column 'q\.elbow' holds values that are not numbers .*'up'"
+        InputError,
+        match=r"words\.csv: column 'q\.elbow' holds a value that is not a number: 'up' at "
+        r"row 1 \(rows count from 0, the header not counted\)",
     ):
         read_csv_log(words, arm)
     twice = tmp_path / "twice.csv"
@@ -163,9 +166,7 @@ def test_bad_files_and_times_are_named(arm, tmp_path):
         read_csv_log(twice, arm)
     back = tmp_path / "back.csv"
     back.write_text("t,q.elbow\n0,1\n0.004,2\n0.002,3\n")
-    with pytest.raises(
-        LogError, match=r"back\.csv: column 't' is not strictly increasing at row 2"
-    ):
+    with pytest.raises(LogError, match=r"back\.csv: the time is not strictly increasing at row 2"):
         read_csv_log(back, arm)
     one = tmp_path / "one.csv"
     one.write_text("t,q.elbow\n0,1\n")
@@ -266,4 +267,92 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(tmp_path, monkeypa
         "--out",
         str(tmp_path / "out"),
     )
-    assert code == 2 and "several files named 'run' would write one log" in err
+    assert code == 2 and "run.csv would all write the log" in err
+    assert not (tmp_path / "out" / "run.parquet").exists()
+    # a log never replaces a file given, nor is written when another's path is a folder
+    own = tmp_path / "own.parquet"
+    own.write_text("t,q.elbow\n0,1\n0.004,2\n")
+    code, _, err = _main(monkeypatch, capsys, "log", "import", str(own))
+    assert code == 2 and "would replace a CSV file given" in err
+    assert own.read_text().startswith("t,q.elbow")
+    (tmp_path / "b" / "run.parquet").mkdir()
+    code, _, err = _main(
+        monkeypatch, capsys, "log", "import", str(good), str(tmp_path / "b" / "run.csv")
+    )
+    assert code == 2 and "run.parquet is a folder" in err
+    assert not (tmp_path / "good.parquet").exists()
+
+
+def test_the_time_unit_and_rate_are_checked_against_the_time_column(arm):
+    """A time in ms read as seconds (0.25 Hz) or seconds read as us is refused, pointing at
+    the time unit; a rate given that the time contradicts is refused too."""
+    t = np.arange(50) * 4.0  # 250 Hz in milliseconds
+    columns = {"time_ms": t, "q.elbow": np.zeros(50)}
+    with pytest.raises(
+        InputError,
+        match=r"a sample rate of 0\.25 Hz \(from the median step of 4 s\) is outside "
+        r"1-100000 Hz: is the time column 'time_ms' in 's'\? \(--time-unit",
+    ):
+        log_from_columns(columns, arm, time_column="time_ms")
+    got = log_from_columns(columns, arm, time_column="time_ms", time_unit="ms")
+    assert got.metadata.sample_rate_hz == 250.0
+    with pytest.raises(InputError, match=r"2\.5e\+08 Hz .* in 'us'"):
+        log_from_columns({"t": t / 1e3, "q.elbow": np.zeros(50)}, arm, time_unit="us")
+    with pytest.raises(
+        InputError,
+        match=r"the sample rate given, 1000 Hz, disagrees with the time column's median step "
+        r"of 0\.004 s \(250 Hz\)",
+    ):
+        log_from_columns(columns, arm, 1000.0, time_column="time_ms", time_unit="ms")
+    assert log_from_columns(columns, arm, 251.0, time_column="time_ms", time_unit="ms")
+    with pytest.raises(InputError, match=r"unit is given for the time column 't'.*--time-unit"):
+        log_from_columns({"t": t, "q.elbow": np.zeros(50)}, arm, units={"t": "ms"})
+    backwards = {"t": t[::-1] / 1e3, "q.elbow": np.zeros(50)}
+    with pytest.raises(LogError, match=r"table: the time is not strictly increasing at row 1"):
+        log_from_columns(backwards, arm)
+
+
+def test_a_sparse_column_is_skipped_or_left_out_when_empty(arm):
+    """A sensor logged every tenth row is named in the refusal and can be skipped; with
+    --drop-missing a column with no value at all is left out, not every row."""
+    t = np.arange(100) / RATE
+    pump = np.full(100, np.nan)
+    pump[::10] = 1.0
+    columns = {"t": t, "q.elbow": np.zeros(100), "pressure.pump": pump, "q_ref.elbow": np.nan * t}
+    units = {"pressure": "bar"}
+    with pytest.raises(InputError, match=r"'pressure\.pump': a sensor logged at a lower rate"):
+        log_from_columns(columns, arm, units=units)
+    got = log_from_columns(columns, arm, units={}, skip_columns=["pressure.pump", "q_ref.elbow"])
+    assert list(got.columns) == ["t", "q.elbow"] and len(got) == 100
+    with pytest.warns(LogImportWarning, match=r"'q_ref\.elbow' have no value in any row"):
+        got = log_from_columns(columns, arm, drop_missing=True, skip_columns=["pressure.pump"])
+    assert list(got.columns) == ["t", "q.elbow"] and len(got) == 100
+    with pytest.raises(InputError, match=r"column 'pressure\.pumps' to skip is not in the file"):
+        log_from_columns(columns, arm, skip_columns=["pressure.pumps"])
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("t;q.elbow\n0;1\n", "separated by something else than commas"),
+        ("0,1\n0.004,2\n", r"the first row \(0, 1, \.\.\.\) holds numbers; expected a header"),
+        ("t,q.elbow,\n0,1,\n", r"column 3 of the header has no name \(a trailing comma\?\)"),
+    ],
+)
+def test_a_header_that_is_not_one_is_named(arm, tmp_path, text, message):
+    path = tmp_path / "odd.csv"
+    path.write_text(text)
+    with pytest.raises(InputError, match=rf"odd\.csv: .*{message}"):
+        read_csv_log(path, arm, sample_rate_hz=250)
+
+
+def test_spaces_around_header_names_and_compressed_files_are_read(arm, tmp_path):
+    import gzip
+
+    from msarm.cli.log import log_paths
+
+    path = tmp_path / "run.csv.gz"
+    path.write_bytes(gzip.compress(b"t, q.elbow\n0, 1\n0.004, 2\n0.008, 3\n"))
+    got = read_csv_log(path, arm)
+    np.testing.assert_array_equal(got.columns["q.elbow"], [1.0, 2.0, 3.0])
+    assert log_paths([path], None) == [tmp_path / "run.parquet"]

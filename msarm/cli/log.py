@@ -68,6 +68,45 @@ def parse_units(pairs: list[str]) -> dict[str, str]:
     return units
 
 
+#: Compression endings of a CSV file's name, dropped with the ending before them
+#: (``run.csv.gz`` -> ``run``).
+COMPRESSION_SUFFIXES = (".gz", ".bz2")
+
+
+def log_paths(files: list[Path], out: Path | None) -> list[Path]:
+    """Where the log of each CSV file goes: ``<name>.parquet`` in ``out`` or beside the file.
+
+    The name is the file's without its ending (``run.csv`` -> ``run.parquet``), and without
+    a compression ending before that (``run.csv.gz`` -> ``run.parquet``).
+
+    Raises:
+        InputError: Two files would write one log, a log would replace one of the CSV files,
+            or a log's path is a folder; all before anything is written.
+    """
+    targets = []
+    for path in files:
+        bare = path.with_suffix("") if path.suffix.lower() in COMPRESSION_SUFFIXES else path
+        targets.append((out or path.parent) / f"{bare.stem}.parquet")
+    resolved = [target.resolve() for target in targets]
+    for k, target in enumerate(resolved):
+        if resolved.count(target) > 1:
+            others = [str(files[j]) for j, t in enumerate(resolved) if t == target]
+            raise InputError(
+                f"CSV: {', '.join(others)} would all write the log {targets[k]}; give files of "
+                "different names (or import them to different --out folders)"
+            )
+    inputs = {path.resolve() for path in files}
+    for path, target in zip(files, targets, strict=True):
+        if target.resolve() in inputs:
+            raise InputError(
+                f"{path}: its log {target} would replace a CSV file given; rename the file "
+                "(a CSV file ends in .csv) or give --out"
+            )
+        if target.is_dir():
+            raise InputError(f"{path}: its log {target} is a folder; expected a file path")
+    return targets
+
+
 def diagnosis_support(log: RunLog, model: RobotModel) -> dict[str, bool]:
     """Which residuals of the diagnosis a log supports (:data:`DIAGNOSIS_CHANNELS`).
 
@@ -135,6 +174,15 @@ def import_command(
             "refusing the file; the diagnosis then sees a time gap there.",
         ),
     ] = False,
+    skip_column: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--skip-column",
+            metavar="NAME",
+            help="A column to leave out (e.g. a sensor logged at a lower rate, empty in most "
+            "rows); repeat the option for each.",
+        ),
+    ] = None,
     model_path: Annotated[
         Path | None,
         typer.Option(
@@ -157,15 +205,9 @@ def import_command(
         raise InputError(f"--time-unit: expected one of {', '.join(TIME_UNITS)}, got {time_unit!r}")
     if rate is not None and not (0 < rate < float("inf")):
         raise InputError(f"--rate: expected a sample rate > 0 in Hz, got {rate}")
-    stems = [path.stem for path in files]
     if out is not None:
         out = output_folder(out)
-        twice = sorted({stem for stem in stems if stems.count(stem) > 1})
-        if twice:
-            raise InputError(
-                f"CSV: several files named {twice[0]!r} would write one log "
-                f"{out / (twice[0] + '.parquet')}; give files of different names"
-            )
+    targets = log_paths(files, out)
     model = load_robot(model_path or ARM_MODEL_PATH)
     # every file is read and checked before any log is written
     logs = [
@@ -177,12 +219,12 @@ def import_command(
             time_column=time_column,
             time_unit=time_unit,
             drop_missing=drop_missing,
+            skip_columns=list(skip_column or []),
         )
         for path in files
     ]
     written: list[dict[str, Any]] = []
-    for path, log in zip(files, logs, strict=True):
-        target = (out or path.parent) / f"{path.stem}.parquet"
+    for path, log, target in zip(files, logs, targets, strict=True):
         write_log(target, log)
         written.append(
             {

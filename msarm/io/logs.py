@@ -576,11 +576,6 @@ def _checked_columns(
     return out
 
 
-def _unit_key(unit: str) -> str:
-    """A unit's spelling without spaces, dots, ``*`` and ``^`` (``N m`` is ``N·m``)."""
-    return re.sub(r"[\s·*^]", "", unit)
-
-
 def same_unit(a: str, b: str) -> bool:
     """Whether two spellings name one unit: they differ only by spaces, ``·``, ``*`` and ``^``.
 
@@ -591,7 +586,7 @@ def same_unit(a: str, b: str) -> bool:
     Returns:
         True when they are the same unit spelt two ways.
     """
-    return _unit_key(a) == _unit_key(b)
+    return re.sub(r"[\s·*^]", "", a) == re.sub(r"[\s·*^]", "", b)
 
 
 def check_standard_units(log: RunLog, quantities: Sequence[str], source: str) -> None:
@@ -616,7 +611,7 @@ def check_standard_units(log: RunLog, quantities: Sequence[str], source: str) ->
         if quantity not in present:
             continue
         unit, expected = log.metadata.units.get(quantity, ""), STANDARD_UNITS[quantity]
-        if _unit_key(unit) != _unit_key(expected):
+        if not same_unit(unit, expected):
             raise LogError(
                 f"{source}: quantity {quantity!r} is in {unit!r}, expected {expected!r} (SI, "
                 f"as msarm.io.logs.STANDARD_UNITS); convert the columns {quantity}.* to "

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +46,7 @@ __all__ = [
     "CABLE_QUANTITIES",
     "CONVERSIONS",
     "JOINT_QUANTITIES",
+    "RATE_RANGE_HZ",
     "TIME_UNITS",
     "LogImportWarning",
     "log_from_columns",
@@ -85,6 +86,12 @@ CONVERSIONS: Mapping[str, Mapping[str, float]] = {
 TIME_UNITS: Mapping[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 #: Significant digits of a sample rate taken from the time column.
 _RATE_DIGITS = 6
+#: Sample rates [Hz] a robot's log may have; outside, the time unit is likely wrong.
+RATE_RANGE_HZ = (1.0, 100_000.0)
+#: Largest relative difference between a given rate and the time column's median step.
+_RATE_TOLERANCE = 0.05
+#: Columns with missing values named in a message before the rest are counted.
+_NAMED = 5
 
 
 class LogImportWarning(MsarmWarning):
@@ -99,6 +106,7 @@ def log_from_columns(
     time_column: str = TIME,
     time_unit: str = "s",
     drop_missing: bool = False,
+    skip_columns: Sequence[str] = (),
     source: str = "table",
     extra: Mapping[str, Any] | None = None,
 ) -> RunLog:
@@ -113,8 +121,11 @@ def log_from_columns(
             not given are taken to be in msarm's SI units.
         time_column: Name of the time column.
         time_unit: Unit of the time column, one of :data:`TIME_UNITS`.
-        drop_missing: Leave out the rows with a missing value (with an :class:`LogImportWarning`)
-            instead of refusing them.
+        drop_missing: Leave out the rows with a missing value (with a
+            :class:`LogImportWarning`) instead of refusing them; a column with no value at
+            all is left out instead.
+        skip_columns: Columns to leave out (each must be there), e.g. a sensor logged at a
+            lower rate, whose empty rows would otherwise be missing values.
         source: Name of the recording in messages (its file).
         extra: Anything worth keeping with the log (``msarm.extra``).
 
@@ -124,7 +135,9 @@ def log_from_columns(
     Raises:
         InputError: A column that is not a channel, names no joint or cable of the model,
             holds a value that is not a number or a missing value (without
-            ``drop_missing``); a unit that cannot be converted; a bad time unit or rate.
+            ``drop_missing``); a unit that cannot be converted; a bad time unit; a sample
+            rate outside :data:`RATE_RANGE_HZ` (a wrong time unit?) or one given that the
+            time column's median step contradicts by more than 5 %.
         LogError: The time is not strictly increasing (the row named).
     """
     if time_unit not in TIME_UNITS:
@@ -139,7 +152,21 @@ def log_from_columns(
             "--time-column)"
         )
     declared = dict(units or {})
-    arrays = {name: _numbers(values, name, source) for name, values in columns.items()}
+    if time_column in declared:
+        raise InputError(
+            f"{source}: a unit is given for the time column {time_column!r}; give it as the "
+            f"time unit instead (--time-unit, one of {', '.join(TIME_UNITS)})"
+        )
+    absent = [name for name in skip_columns if name not in columns]
+    if absent:
+        raise InputError(f"{source}: column {absent[0]!r} to skip is not in the file")
+    if time_column in skip_columns:
+        raise InputError(f"{source}: the time column {time_column!r} cannot be skipped")
+    arrays = {
+        name: _numbers(values, name, source)
+        for name, values in columns.items()
+        if name not in skip_columns
+    }
     lengths = {len(values) for values in arrays.values()}
     if len(lengths) > 1:
         raise InputError(f"{source}: the columns have different lengths: {sorted(lengths)}")
@@ -167,7 +194,8 @@ def log_from_columns(
         for channel in _in_model_order(quantity, channels, model, source):
             out[f"{quantity}.{channel}"] = channels[channel] * factor
     out = _without_missing(out, drop_missing, source)
-    rate = _sample_rate(out[TIME], sample_rate_hz, source)
+    _check_increasing(out[TIME], source)
+    rate = _sample_rate(out[TIME], sample_rate_hz, time_column, time_unit, source)
     metadata = LogMetadata.for_model(model, rate, units=log_units, extra=extra)
     try:
         return RunLog(out, metadata)
@@ -202,23 +230,61 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
         table = pacsv.read_csv(path)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{source}: not a readable CSV file: {exc}") from None
-    names = table.column_names
-    if len(set(names)) != len(names):
-        twice = next(n for n in names if names.count(n) > 1)
-        raise InputError(f"{source}: column {twice!r} appears more than once in the header")
+    names = [name.strip() for name in table.column_names]  # "t, q.elbow" as "t,q.elbow"
+    _check_header(names, source)
     columns = {}
     for name, column in zip(names, table.columns, strict=True):
         if not (pa.types.is_integer(column.type) or pa.types.is_floating(column.type)):
             if column.null_count == len(column):  # an empty column: every value missing
                 columns[name] = np.full(len(column), np.nan)
                 continue
+            row, value = _first_text(column.to_pylist())
             raise InputError(
-                f"{source}: column {name!r} holds values that are not numbers (read as "
-                f"{column.type}; first value {column[0].as_py()!r}); expected numbers"
+                f"{source}: column {name!r} holds a value that is not a number: {value!r} at "
+                f"row {row} (rows count from 0, the header not counted); expected numbers (an "
+                "empty field for a missing value)"
             )
         columns[name] = column.to_numpy().astype(np.float64)
     extra = {"imported_from": path.name, **dict(options.pop("extra", None) or {})}
     return log_from_columns(columns, model, source=source, extra=extra, **options)
+
+
+def _check_header(names: list[str], source: str) -> None:
+    """Refuse a header that is not one: data, another separator, a duplicate or empty name."""
+    if len(names) == 1 and any(sep in names[0] for sep in ";\t|"):
+        raise InputError(
+            f"{source}: the header is one column ({names[0][:60]!r}...): the file is separated "
+            "by something else than commas; expected a comma-separated file"
+        )
+    if names and all(_is_number(name) for name in names):
+        raise InputError(
+            f"{source}: the first row ({', '.join(names[:4])}, ...) holds numbers; expected a "
+            "header row of column names (the time column and channels <quantity>.<name>)"
+        )
+    if "" in names:
+        raise InputError(
+            f"{source}: column {names.index('') + 1} of the header has no name (a trailing "
+            "comma?); expected a name for every column"
+        )
+    if len(set(names)) != len(names):
+        twice = next(n for n in names if names.count(n) > 1)
+        raise InputError(f"{source}: column {twice!r} appears more than once in the header")
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _first_text(values: list[Any]) -> tuple[int, Any]:
+    """The row and value of the first entry that is not a number (nor missing)."""
+    for row, value in enumerate(values):
+        if value is not None and not _is_number(str(value)):
+            return row, value
+    return 0, values[0]
 
 
 def _numbers(values: ArrayLike, name: str, source: str) -> FloatArray:
@@ -279,42 +345,106 @@ def _in_model_order(
 def _without_missing(
     columns: dict[str, FloatArray], drop_missing: bool, source: str
 ) -> dict[str, FloatArray]:
-    """The columns, or without the rows that have a missing value (``drop_missing``)."""
+    """The columns, or (``drop_missing``) without empty columns and rows with a gap."""
     missing = {name: ~np.isfinite(values) for name, values in columns.items()}
     missing = {name: rows for name, rows in missing.items() if rows.any()}
     if not missing:
         return columns
-    name, rows = next(iter(missing.items()))
-    where = f"{int(rows.sum())} in {name!r}, the first at row {int(np.argmax(rows))}"
     if not drop_missing:
+        sparse = [name for name, rows in missing.items() if rows.mean() > 0.5 and name != TIME]
+        hint = (
+            f"; a column missing in most rows ({sparse[0]!r}: a sensor logged at a lower "
+            "rate?) is better skipped (--skip-column)"
+            if sparse
+            else ""
+        )
         raise InputError(
             f"{source}: {len(missing)} column(s) have missing values (empty, NaN or infinite; "
-            f"{where}); the log schema has none: fill them, or leave those rows out "
-            "(--drop-missing; the diagnosis then sees a time gap there)"
+            f"{_counts(missing)}); the log schema has none: fill them, or leave those rows out "
+            f"(--drop-missing; the diagnosis then sees a time gap there){hint}"
         )
+    empty = [name for name, rows in missing.items() if rows.all() and name != TIME]
+    if empty:
+        warnings.warn(
+            f"{source}: column(s) {', '.join(map(repr, empty))} have no value in any row and "
+            "are left out",
+            LogImportWarning,
+            stacklevel=3,
+        )
+        columns = {name: values for name, values in columns.items() if name not in empty}
+        missing = {name: rows for name, rows in missing.items() if name not in empty}
+        if not missing:
+            return columns
     drop = np.logical_or.reduce(list(missing.values()))
     if drop.all():
-        raise InputError(f"{source}: every row has a missing value ({where}); nothing is left")
+        raise InputError(
+            f"{source}: every row has a missing value ({_counts(missing)}); nothing is left "
+            "(skip the columns that are mostly missing: --skip-column)"
+        )
     warnings.warn(
-        f"{source}: {int(drop.sum())} row(s) with a missing value left out ({where}; "
-        f"{len(missing)} column(s) in all)",
+        f"{source}: {int(drop.sum())} row(s) with a missing value left out "
+        f"({100.0 * drop.mean():.2g} % of the rows; {_counts(missing)})",
         LogImportWarning,
         stacklevel=3,
     )
     return {name: values[~drop] for name, values in columns.items()}
 
 
-def _sample_rate(t: FloatArray, given: float | None, source: str) -> float:
-    """The sample rate given, or ``1 / median step`` of ``t`` to six significant digits."""
-    if given is not None:
-        if not (math.isfinite(given) and given > 0):
-            raise InputError(f"{source}: sample rate must be finite and > 0 [Hz], got {given}")
-        return float(given)
+def _counts(missing: Mapping[str, NDArray[np.bool_]]) -> str:
+    """``"5 in 'q.elbow' (first at row 3), ..."`` for the first columns of ``missing``."""
+    shown = [
+        f"{int(rows.sum())} in {name!r} (first at row {int(np.argmax(rows))})"
+        for name, rows in list(missing.items())[:_NAMED]
+    ]
+    more = f", and {len(missing) - _NAMED} more column(s)" if len(missing) > _NAMED else ""
+    return ", ".join(shown) + more + "; rows count from 0, the header not counted"
+
+
+def _check_increasing(t: FloatArray, source: str) -> None:
+    """Refuse a time column that is not strictly increasing, naming the first such row."""
     steps = np.diff(t)
-    if len(steps) == 0 or not np.median(steps) > 0:
-        raise InputError(
-            f"{source}: the sample rate cannot be taken from the time column (fewer than two "
-            "increasing samples); give it (--rate)"
+    if (steps <= 0).any():
+        row = int(np.argmax(steps <= 0)) + 1
+        raise LogError(
+            f"{source}: the time is not strictly increasing at row {row} (t[{row - 1}] = "
+            f"{float(t[row - 1]):.9g} s, t[{row}] = {float(t[row]):.9g} s; rows count from 0, "
+            "the header not counted)"
         )
-    rate = 1.0 / float(np.median(steps))
-    return float(f"{rate:.{_RATE_DIGITS}g}")
+
+
+def _sample_rate(
+    t: FloatArray, given: float | None, time_column: str, time_unit: str, source: str
+) -> float:
+    """The sample rate given, or ``1 / median step`` of ``t`` to six significant digits.
+
+    Raises:
+        InputError: A rate not finite and > 0, outside :data:`RATE_RANGE_HZ`, given and off
+            the median step by more than 5 %, or not to be had (fewer than two samples).
+    """
+    if given is not None and not (math.isfinite(given) and given > 0):
+        raise InputError(f"{source}: sample rate must be finite and > 0 [Hz], got {given}")
+    steps = np.diff(t)
+    if len(steps) == 0:
+        if given is None:
+            raise InputError(
+                f"{source}: the sample rate cannot be taken from one sample; give it (--rate)"
+            )
+        return float(given)
+    step = float(np.median(steps))
+    measured = float(f"{1.0 / step:.{_RATE_DIGITS}g}")
+    rate = measured if given is None else float(given)
+    low, high = RATE_RANGE_HZ
+    if not low <= rate <= high:
+        how = "given" if given is not None else f"from the median step of {step:.6g} s"
+        raise InputError(
+            f"{source}: a sample rate of {rate:.6g} Hz ({how}) is outside {low:g}-{high:g} Hz: "
+            f"is the time column {time_column!r} in {time_unit!r}? (--time-unit: one of "
+            f"{', '.join(TIME_UNITS)})"
+        )
+    if given is not None and abs(given * step - 1.0) > _RATE_TOLERANCE:
+        raise InputError(
+            f"{source}: the sample rate given, {given:g} Hz, disagrees with the time column's "
+            f"median step of {step:.6g} s ({measured:g} Hz); give the rate the file was "
+            "logged at, or leave --rate out to take it from the time"
+        )
+    return rate
