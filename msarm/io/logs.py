@@ -78,6 +78,7 @@ __all__ = [
     "columns_from_quantities",
     "RunLog",
     "TruthSidecar",
+    "check_increasing_time",
     "check_standard_units",
     "read_log",
     "read_log_with_missing_values",
@@ -565,15 +566,30 @@ def _checked_columns(
             row = int(np.argmax(bad))
             raise LogError(f"{source}: column {name!r} has {arr[row]} (not finite) at row {row}")
         out[name] = arr
-    t = out[TIME]
+    check_increasing_time(out[TIME], source)
+    return out
+
+
+def check_increasing_time(t: FloatArray, source: str, rows: str = "") -> None:
+    """Refuse sample times that are not strictly increasing, naming the first such row.
+
+    Args:
+        t: Sample times [s], shape ``(T,)``.
+        source: The log or file, named first in the message.
+        rows: How the rows are counted, added to the message (e.g. ``"rows count from 0"``).
+
+    Raises:
+        LogError: ``t[k] <= t[k - 1]`` for some ``k``; the first such ``k`` and both times
+            named.
+    """
     steps = np.diff(t)
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
+        counted = f"; {rows}" if rows else ""
         raise LogError(
             f"{source}: column '{TIME}' is not strictly increasing at row {row} "
-            f"(t[{row - 1}] = {float(t[row - 1]):.6g}, t[{row}] = {float(t[row]):.6g})"
+            f"(t[{row - 1}] = {float(t[row - 1]):.6g}, t[{row}] = {float(t[row]):.6g}{counted})"
         )
-    return out
 
 
 def same_unit(a: str, b: str) -> bool:

@@ -37,7 +37,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError, LogError, MsarmWarning
-from msarm.io.logs import STANDARD_UNITS, TIME, LogMetadata, RunLog, same_unit, split_channel
+from msarm.io.logs import (
+    STANDARD_UNITS,
+    TIME,
+    LogMetadata,
+    RunLog,
+    check_increasing_time,
+    same_unit,
+    split_channel,
+)
 
 if TYPE_CHECKING:
     from msarm.model import RobotModel
@@ -92,6 +100,8 @@ RATE_RANGE_HZ = (1.0, 100_000.0)
 _RATE_TOLERANCE = 0.05
 #: Columns with missing values named in a message before the rest are counted.
 _NAMED = 5
+#: How messages count a file's rows.
+_ROWS = "rows count from 0, the header not counted"
 
 
 class LogImportWarning(MsarmWarning):
@@ -194,7 +204,7 @@ def log_from_columns(
         for channel in _in_model_order(quantity, channels, model, source):
             out[f"{quantity}.{channel}"] = channels[channel] * factor
     out = _without_missing(out, drop_missing, source)
-    _check_increasing(out[TIME], source)
+    check_increasing_time(out[TIME], source, _ROWS)
     rate = _sample_rate(out[TIME], sample_rate_hz, time_column, time_unit, source)
     metadata = LogMetadata.for_model(model, rate, units=log_units, extra=extra)
     try:
@@ -241,8 +251,7 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
             row, value = _first_text(column.to_pylist())
             raise InputError(
                 f"{source}: column {name!r} holds a value that is not a number: {value!r} at "
-                f"row {row} (rows count from 0, the header not counted); expected numbers (an "
-                "empty field for a missing value)"
+                f"row {row} ({_ROWS}); expected numbers (an empty field for a missing value)"
             )
         columns[name] = column.to_numpy().astype(np.float64)
     extra = {"imported_from": path.name, **dict(options.pop("extra", None) or {})}
@@ -397,19 +406,7 @@ def _counts(missing: Mapping[str, NDArray[np.bool_]]) -> str:
         for name, rows in list(missing.items())[:_NAMED]
     ]
     more = f", and {len(missing) - _NAMED} more column(s)" if len(missing) > _NAMED else ""
-    return ", ".join(shown) + more + "; rows count from 0, the header not counted"
-
-
-def _check_increasing(t: FloatArray, source: str) -> None:
-    """Refuse a time column that is not strictly increasing, naming the first such row."""
-    steps = np.diff(t)
-    if (steps <= 0).any():
-        row = int(np.argmax(steps <= 0)) + 1
-        raise LogError(
-            f"{source}: the time is not strictly increasing at row {row} (t[{row - 1}] = "
-            f"{float(t[row - 1]):.9g} s, t[{row}] = {float(t[row]):.9g} s; rows count from 0, "
-            "the header not counted)"
-        )
+    return ", ".join(shown) + more + f"; {_ROWS}"
 
 
 def _sample_rate(
