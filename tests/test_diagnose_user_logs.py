@@ -129,6 +129,31 @@ def test_a_sample_rate_slightly_off_is_warned_and_far_off_refused(logs, arm, tmp
         residuals_from_log(arm, logs[0], spec=spec)  # an exact rate: no warning
 
 
+def test_a_filter_spanning_an_implausible_time_is_warned(logs, arm, tmp_path):
+    """A log whose time is in ms but read as s (a 0.25 Hz log) gets a warning naming the
+    filter's span in time; so does a fast log with the window left at 25 samples."""
+    log = read_log(logs[0])
+    rate = log.metadata.sample_rate_hz
+    spec = ResidualSpec(replay=False)
+    slow = {**log.columns, "t": 1e3 * log.columns["t"]}
+    path = _rewrite(logs[0], tmp_path / "ms.parquet", slow, sample_rate_hz=rate / 1e3)
+    with pytest.warns(
+        DiagnosisWarning,
+        match=r"ms\.parquet: the derivative filter's 25 samples span 100 s at the log's "
+        r"0\.25 Hz \(more than 1 s\): the velocities and accelerations are smoothed over most "
+        r"of a motion\. Is the log's time in seconds .*about 0\.1 s is 5 samples here",
+    ):
+        residuals_from_log(arm, path, spec=spec)
+    fast = {**log.columns, "t": log.columns["t"] / 20}
+    path = _rewrite(logs[0], tmp_path / "fast.parquet", fast, sample_rate_hz=rate * 20)
+    with pytest.warns(DiagnosisWarning, match=r"span 0\.005 s .*less than 0\.01 s.*501 samples"):
+        residuals_from_log(arm, path, spec=spec)
+    wide = replace(spec, target=replace(spec.target, window=501))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DiagnosisWarning)
+        residuals_from_log(arm, path, spec=wide)  # the window scaled with the rate
+
+
 def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):
     coulomb = CoulombFriction(n_joints=4)
     theta = np.array([0.1, -0.2, 0.05, 0.1])

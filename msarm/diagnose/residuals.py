@@ -52,6 +52,7 @@ from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 
 __all__ = [
+    "FILTER_SPAN_S",
     "GAP_FACTOR",
     "RESIDUAL_UNITS",
     "gap_starts",
@@ -69,6 +70,9 @@ RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "drive": "N", "rep
 
 #: The log quantities the residuals read (their units must be msarm's SI ones).
 _QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
+#: Time spans [s] of the derivative filter's window outside which a log is warned about
+#: (msarm's default: 25 samples at 250 Hz, 0.1 s).
+FILTER_SPAN_S = (0.01, 1.0)
 #: A step of ``t`` longer than this many nominal sample periods is a gap.
 GAP_FACTOR = 1.5
 #: The median step of ``t`` may differ from the nominal period by this fraction at most.
@@ -306,6 +310,7 @@ def residuals_from_log(
         "computed",
     )
     segments = _segments(log, source, spec.target.window)
+    _warn_filter_span(source, spec.target.window, log.metadata.sample_rate_hz)
 
     n_samples, n, m = len(log), len(joints), len(cables)
     out = {
@@ -440,6 +445,32 @@ def _warn_constant_sensors(source: str, channels: list[tuple[str, list[str], Flo
             DiagnosisWarning,
             stacklevel=3,
         )
+
+
+def _warn_filter_span(source: str, window: int, sample_rate_hz: float) -> None:
+    """Warn when the derivative filter spans a time no arm's motion is measured over.
+
+    The window is in samples; its span in time is what smooths the velocities and
+    accelerations. Outside :data:`FILTER_SPAN_S`, either the sample rate (or the time unit of
+    the log) is wrong, or the window was not scaled with the rate.
+    """
+    span = window / sample_rate_hz
+    low, high = FILTER_SPAN_S
+    if low <= span <= high:
+        return
+    suggested = max(2 * round(0.05 * sample_rate_hz) + 1, 5)  # about 0.1 s, odd
+    if span > high:
+        beyond, effect = f"more than {high:g} s", "smoothed over most of a motion"
+    else:
+        beyond, effect = f"less than {low:g} s", "mostly the encoders' noise"
+    warnings.warn(
+        f"{source}: the derivative filter's {window} samples span {span:.3g} s at the log's "
+        f"{sample_rate_hz:g} Hz ({beyond}): the velocities and accelerations are {effect}. "
+        "Is the log's time in seconds and its sample_rate_hz right? Else scale the window "
+        f"with the rate (--filter-window; about 0.1 s is {suggested} samples here)",
+        DiagnosisWarning,
+        stacklevel=3,
+    )
 
 
 def gap_starts(t: FloatArray, sample_rate_hz: float) -> NDArray[np.intp]:
