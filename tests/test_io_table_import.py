@@ -210,21 +210,23 @@ def test_msarm_log_import_writes_logs_the_diagnosis_reads(arm, tmp_path, monkeyp
     assert code == 0, err
     report = json.loads(out)
     written = report["logs"][0]
-    assert written["log"] == str(robot / "run1.parquet")  # next to the CSV by default
+    assert written["path"] == str(robot / "run1.parquet")  # next to the CSV by default
+    assert written["csv"] == str(csv) and written["error"] is None
     assert written["samples"] == T and written["sample_rate_hz"] == RATE
-    assert written["diagnosis"] == {"joint": True, "drive": True, "length": True, "q_ref": False}
+    everything = {"joint_torque", "drive", "cable_length"}  # no q_ref in these files
+    assert written["residuals"] == {k: k in everything for k in written["residuals"]}
     assert sorted(read_log(robot / "run1.parquet").columns) == sorted(log.columns)
     # a run without tension commands: the drive residual is said to be unavailable
     code, out, err = _main(
         monkeypatch, capsys, "log", "import", str(other), "--out", str(tmp_path / "logs")
     )
     assert code == 0, err
-    assert "drive: the drive residual" in out
+    assert "no drive residual" in out and "warning:" in out
     code, out, err = _main(
         monkeypatch, capsys, "log", "import", str(other), "--out", str(tmp_path / "logs"), "--json"
     )
-    support = json.loads(out)["logs"][0]["diagnosis"]
-    assert support == {"joint": True, "drive": False, "length": True, "q_ref": False}
+    support = json.loads(out)["logs"][0]["residuals"]
+    assert support == {k: k in everything - {"drive"} for k in support}
     assert (tmp_path / "logs" / "run2.parquet").is_file()
 
 

@@ -1,18 +1,19 @@
-"""``msarm log import``: a robot's own CSV recordings as msarm logs, ready for the diagnosis.
+"""``msarm log``: a robot's own recordings as msarm logs, and what the diagnosis can make of them.
 
-Each CSV file (a header of column names, one row per sample) becomes a Parquet log of the
-schema of :mod:`msarm.io.logs` (:func:`msarm.io.table_import.read_csv_log`: units converted
-to SI, channels checked against the model and put in its order, the sample rate given or
-taken from the time column). The command then says, per log, which of the diagnosis'
-residuals the log supports (:data:`DIAGNOSIS_CHANNELS`), so that a missing channel shows
-before a diagnosis is run.
+- ``msarm log import``: each CSV file (a header of column names, one row per sample) becomes
+  a Parquet log of the schema of :mod:`msarm.io.logs` (:func:`msarm.io.table_import.read_csv_log`:
+  units converted to SI, channels checked against the model and put in its order, the sample
+  rate given or taken from the time column), then checked as ``msarm log check`` does.
+- ``msarm log check``: each log read and its residuals computed as the diagnosis does
+  (:func:`msarm.diagnose.log_check.check_log`): which residuals it supports, what the
+  diagnosis would warn about, and why it would refuse a log, for every log at once.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
@@ -22,29 +23,22 @@ from msarm.cli.common import console, output_folder
 from msarm.errors import InputError
 
 if TYPE_CHECKING:
-    from msarm.io.logs import RunLog
+    from msarm.diagnose.log_check import LogCheck
     from msarm.model import RobotModel
 
 log_app = typer.Typer(
-    help="Bring a robot's own recordings into msarm's log format.",
+    help="Bring a robot's own recordings into msarm's log format, and check logs.",
     no_args_is_help=True,
     add_completion=False,
 )
 
-#: What the diagnosis computes from a log (a short name) -> the quantities it needs (each for
-#: every joint or cable of the model).
-DIAGNOSIS_CHANNELS: dict[str, tuple[str, ...]] = {
-    "joint": ("q", "tension_motor"),
-    "drive": ("tension_cmd", "tension_motor"),
-    "length": ("motor_angle", "q"),
-    "q_ref": ("q_ref",),
-}
-#: What each of :data:`DIAGNOSIS_CHANNELS` gives the diagnosis.
-DIAGNOSIS_USES: dict[str, str] = {
-    "joint": "the joint-torque residual (friction, capstan, mass error, sensor terms)",
-    "drive": "the drive residual (winch friction, cogging, command delay, sheath stiction)",
-    "length": "the cable-length residual (elasticity, slack, backlash, stretch)",
-    "q_ref": "clean accelerations for the mass-error term",
+#: Short column names of the residuals in the check table
+#: (:data:`msarm.diagnose.log_check.RESIDUALS_CHECKED`).
+RESIDUAL_COLUMNS = {
+    "joint_torque": "joint",
+    "drive": "drive",
+    "cable_length": "length",
+    "clean_accelerations": "q_ref",
 }
 
 
@@ -105,25 +99,6 @@ def log_paths(files: list[Path], out: Path | None) -> list[Path]:
         if target.is_dir():
             raise InputError(f"{path}: its log {target} is a folder; expected a file path")
     return targets
-
-
-def diagnosis_support(log: RunLog, model: RobotModel) -> dict[str, bool]:
-    """Which residuals of the diagnosis a log supports (:data:`DIAGNOSIS_CHANNELS`).
-
-    Args:
-        log: The log.
-        model: Its robot model (the joints and cables each quantity needs).
-
-    Returns:
-        What the diagnosis computes -> whether the log has every column it needs.
-    """
-    from msarm.io.table_import import JOINT_QUANTITIES
-
-    def complete(quantity: str) -> bool:
-        names = model.joint_names if quantity in JOINT_QUANTITIES else model.cable_names
-        return all(f"{quantity}.{name}" in log.columns for name in names)
-
-    return {what: all(map(complete, needs)) for what, needs in DIAGNOSIS_CHANNELS.items()}
 
 
 @log_app.command("import")
@@ -223,44 +198,114 @@ def import_command(
         )
         for path in files
     ]
-    written: list[dict[str, Any]] = []
-    for path, log, target in zip(files, logs, targets, strict=True):
+    for log, target in zip(logs, targets, strict=True):
         write_log(target, log)
-        written.append(
-            {
-                "csv": str(path),
-                "log": str(target),
-                "samples": len(log),
-                "duration_s": float(log.t[-1] - log.t[0]),
-                "sample_rate_hz": log.metadata.sample_rate_hz,
-                "units": dict(log.metadata.units),
-                "diagnosis": diagnosis_support(log, model),
-            }
-        )
+    _report_checks(model, targets, json_output, "logs written", sources=files)
+
+
+@log_app.command("check")
+def check_command(
+    logs: Annotated[
+        list[Path], typer.Argument(metavar="LOG", help="Log files (Parquet) to check.")
+    ],
+    filter_window: Annotated[
+        int,
+        typer.Option(
+            metavar="SAMPLES",
+            help=r"The derivative filter's window the diagnosis would use \[samples] (msarm "
+            "diagnose --filter-window).",
+        ),
+    ] = 25,
+    model_path: Annotated[
+        Path | None,
+        typer.Option(
+            "--model",
+            help="The nominal model (MJCF) the diagnosis would use; default msarm's arm "
+            "(models/msarm_arm.xml).",
+        ),
+    ] = None,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the checks as JSON.")] = False,
+) -> None:
+    """Say what msarm diagnose can make of each log: its residuals, warnings and errors."""
+    from msarm.model import ARM_MODEL_PATH, load_robot
+
+    if filter_window < 5 or filter_window % 2 == 0:
+        raise InputError(f"--filter-window: expected an odd number >= 5, got {filter_window}")
+    model = load_robot(model_path or ARM_MODEL_PATH)
+    _report_checks(model, logs, json_output, "logs checked", filter_window=filter_window)
+
+
+def _report_checks(
+    model: RobotModel,
+    logs: list[Path],
+    json_output: bool,
+    title: str,
+    sources: list[Path] | None = None,
+    filter_window: int = 25,
+) -> None:
+    """Check each log (:func:`msarm.diagnose.log_check.check_log`) and print the result.
+
+    Raises:
+        InputError: Some log cannot be diagnosed (after all are printed), naming how many.
+    """
+    from msarm.compensation.target import TargetSpec
+    from msarm.diagnose.log_check import check_log
+    from msarm.diagnose.residuals import ResidualSpec
+
+    spec = ResidualSpec(target=TargetSpec(window=filter_window))
+    checks = [check_log(model, path, spec) for path in logs]
     if json_output:
-        print(json.dumps({"model": str(model.path), "logs": written}, indent=2))
-        return
-    _print_written(written)
+        rows = [check.as_dict() for check in checks]
+        for row, source in zip(rows, sources or [], strict=False):
+            row["csv"] = str(source)
+        print(json.dumps({"model": str(model.path), "logs": rows}, indent=2))
+    else:
+        _print_checks(checks, title, sources)
+    bad = [check.path for check in checks if not check.ok]
+    if bad:
+        raise InputError(
+            f"{len(bad)} of {len(checks)} log(s) cannot be diagnosed: {', '.join(bad)} (see above)"
+        )
 
 
-def _print_written(written: list[dict[str, Any]]) -> None:
+def _print_checks(checks: list[LogCheck], title: str, sources: list[Path] | None) -> None:
+    from msarm.diagnose.log_check import RESIDUALS_CHECKED
+
     screen = console()
-    table = Table(title="logs written (msarm diagnose reads them)")
-    table.add_column("CSV")
+    table = Table(title=f"{title}: what msarm diagnose can make of them")
+    if sources:
+        table.add_column("CSV")
     table.add_column("log")
     table.add_column("samples", justify="right")
     table.add_column("rate [Hz]", justify="right")
-    for what in DIAGNOSIS_CHANNELS:
-        table.add_column(what)
-    for row in written:
+    for name in RESIDUALS_CHECKED:
+        table.add_column(RESIDUAL_COLUMNS[name])
+    table.add_column("warnings", justify="right")
+    for k, check in enumerate(checks):
+        first = [escape(str(sources[k]))] if sources else []
+        if not check.ok:
+            table.add_row(
+                *first,
+                escape(check.path),
+                "error",
+                "",
+                *[""] * len(RESIDUALS_CHECKED),
+                str(len(check.warnings)),
+            )
+            continue
         table.add_row(
-            escape(row["csv"]),
-            escape(row["log"]),
-            f"{row['samples']} ({row['duration_s']:.3g} s)",
-            f"{row['sample_rate_hz']:g}",
-            *("yes" if ok else "no" for ok in row["diagnosis"].values()),
+            *first,
+            escape(check.path),
+            f"{check.samples} ({check.duration_s:.3g} s)",
+            f"{check.sample_rate_hz:g}",
+            *("yes" if check.residuals[name] else "no" for name in RESIDUALS_CHECKED),
+            str(len(check.warnings)),
         )
     screen.print(table)
-    for what, needs in DIAGNOSIS_CHANNELS.items():
-        columns = ", ".join(f"{quantity}.*" for quantity in needs)
-        screen.print(escape(f"{what}: {DIAGNOSIS_USES[what]}; needs {columns}"))
+    for name, use in RESIDUALS_CHECKED.items():
+        screen.print(escape(f"{RESIDUAL_COLUMNS[name]}: {use}"))
+    for check in checks:
+        for text in check.warnings:
+            screen.print(escape(f"warning: {text}"))
+        if check.error:
+            screen.print(escape(f"error: {check.error}"))

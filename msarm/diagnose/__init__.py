@@ -6,7 +6,8 @@ Modules:
   residual ``tau_MS - ID``, the drive residual ``F - F_cmd``, the cable length error, a
   short-window replay of the nominal dynamics driven by the logged tensions); never opens the
   ground-truth sidecar; ``missing_values`` reads a log whose samples have gaps (NaN, nulls)
-  and leaves them out as a dropout, with a warning.
+  and leaves them out as a dropout, with a warning; ``log_check`` says what the diagnosis
+  can make of a log before it runs (``msarm log check``).
 - ``where``: the residual energy broken down by channel, phase of motion, load and region of
   posture, as a ranked table and a heat map.
 - ``signals``, ``effects``, ``cable_effects``, ``fitting``: the library of candidate effects

@@ -52,7 +52,8 @@ def check_log_file(path: Path) -> None:
     """Refuse a log path that is not a file: missing, or a run's folder.
 
     Raises:
-        InputError: ``path`` does not exist, or is a folder (named with the log file it holds).
+        InputError: ``path`` does not exist, is a folder (named with the log file it holds),
+            or is a CSV file (``msarm log import`` named).
     """
     if path.is_dir():
         inside = (
@@ -61,6 +62,11 @@ def check_log_file(path: Path) -> None:
         raise InputError(f"{path}: a folder, expected a log file (Parquet){inside}")
     if not path.is_file():
         raise InputError(f"{path}: no such log file")
+    if path.suffix.lower() in (".csv", ".tsv", ".txt") or path.name.lower().endswith(".csv.gz"):
+        raise InputError(
+            f"{path}: a CSV file, expected a log (Parquet); msarm log import turns CSV "
+            "recordings into logs"
+        )
 
 
 def _one_run(

@@ -1,0 +1,104 @@
+"""``msarm log check``: what the diagnosis can make of each log, said before it runs."""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import short_move_logs
+
+from msarm.diagnose.log_check import RESIDUALS_CHECKED, check_log
+from msarm.io.logs import RunLog, read_log, write_log
+from msarm.plant import IDEAL_PLANT
+from msarm.plant.config import SensorNoiseConfig
+
+
+@pytest.fixture(scope="module")
+def logs(arm, tmp_path_factory):
+    effects = replace(IDEAL_PLANT.effects, sensor_noise=SensorNoiseConfig(enabled=True))
+    plant = replace(IDEAL_PLANT, name="checked", effects=effects)
+    return short_move_logs(arm, tmp_path_factory.mktemp("checked"), plant, 1, first_seed=60)
+
+
+def _without(path, out, prefix):
+    log = read_log(path)
+    columns = {k: v for k, v in log.columns.items() if not k.startswith(prefix)}
+    return write_log(out, RunLog(columns, log.metadata))
+
+
+def test_a_complete_log_supports_every_residual(arm, logs):
+    check = check_log(arm, logs[0])
+    assert check.ok and check.error is None and check.warnings == ()
+    assert check.residuals == dict.fromkeys(RESIDUALS_CHECKED, True)
+    log = read_log(logs[0])
+    assert check.samples == len(log) and check.sample_rate_hz == log.metadata.sample_rate_hz
+    assert check.duration_s == pytest.approx(float(log.t[-1] - log.t[0]))
+    assert check.diagnosed_share == 1.0  # no time gap, so no segment too short to diagnose
+    assert check.joint_travel_rad > 0.1
+    assert json.loads(json.dumps(check.as_dict()))["residuals"] == check.residuals
+
+
+def test_what_a_log_lacks_is_said_as_the_diagnosis_says_it(arm, logs, tmp_path):
+    path = _without(logs[0], tmp_path / "no_cmd.parquet", "tension_cmd.")
+    check = check_log(arm, path)
+    assert check.ok and not check.residuals["drive"] and check.residuals["cable_length"]
+    assert len(check.warnings) == 1
+    assert (
+        "column 'tension_cmd.deltoid_anterior' is missing: no drive residual" in check.warnings[0]
+    )
+
+
+def test_a_log_the_diagnosis_refuses_keeps_its_error(arm, logs, tmp_path):
+    log = read_log(logs[0])
+    other = write_log(
+        tmp_path / "other.parquet",
+        RunLog(log.columns, replace(log.metadata, model_sha256="ab" * 32)),
+    )
+    check = check_log(arm, other)
+    assert not check.ok and "the log is of another robot model" in check.error
+    assert check.residuals == dict.fromkeys(RESIDUALS_CHECKED, False) and check.samples is None
+    csv = tmp_path / "run.csv"
+    csv.write_text("t,q.elbow\n0,1\n")
+    assert "a CSV file, expected a log (Parquet); msarm log import" in check_log(arm, csv).error
+    assert "no such log file" in check_log(arm, tmp_path / "nope.parquet").error
+
+
+def test_msarm_log_check_reports_every_log_then_fails_on_the_bad_ones(
+    arm, logs, tmp_path, monkeypatch, capsys
+):
+    from msarm.cli import main
+
+    bad = tmp_path / "bad.parquet"
+    bad.write_text("not parquet")
+    monkeypatch.setattr(sys, "argv", ["msarm", "log", "check", str(logs[0]), str(bad), "--json"])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 2
+    rows = json.loads(captured.out)["logs"]
+    assert [row["error"] is None for row in rows] == [True, False]
+    assert "not a readable Parquet file" in rows[1]["error"]
+    assert captured.err.strip() == (
+        f"msarm: error: 1 of 2 log(s) cannot be diagnosed: {bad} (see above)"
+    )
+    monkeypatch.setattr(sys, "argv", ["msarm", "log", "check", str(logs[0])])
+    main()  # all good: exit code 0
+    out = capsys.readouterr().out
+    assert "what msarm diagnose can make of them" in out and "yes" in out
+    monkeypatch.setattr(
+        sys, "argv", ["msarm", "log", "check", str(logs[0]), "--filter-window", "4"]
+    )
+    with pytest.raises(SystemExit):
+        main()
+    assert "--filter-window: expected an odd number >= 5, got 4" in capsys.readouterr().err
+    # the window the diagnosis would use decides the filter-span warning
+    monkeypatch.setattr(
+        sys, "argv", ["msarm", "log", "check", str(logs[0]), "--filter-window", "301", "--json"]
+    )
+    main()
+    (row,) = json.loads(capsys.readouterr().out)["logs"]
+    assert any("span 1.2 s" in text for text in row["warnings"]), row["warnings"]
+    assert np.isfinite(row["diagnosed_share"])
