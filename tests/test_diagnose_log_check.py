@@ -93,7 +93,9 @@ def test_msarm_log_check_reports_every_log_then_fails_on_the_bad_ones(
     )
     with pytest.raises(SystemExit):
         main()
-    assert "--filter-window: expected an odd number >= 5, got 4" in capsys.readouterr().err
+    assert (
+        "--filter-window: expected an odd number of samples >= 5, got 4" in capsys.readouterr().err
+    )
     # the window the diagnosis would use decides the filter-span warning
     monkeypatch.setattr(
         sys, "argv", ["msarm", "log", "check", str(logs[0]), "--filter-window", "301", "--json"]

@@ -230,7 +230,9 @@ def check_command(
     from msarm.model import ARM_MODEL_PATH, load_robot
 
     if filter_window < 5 or filter_window % 2 == 0:
-        raise InputError(f"--filter-window: expected an odd number >= 5, got {filter_window}")
+        raise InputError(
+            f"--filter-window: expected an odd number of samples >= 5, got {filter_window}"
+        )
     model = load_robot(model_path or ARM_MODEL_PATH)
     _report_checks(model, logs, json_output, "logs checked", filter_window=filter_window)
 
