@@ -19,10 +19,13 @@ What it does, and refuses (each error names the file, the column and what was ex
   cables (a misspelt ``q.Elbow`` would otherwise leave ``q.elbow`` missing); the channels of
   a quantity are put in the model's order;
 - a missing value (an empty field, NaN, an infinity) is refused with its column, count and
-  first row, or with ``drop_missing`` its rows are left out (said in a warning): the log
-  schema has no missing values;
+  first row, or with ``drop_missing`` its rows are left out (said in a warning; a column with
+  no value at all is left out instead): the log schema has no missing values.
+  ``skip_columns`` leaves out columns first (a sensor logged at a lower rate, say);
 - the sample rate is the one given, or ``1 / median step`` of the time column (rounded to
-  six significant digits).
+  six significant digits); one outside :data:`RATE_RANGE_HZ` is refused as a likely wrong
+  time unit (milliseconds read as seconds), and one given that the time contradicts by more
+  than 5 % is refused.
 """
 
 from __future__ import annotations
