@@ -46,9 +46,7 @@ def test_what_a_log_lacks_is_said_as_the_diagnosis_says_it(arm, logs, tmp_path):
     check = check_log(arm, path)
     assert check.ok and not check.residuals["drive"] and check.residuals["cable_length"]
     assert len(check.warnings) == 1
-    assert (
-        "column 'tension_cmd.deltoid_anterior' is missing: no drive residual" in check.warnings[0]
-    )
+    assert "columns 'tension_cmd.*' are missing (all 9): no drive residual" in check.warnings[0]
 
 
 def test_a_log_the_diagnosis_refuses_keeps_its_error(arm, logs, tmp_path):
@@ -82,7 +80,7 @@ def test_msarm_log_check_reports_every_log_then_fails_on_the_bad_ones(
     assert [row["error"] is None for row in rows] == [True, False]
     assert "not a readable Parquet file" in rows[1]["error"]
     assert captured.err.strip() == (
-        f"msarm: error: 1 of 2 log(s) cannot be diagnosed: {bad} (see above)"
+        f"msarm: error: 1 of 2 log(s) cannot be diagnosed: {bad} (see the JSON)"
     )
     monkeypatch.setattr(sys, "argv", ["msarm", "log", "check", str(logs[0])])
     main()  # all good: exit code 0
@@ -104,3 +102,35 @@ def test_msarm_log_check_reports_every_log_then_fails_on_the_bad_ones(
     (row,) = json.loads(capsys.readouterr().out)["logs"]
     assert any("span 1.2 s" in text for text in row["warnings"]), row["warnings"]
     assert np.isfinite(row["diagnosed_share"])
+
+
+def test_logs_the_diagnosis_refuses_together_are_said(arm, logs, tmp_path, monkeypatch, capsys):
+    """One run under two names, and logs of two sample rates: each log is fine alone."""
+    from msarm.cli import main
+    from msarm.diagnose.log_check import check_logs
+
+    copy = tmp_path / "copy.parquet"
+    copy.write_bytes(logs[0].read_bytes())
+    log = read_log(logs[0])
+    halved = {**log.columns, "t": 2.0 * log.columns["t"]}
+    rate = log.metadata.sample_rate_hz
+    slow = write_log(
+        tmp_path / "slow.parquet",
+        RunLog(halved, replace(log.metadata, sample_rate_hz=rate / 2)),
+    )
+    checks, together = check_logs(arm, [logs[0], copy, slow])
+    assert all(check.ok for check in checks)
+    assert len(together) == 2
+    assert together[0].startswith(f"logs: {copy} has the same contents as {logs[0]}")
+    assert together[1] == (
+        f"logs of 2 sample rates ({rate / 2:g} Hz: {slow}; {rate:g} Hz: {logs[0]}, {copy}); "
+        "the diagnosis takes logs of one sample rate together"
+    )
+    assert check_logs(arm, [logs[0]])[1] == []
+    monkeypatch.setattr(sys, "argv", ["msarm", "log", "check", str(logs[0]), str(copy)])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 2
+    assert "error (the logs together): logs:" in captured.out
+    assert captured.err.startswith("msarm: error: the logs cannot be diagnosed together: logs:")

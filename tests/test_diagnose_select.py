@@ -262,7 +262,7 @@ def test_held_out_logs_without_a_channel_skip_the_terms_that_need_it(arm, noise_
     with pytest.warns(DiagnosisWarning) as caught:
         data = load_data(arm, noise_logs[:2], [held])
     text = " ".join(str(w.message) for w in caught)
-    assert "no_commands.parquet: column 'tension_cmd." in text
+    assert "no_commands.parquet: columns 'tension_cmd.*' are missing (all 9)" in text
     reason = data.skipped["capstan_hysteresis"]
     assert reason.startswith("in the held-out logs") and "tension_cmd" in reason
     assert "coulomb" not in data.skipped
@@ -270,7 +270,7 @@ def test_held_out_logs_without_a_channel_skip_the_terms_that_need_it(arm, noise_
     with pytest.warns(DiagnosisWarning) as shown:
         result = diagnose(arm, noise_logs[:2], [held], candidates=["coulomb"], n_boot=0)
     (lacked,) = result.log_warnings
-    assert lacked.startswith(f"{held}: column 'tension_cmd.")
+    assert lacked.startswith(f"{held}: columns 'tension_cmd.*' are missing (all 9)")
     assert lacked in [str(w.message) for w in shown]
     assert json.loads(json.dumps(result.as_dict()))["log_warnings"] == [lacked]
     assert f"## What the logs lacked (warnings)\n\n- {lacked}" in result.to_markdown()

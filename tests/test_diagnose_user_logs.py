@@ -102,7 +102,10 @@ def test_missing_reference_and_little_motion_are_said(logs, arm, tmp_path):
     log = read_log(logs[0])
     no_ref = {k: v for k, v in log.columns.items() if not k.startswith("q_ref.")}
     path = _rewrite(logs[0], tmp_path / "noref.parquet", no_ref)
-    with pytest.warns(DiagnosisWarning, match=r"noref\.parquet: column 'q_ref\..*mass-error"):
+    with pytest.warns(
+        DiagnosisWarning,
+        match=r"noref\.parquet: columns 'q_ref\.\*' are missing \(all 4\): the mass-error",
+    ):
         residuals_from_log(arm, path, spec=ResidualSpec(replay=False))
     still = {k: v[:100] for k, v in log.columns.items()}  # the first 0.4 s: a hold
     held = _rewrite(logs[0], tmp_path / "still.parquet", still)
@@ -152,6 +155,37 @@ def test_a_filter_spanning_an_implausible_time_is_warned(logs, arm, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", DiagnosisWarning)
         residuals_from_log(arm, path, spec=wide)  # the window scaled with the rate
+
+
+def test_a_channel_in_another_unit_than_its_partner_is_warned(logs, arm, tmp_path):
+    """Commands logged in kN beside load cells in N, motor angles in degrees, or a drum radius
+    off by a gearbox's ratio each get a warning naming the mismatch (none on the logs as
+    recorded: the test of the exact rate above turns every warning into an error)."""
+    log = read_log(logs[0])
+    spec = ResidualSpec(replay=False)
+
+    def scaled(prefix, factor):
+        return {k: (factor * v if k.startswith(prefix) else v) for k, v in log.columns.items()}
+
+    kilo = _rewrite(logs[0], tmp_path / "kn.parquet", scaled("tension_cmd.", 1e-3))
+    with pytest.warns(
+        DiagnosisWarning,
+        match=r"kn\.parquet: the commanded tensions \(tension_cmd\.\*, median .* N\) are "
+        r"0\.001\d* times the load cells' .*another unit \(kN logged as N\)",
+    ):
+        residuals_from_log(arm, kilo, spec=spec)
+    degrees = _rewrite(logs[0], tmp_path / "deg.parquet", scaled("motor_angle.", 180 / np.pi))
+    message = (
+        r"the cable lengths the motor encoders give \(drum radius 0\.003 m\) differ from the "
+        r"cables' path lengths by .* % of their travel .*--drum-radius"
+    )
+    with pytest.warns(DiagnosisWarning, match=rf"deg\.parquet: {message}"):
+        residuals_from_log(arm, degrees, spec=spec)
+    with pytest.warns(DiagnosisWarning, match=message.replace("0\\.003", "0\\.006")):
+        residuals_from_log(arm, logs[0], spec=replace(spec, drum_radius=0.006))
+    reeled_out = _rewrite(logs[0], tmp_path / "sign.parquet", scaled("motor_angle.", -1.0))
+    with pytest.warns(DiagnosisWarning, match=rf"sign\.parquet: {message}"):
+        residuals_from_log(arm, reeled_out, spec=spec)
 
 
 def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):
@@ -453,7 +487,11 @@ def test_an_optional_column_with_no_value_is_taken_as_not_logged(logs, arm, tmp_
     ), said
     assert any("'tension_cmd.triceps' has missing values" in m for m in said)
     assert any("does not read it and leaves it out" in m for m in said)
-    assert any("column 'tension_cmd.biceps' is missing: no drive residual" in m for m in said)
+    assert any(
+        "columns 'tension_cmd.biceps', 'tension_cmd.triceps' are missing (2 of 9 "
+        "'tension_cmd.*' columns): no drive residual" in m
+        for m in said
+    ), said
     assert got.drive is None
     expected = residuals_from_log(arm, logs[0], spec=spec)
     np.testing.assert_array_equal(got.joint_torque, expected.joint_torque)

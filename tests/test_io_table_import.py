@@ -95,7 +95,11 @@ def test_units_are_converted_by_their_factor_or_refused_by_name(arm):
         r".*known for it: rad, deg, mrad",
     ):
         log_from_columns({"t": t, "q.elbow": np.ones(5)}, arm, units={"q": "grad"})
-    with pytest.raises(InputError, match=r"no unit for quantity 'pressure' .* --unit pressure=N"):
+    with pytest.raises(
+        InputError,
+        match=r"no unit for quantity 'pressure' .* \(--unit pressure=UNIT\), or leave its "
+        r"columns out \(--skip-column pressure\.<name>\)",
+    ):
         log_from_columns({"t": t, "pressure.pump": np.ones(5)}, arm)
     own = log_from_columns({"t": t, "pressure.pump": np.ones(5)}, arm, units={"pressure": "Pa"})
     assert own.metadata.units == {"pressure": "Pa"}  # a quantity msarm does not know: as given
@@ -255,6 +259,12 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(tmp_path, monkeypa
     bad.write_text("t,q.knee\n0,1\n0.004,2\n")
     code, _, err = _main(monkeypatch, capsys, "log", "import", str(good), str(bad))
     assert code == 2 and "bad.csv: column 'q.knee' names no joint" in err
+    worse = tmp_path / "worse.csv"
+    worse.write_text("t;q.elbow\n0;1\n")
+    code, _, err = _main(monkeypatch, capsys, "log", "import", str(bad), str(good), str(worse))
+    assert code == 2 and err.count("\n") == 1  # one line, naming every file refused
+    assert "2 of 3 CSV files cannot be imported (nothing written): " in err
+    assert "bad.csv: column 'q.knee'" in err and "worse.csv: the header is one column" in err
     assert not (tmp_path / "good.parquet").exists()
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()

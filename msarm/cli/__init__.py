@@ -6,13 +6,12 @@ heavy imports happen inside the commands so that ``msarm --help`` stays fast.
 
 from __future__ import annotations
 
-import re
-
 import typer
 
 from msarm.cli.arm import arm_command
 from msarm.cli.bench import bench_app
 from msarm.cli.cdpr import cdpr_app
+from msarm.cli.common import RepeatedWarnings
 from msarm.cli.compensator import compare_command, train_command
 from msarm.cli.diagnose import diagnose_command
 from msarm.cli.log import log_app
@@ -85,45 +84,6 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
             out.append(current)
         out.append(arg)
     return out
-
-
-class RepeatedWarnings:
-    """Tells the first of a warning about several log files from its repeats.
-
-    A warning ``"<file>.parquet: <what>"`` is shown for its first file; the same ``<what>``
-    for further files is only counted, and :meth:`summary` names those files once. Any other
-    warning is shown once: the same words again (a check made before a run and again by
-    the run) add nothing.
-    """
-
-    _ABOUT_A_FILE = re.compile(r"^(?P<source>\S+\.parquet): (?P<what>.*)$", re.DOTALL)
-
-    def __init__(self) -> None:
-        self.sources: dict[str, list[str]] = {}
-        self.shown: set[str] = set()
-
-    def first(self, text: str) -> bool:
-        """Whether ``text`` is to be shown (not the repeat of a warning about another file)."""
-        match = self._ABOUT_A_FILE.match(text)
-        if match is None:
-            new = text not in self.shown
-            self.shown.add(text)
-            return new
-        sources = self.sources.setdefault(match["what"], [])
-        sources.append(match["source"])
-        return len(sources) == 1
-
-    def summary(self) -> list[str]:
-        """One line per repeated warning: how many more files, and which."""
-        lines = []
-        for what, sources in self.sources.items():
-            if len(sources) > 1:
-                head = what if len(what) <= 60 else what[:57] + "..."
-                lines.append(
-                    f"the same ({head}) for {len(sources) - 1} more log(s): "
-                    + ", ".join(sources[1:])
-                )
-        return lines
 
 
 class Terminated(SystemExit):

@@ -19,8 +19,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, output_folder
-from msarm.errors import InputError
+from msarm.cli.common import RepeatedWarnings, console, output_folder
+from msarm.errors import InputError, MsarmError
 
 if TYPE_CHECKING:
     from msarm.diagnose.log_check import LogCheck
@@ -184,20 +184,31 @@ def import_command(
         out = output_folder(out)
     targets = log_paths(files, out)
     model = load_robot(model_path or ARM_MODEL_PATH)
-    # every file is read and checked before any log is written
-    logs = [
-        read_csv_log(
-            path,
-            model,
-            sample_rate_hz=rate,
-            units=units,
-            time_column=time_column,
-            time_unit=time_unit,
-            drop_missing=drop_missing,
-            skip_columns=list(skip_column or []),
+    # every file is read and checked before any log is written; every error is said
+    logs, errors = [], []
+    for path in files:
+        try:
+            logs.append(
+                read_csv_log(
+                    path,
+                    model,
+                    sample_rate_hz=rate,
+                    units=units,
+                    time_column=time_column,
+                    time_unit=time_unit,
+                    drop_missing=drop_missing,
+                    skip_columns=list(skip_column or []),
+                )
+            )
+        except MsarmError as exc:
+            errors.append(str(exc))
+    if len(errors) == 1:
+        raise InputError(errors[0])
+    if errors:
+        raise InputError(
+            f"{len(errors)} of {len(files)} CSV files cannot be imported (nothing written): "
+            + "; ".join(errors)
         )
-        for path in files
-    ]
     for log, target in zip(logs, targets, strict=True):
         write_log(target, log)
     _report_checks(model, targets, json_output, "logs written", sources=files)
@@ -245,29 +256,38 @@ def _report_checks(
     sources: list[Path] | None = None,
     filter_window: int = 25,
 ) -> None:
-    """Check each log (:func:`msarm.diagnose.log_check.check_log`) and print the result.
+    """Check the logs (:func:`msarm.diagnose.log_check.check_logs`) and print the result.
 
     Raises:
-        InputError: Some log cannot be diagnosed (after all are printed), naming how many.
+        InputError: Some log cannot be diagnosed, or the logs not together (after all is
+            printed), naming how many or why.
     """
     from msarm.compensation.target import TargetSpec
-    from msarm.diagnose.log_check import check_log
+    from msarm.diagnose.log_check import check_logs
     from msarm.diagnose.residuals import ResidualSpec
 
     spec = ResidualSpec(target=TargetSpec(window=filter_window))
-    checks = [check_log(model, path, spec) for path in logs]
+    checks, together = check_logs(model, list(logs), spec)
     if json_output:
         rows = [check.as_dict() for check in checks]
         for row, source in zip(rows, sources or [], strict=False):
             row["csv"] = str(source)
-        print(json.dumps({"model": str(model.path), "logs": rows}, indent=2))
+        report = {"model": str(model.path), "logs": rows, "together": together}
+        print(json.dumps(report, indent=2))
     else:
         _print_checks(checks, title, sources)
+        for text in together:
+            console().print(escape(f"error (the logs together): {text}"))
+    where = "the JSON" if json_output else "above"
     bad = [check.path for check in checks if not check.ok]
     if bad:
         raise InputError(
-            f"{len(bad)} of {len(checks)} log(s) cannot be diagnosed: {', '.join(bad)} (see above)"
+            f"{len(bad)} of {len(checks)} log(s) cannot be diagnosed: {', '.join(bad)} (see "
+            f"{where})"
         )
+    if together:
+        more = f" (and {len(together) - 1} more, see {where})" if len(together) > 1 else ""
+        raise InputError(f"the logs cannot be diagnosed together: {together[0]}{more}")
 
 
 def _print_checks(checks: list[LogCheck], title: str, sources: list[Path] | None) -> None:
@@ -306,8 +326,12 @@ def _print_checks(checks: list[LogCheck], title: str, sources: list[Path] | None
     screen.print(table)
     for name, use in RESIDUALS_CHECKED.items():
         screen.print(escape(f"{RESIDUAL_COLUMNS[name]}: {use}"))
+    repeats = RepeatedWarnings()  # the same warning about several logs: shown once
     for check in checks:
         for text in check.warnings:
-            screen.print(escape(f"warning: {text}"))
+            if repeats.first(text):
+                screen.print(escape(f"warning: {text}"))
         if check.error:
             screen.print(escape(f"error: {check.error}"))
+    for text in repeats.summary():
+        screen.print(escape(f"warning: {text}"))

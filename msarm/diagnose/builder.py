@@ -13,6 +13,7 @@ run (the motor encoders give lengths up to an unknown offset per run).
 
 from __future__ import annotations
 
+import hashlib
 import warnings
 from collections.abc import Sequence
 from dataclasses import replace
@@ -32,6 +33,7 @@ __all__ = [
     "GROUP_UNITS",
     "MIN_TRAVEL",
     "channels_from_logs",
+    "check_distinct_files",
     "check_log_file",
     "check_same_rate",
     "signals_from_logs",
@@ -197,6 +199,31 @@ def channels_from_logs(
     present = [g for g in GROUPS if all(g in r for r in residuals)]
     groups = {g: np.concatenate([r[g] for r in residuals]) for g in present}
     return signals, groups, tuple(names)
+
+
+def check_distinct_files(paths: Sequence[str | Path]) -> None:
+    """Refuse two log files with the same bytes: one run under two names.
+
+    A copy of a training log held out would score the terms on the data they were fitted
+    on; two copies in training would weigh that run twice. Files that cannot be read are
+    left to the log reader, which names what is wrong with them.
+
+    Raises:
+        InputError: Two files have the same bytes (both named).
+    """
+    seen: dict[str, str] = {}
+    for path in paths:
+        try:
+            digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        except OSError:
+            continue
+        if digest in seen:
+            raise InputError(
+                f"logs: {path} has the same contents as {seen[digest]}: one run under two "
+                "names; expected each run once (a copy held out would score the terms on the "
+                "data they were fitted on)"
+            )
+        seen[digest] = str(path)
 
 
 def check_same_rate(

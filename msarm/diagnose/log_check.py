@@ -4,8 +4,10 @@
 (:func:`msarm.diagnose.residuals.residuals_from_log`, without the replay), so every check the
 diagnosis makes of a log is made here too, by the same code: the model's hash, the units,
 missing channels and values, time gaps and the sample rate, the derivative filter's span, dead
-sensors, too little motion. What it finds is kept, not raised: an error that would stop the
-diagnosis, the warnings it would give, and which residuals the log supports.
+sensors, channels whose scales disagree, too little motion. What it finds is kept, not
+raised: an error that would stop the diagnosis, the warnings it would give, and which
+residuals the log supports. :func:`check_logs` adds what the diagnosis refuses of logs
+together: one run under two names, and logs of different sample rates.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import numpy as np
 from msarm.errors import MsarmError
 from msarm.model import RobotModel
 
-__all__ = ["RESIDUALS_CHECKED", "LogCheck", "check_log"]
+__all__ = ["RESIDUALS_CHECKED", "LogCheck", "check_log", "check_logs"]
 
 #: The residuals a log may support -> what each gives the diagnosis.
 RESIDUALS_CHECKED: dict[str, str] = {
@@ -123,6 +125,44 @@ def check_log(model: RobotModel, path: str | Path, spec: Any = None) -> LogCheck
             "clean_accelerations": residuals.qdd_ref is not None,
         },
     )
+
+
+def check_logs(
+    model: RobotModel, paths: list[str | Path], spec: Any = None
+) -> tuple[list[LogCheck], list[str]]:
+    """Check several logs (:func:`check_log`), and what the diagnosis refuses of them together.
+
+    Args:
+        model: The nominal robot model the diagnosis would use.
+        paths: The log files.
+        spec: The :class:`~msarm.diagnose.residuals.ResidualSpec` (see :func:`check_log`).
+
+    Returns:
+        ``(checks, together)``: each log's check, and why the diagnosis would refuse these
+        logs together (one run given twice or under two names; logs of different sample
+        rates), empty when it would not.
+    """
+    from msarm.diagnose.builder import check_distinct_files
+
+    checks = [check_log(model, path, spec) for path in paths]
+    together: list[str] = []
+    try:
+        check_distinct_files(paths)
+    except MsarmError as exc:
+        together.append(str(exc))
+    rates: dict[float, list[str]] = {}
+    for check in checks:
+        if check.ok and check.sample_rate_hz is not None:
+            rates.setdefault(check.sample_rate_hz, []).append(check.path)
+    if len(rates) > 1:
+        groups = "; ".join(
+            f"{rate:g} Hz: {', '.join(logs)}" for rate, logs in sorted(rates.items())
+        )
+        together.append(
+            f"logs of {len(rates)} sample rates ({groups}); the diagnosis takes logs of one "
+            "sample rate together"
+        )
+    return checks, together
 
 
 def _messages(caught: list[warnings.WarningMessage], category: type) -> tuple[str, ...]:

@@ -54,6 +54,9 @@ from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 __all__ = [
     "FILTER_SPAN_S",
     "GAP_FACTOR",
+    "LENGTH_MISMATCH",
+    "MIN_CHECKED_TRAVEL",
+    "TENSION_RATIO",
     "RESIDUAL_UNITS",
     "gap_starts",
     "replay_runs",
@@ -70,6 +73,15 @@ RESIDUAL_UNITS = {"joint_torque": "N m", "cable_length": "m", "drive": "N", "rep
 
 #: The log quantities the residuals read (their units must be msarm's SI ones).
 _QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
+#: Range of the commanded tensions' median over the load cells' outside which a log is
+#: warned about (a unit slip: kN logged as N gives 0.001).
+TENSION_RATIO = (0.5, 2.0)
+#: Share of the motor-side cable travel (RMS) by which the encoder lengths may differ from
+#: the path lengths before a log is warned about (a unit, sign or drum-radius slip).
+LENGTH_MISMATCH = 0.25
+#: Least motor-side cable travel (RMS over a log) [m] for that check: below it, noise and
+#: slack could be a large share of it.
+MIN_CHECKED_TRAVEL = 1e-4
 #: Time spans [s] of the derivative filter's window outside which a log is warned about
 #: (msarm's default: 25 samples at 250 Hz, 0.1 s).
 FILTER_SPAN_S = (0.01, 1.0)
@@ -384,6 +396,7 @@ def residuals_from_log(
             driving = out["tension_cmd"][part] if use_command else tension_all[part]
             out["replay"][part] = _replay(work, q, q_f, qd, driving, dt, spec)
         valid[part] = True
+    _warn_implausible_scales(source, out, tension_all, motor_all, valid, spec)
     return Residuals(
         source=source,
         joint_names=tuple(joints),
@@ -409,15 +422,75 @@ def residuals_from_log(
     )
 
 
+def _warn_implausible_scales(
+    source: str,
+    out: dict[str, FloatArray | None],
+    tension: FloatArray,
+    motor: FloatArray | None,
+    valid: NDArray[np.bool_],
+    spec: ResidualSpec,
+) -> None:
+    """Warn when a channel's scale disagrees with what it should match (a unit or sign slip).
+
+    - The commanded tensions against the load cells: the drives render each command at the
+      load cell, so their medians agree within :data:`TENSION_RATIO` unless one is logged in
+      another unit (kN as N). The drive residual ``F - F_cmd`` would then be mostly that.
+    - The cable lengths the motor encoders give against the cables' path lengths: their
+      difference (stretch, slack) is a small part of the travel unless the motor angles are
+      in another unit or sign, or the drum radius is wrong (a gearbox). Checked when the
+      motor-side travel is above :data:`MIN_CHECKED_TRAVEL` (RMS over the log).
+    """
+    if not valid.any():
+        return
+    command = out["tension_cmd"]
+    if command is not None:
+        measured = float(np.median(np.abs(tension[valid])))
+        commanded = float(np.median(np.abs(command[valid])))
+        low, high = TENSION_RATIO
+        if measured > 0 and commanded > 0 and not low <= commanded / measured <= high:
+            warnings.warn(
+                f"{source}: the commanded tensions (tension_cmd.*, median {commanded:.4g} N) "
+                f"are {commanded / measured:.3g} times the load cells' (tension_motor.*, median "
+                f"{measured:.4g} N), where drives that render their commands give about 1: is "
+                "one of them in another unit (kN logged as N)? The drive residual F - F_cmd "
+                "is then mostly this, and the drive terms are fitted to it",
+                DiagnosisWarning,
+                stacklevel=3,
+            )
+    length = out["cable_length"]
+    if length is not None and motor is not None:
+        travel = spec.drum_radius * (motor[valid] - motor[valid].mean(axis=0))
+        scale = float(np.sqrt(np.mean(travel**2)))
+        error = length[valid] - length[valid].mean(axis=0)
+        share = float(np.sqrt(np.mean(error**2))) / scale if scale > 0 else 0.0
+        if scale > MIN_CHECKED_TRAVEL and share > LENGTH_MISMATCH:
+            warnings.warn(
+                f"{source}: the cable lengths the motor encoders give (drum radius "
+                f"{spec.drum_radius:g} m) differ from the cables' path lengths by "
+                f"{100 * share:.3g} % of their travel (RMS; stretch and slack are a few %): "
+                "are the motor_angle.* columns in rad, reel-in positive, and is the drum "
+                "radius right (--drum-radius; a gearbox between encoder and drum divides it "
+                "by its ratio)? The length terms are fitted to this mismatch",
+                DiagnosisWarning,
+                stacklevel=3,
+            )
+
+
 def _has_channels(log: RunLog, quantity: str, names: list[str], source: str, without: str) -> bool:
     """Whether the log has ``quantity.<name>`` for every name; if not, warn what is lost."""
     missing = [name for name in names if f"{quantity}.{name}" not in log.columns]
     if missing:
-        warnings.warn(
-            f"{source}: column '{quantity}.{missing[0]}' is missing: {without}",
-            DiagnosisWarning,
-            stacklevel=3,
-        )
+        if len(missing) == len(names):
+            what = f"columns '{quantity}.*' are missing (all {len(names)})"
+        else:
+            listed = ", ".join(f"'{quantity}.{name}'" for name in missing[:3])
+            more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+            what = (
+                f"column{'s' if len(missing) > 1 else ''} {listed}{more} "
+                f"{'are' if len(missing) > 1 else 'is'} missing ({len(missing)} of "
+                f"{len(names)} '{quantity}.*' columns)"
+            )
+        warnings.warn(f"{source}: {what}: {without}", DiagnosisWarning, stacklevel=3)
     return not missing
 
 

@@ -51,7 +51,6 @@ waterfall of :mod:`msarm.diagnose.report`).
 
 from __future__ import annotations
 
-import hashlib
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -61,7 +60,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.builder import GROUPS, MIN_TRAVEL, channels_from_logs, check_same_rate
+from msarm.diagnose.builder import (
+    GROUPS,
+    MIN_TRAVEL,
+    channels_from_logs,
+    check_distinct_files,
+    check_same_rate,
+)
 from msarm.diagnose.cable_effects import (
     CableBacklash,
     CableElasticity,
@@ -730,28 +735,6 @@ def _warn_negligible_gap(
     )
 
 
-def _refuse_copies(paths: Sequence[str | Path]) -> None:
-    """Refuse two log files with the same bytes: one run under two names.
-
-    A copy of a training log held out would score the terms on the data they were fitted
-    on; two copies in training would weigh that run twice. Files that cannot be read are
-    left to the log reader, which names what is wrong with them.
-    """
-    seen: dict[str, str] = {}
-    for path in paths:
-        try:
-            digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
-        except OSError:
-            continue
-        if digest in seen:
-            raise InputError(
-                f"logs: {path} has the same contents as {seen[digest]}: one run under two "
-                "names; expected each run once (a copy held out would score the terms on the "
-                "data they were fitted on)"
-            )
-        seen[digest] = str(path)
-
-
 def load_data(
     model: RobotModel,
     train_paths: Sequence[str | Path],
@@ -795,7 +778,7 @@ def load_data(
             f"holdout_paths (the held-out logs, --holdout): logs also used for training: "
             f"{sorted(both)}"
         )
-    _refuse_copies([*train_paths, *holdout_paths])
+    check_distinct_files([*train_paths, *holdout_paths])
     wanted = tuple(GROUPS if groups is None else groups)
     unknown = [g for g in wanted if g not in GROUPS]
     if unknown or not wanted:

@@ -316,7 +316,8 @@ def _si_unit(quantity: str, given: str | None, source: str) -> tuple[str, float]
         if given is None:
             raise InputError(
                 f"{source}: no unit for quantity {quantity!r} (not one of msarm's: "
-                f"{', '.join(STANDARD_UNITS)}); give it, e.g. --unit {quantity}=N"
+                f"{', '.join(STANDARD_UNITS)}); give it (--unit {quantity}=UNIT), or leave its "
+                f"columns out (--skip-column {quantity}.<name>)"
             )
         return given, 1.0
     if given is None or same_unit(given, standard):
