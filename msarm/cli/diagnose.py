@@ -198,7 +198,12 @@ def _print_diagnosis(
 
 def diagnose_command(
     logs: Annotated[
-        list[Path], typer.Argument(metavar="LOG", help="Log files (Parquet) of the robot.")
+        list[Path],
+        typer.Argument(
+            metavar="LOG",
+            help="Log files (Parquet) of the robot (msarm log import makes them from CSV files; "
+            "msarm log check says what the diagnosis can make of them).",
+        ),
     ],
     holdout: Annotated[
         list[Path] | None,
