@@ -102,6 +102,16 @@ def test_msarm_log_check_reports_every_log_then_fails_on_the_bad_ones(
     (row,) = json.loads(capsys.readouterr().out)["logs"]
     assert any("span 1.2 s" in text for text in row["warnings"]), row["warnings"]
     assert np.isfinite(row["diagnosed_share"])
+    # and the drum radius it would read the motor angles with
+    argv = ["msarm", "log", "check", str(logs[0]), "--drum-radius", "0.006", "--json"]
+    monkeypatch.setattr(sys, "argv", argv)
+    main()
+    (row,) = json.loads(capsys.readouterr().out)["logs"]
+    assert [text for text in row["warnings"] if "drum radius 0.006 m) differ" in text]
+    monkeypatch.setattr(sys, "argv", argv[:-2] + ["0", "--json"])
+    with pytest.raises(SystemExit):
+        main()
+    assert "--drum-radius: expected a radius > 0 in metres, got 0.0" in capsys.readouterr().err
 
 
 def test_logs_the_diagnosis_refuses_together_are_said(arm, logs, tmp_path, monkeypatch, capsys):

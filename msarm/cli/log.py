@@ -158,6 +158,14 @@ def import_command(
             "rows); repeat the option for each.",
         ),
     ] = None,
+    drum_radius: Annotated[
+        float,
+        typer.Option(
+            metavar="METRES",
+            help=r"Radius of the winch drums the diagnosis would use \[m] (msarm diagnose "
+            "--drum-radius): the motor angles' cable lengths are checked with it.",
+        ),
+    ] = 0.003,
     model_path: Annotated[
         Path | None,
         typer.Option(
@@ -176,6 +184,7 @@ def import_command(
     from msarm.model import ARM_MODEL_PATH, load_robot
 
     units = parse_units(list(unit or []))
+    _check_drum_radius(drum_radius)
     if time_unit not in TIME_UNITS:
         raise InputError(f"--time-unit: expected one of {', '.join(TIME_UNITS)}, got {time_unit!r}")
     if rate is not None and not (0 < rate < float("inf")):
@@ -211,7 +220,9 @@ def import_command(
         )
     for log, target in zip(logs, targets, strict=True):
         write_log(target, log)
-    _report_checks(model, targets, json_output, "logs written", sources=files)
+    _report_checks(
+        model, targets, json_output, "logs written", sources=files, drum_radius=drum_radius
+    )
 
 
 @log_app.command("check")
@@ -227,6 +238,14 @@ def check_command(
             "diagnose --filter-window).",
         ),
     ] = 25,
+    drum_radius: Annotated[
+        float,
+        typer.Option(
+            metavar="METRES",
+            help=r"Radius of the winch drums the diagnosis would use \[m] (msarm diagnose "
+            "--drum-radius): the motor angles' cable lengths are checked with it.",
+        ),
+    ] = 0.003,
     model_path: Annotated[
         Path | None,
         typer.Option(
@@ -245,7 +264,20 @@ def check_command(
             f"--filter-window: expected an odd number of samples >= 5, got {filter_window}"
         )
     model = load_robot(model_path or ARM_MODEL_PATH)
-    _report_checks(model, logs, json_output, "logs checked", filter_window=filter_window)
+    _check_drum_radius(drum_radius)
+    _report_checks(
+        model,
+        logs,
+        json_output,
+        "logs checked",
+        filter_window=filter_window,
+        drum_radius=drum_radius,
+    )
+
+
+def _check_drum_radius(drum_radius: float) -> None:
+    if not (0 < drum_radius < float("inf")):
+        raise InputError(f"--drum-radius: expected a radius > 0 in metres, got {drum_radius}")
 
 
 def _report_checks(
@@ -255,6 +287,7 @@ def _report_checks(
     title: str,
     sources: list[Path] | None = None,
     filter_window: int = 25,
+    drum_radius: float = 0.003,
 ) -> None:
     """Check the logs (:func:`msarm.diagnose.log_check.check_logs`) and print the result.
 
@@ -266,7 +299,7 @@ def _report_checks(
     from msarm.diagnose.log_check import check_logs
     from msarm.diagnose.residuals import ResidualSpec
 
-    spec = ResidualSpec(target=TargetSpec(window=filter_window))
+    spec = ResidualSpec(target=TargetSpec(window=filter_window), drum_radius=drum_radius)
     checks, together = check_logs(model, list(logs), spec)
     if json_output:
         rows = [check.as_dict() for check in checks]
