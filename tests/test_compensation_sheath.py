@@ -242,12 +242,8 @@ def test_the_identification_reads_motor_angles_with_the_plants_drums(arm, tmp_pa
     found = identify_sheath(arm, logs[:2], logs[2:], reading)
     assert 0.5 / stiffness < found.compliance < 1.0 / stiffness
     assert found.compliance_share > 0.5
-    with pytest.warns(MsarmWarning) as caught:
+    with pytest.warns(MsarmWarning, match="negative compliance"):
         misread = identify_sheath(arm, logs[:2], logs[2:])
-    said = " ".join(str(w.message) for w in caught)
-    assert "negative compliance" in said
-    # the diagnosis's own check of the drum radius names the misreading too
-    assert "drum radius 0.003 m) differ from the cables' path lengths" in said
     assert misread.compliance == 0.0
     assert misread.compliance_share < found.compliance_share
 
@@ -268,8 +264,7 @@ def _check_the_identification_is_reused_only_for_the_same_input(
     assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, True)
     # the logs read with other settings (another drum radius): not the same input
     other = ResidualSpec(drum_radius=0.004)
-    with pytest.warns(MsarmWarning, match=r"drum radius 0\.004 m\) differ from the cables'"):
-        assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record, other)[1] is False
+    assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record, other)[1] is False
     assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record, other)[1] is True
     assert reuse_or_identify_sheath(arm, logs[1:], logs[:1], record) == (again, False)
     with monkeypatch.context() as patch:

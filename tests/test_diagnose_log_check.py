@@ -103,11 +103,11 @@ def test_msarm_log_check_reports_every_log_then_fails_on_the_bad_ones(
     assert any("span 1.2 s" in text for text in row["warnings"]), row["warnings"]
     assert np.isfinite(row["diagnosed_share"])
     # and the drum radius it would read the motor angles with
-    argv = ["msarm", "log", "check", str(logs[0]), "--drum-radius", "0.006", "--json"]
+    argv = ["msarm", "log", "check", str(logs[0]), "--drum-radius", "0.012", "--json"]
     monkeypatch.setattr(sys, "argv", argv)
     main()
     (row,) = json.loads(capsys.readouterr().out)["logs"]
-    assert [text for text in row["warnings"] if "drum radius 0.006 m) differ" in text]
+    assert [text for text in row["warnings"] if "drum radius 0.012 m) do not follow" in text]
     monkeypatch.setattr(sys, "argv", argv[:-2] + ["0", "--json"])
     with pytest.raises(SystemExit):
         main()
@@ -144,3 +144,22 @@ def test_logs_the_diagnosis_refuses_together_are_said(arm, logs, tmp_path, monke
     assert exit_info.value.code == 2
     assert "error (the logs together): logs:" in captured.out
     assert captured.err.startswith("msarm: error: the logs cannot be diagnosed together: logs:")
+
+
+def test_a_warning_of_another_kind_is_passed_on_when_the_log_is_refused(arm, logs, monkeypatch):
+    """check_log records the diagnosis's warnings; any other is passed on once (a loop that
+    re-warned into its own record never ended)."""
+    import warnings
+
+    import msarm.diagnose.residuals as residuals
+    from msarm.errors import LogError
+
+    def refuse(*args, **kwargs):
+        warnings.warn("overflow", RuntimeWarning, stacklevel=1)
+        warnings.warn("log.parquet: a gap", residuals.DiagnosisWarning, stacklevel=1)
+        raise LogError("log.parquet: refused")
+
+    monkeypatch.setattr(residuals, "residuals_from_log", refuse)
+    with pytest.warns(RuntimeWarning, match="overflow"):
+        check = check_log(arm, logs[0])
+    assert check.error == "log.parquet: refused" and check.warnings == ("log.parquet: a gap",)

@@ -19,7 +19,12 @@ from msarm.diagnose.effects import (
     parameter_kind,
     register,
 )
-from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, residuals_from_log
+from msarm.diagnose.residuals import (
+    MIN_CHECKED_TRAVEL,
+    DiagnosisWarning,
+    ResidualSpec,
+    residuals_from_log,
+)
 from msarm.diagnose.result import SelectedEffect
 from msarm.diagnose.select import _notes, diagnose, load_data
 from msarm.errors import InputError, LogError
@@ -176,16 +181,32 @@ def test_a_channel_in_another_unit_than_its_partner_is_warned(logs, arm, tmp_pat
         residuals_from_log(arm, kilo, spec=spec)
     degrees = _rewrite(logs[0], tmp_path / "deg.parquet", scaled("motor_angle.", 180 / np.pi))
     message = (
-        r"the cable lengths the motor encoders give \(drum radius 0\.003 m\) differ from the "
-        r"cables' path lengths by .* % of their travel .*--drum-radius"
+        r"the cable lengths the motor encoders give \(drum radius 0\.003 m\) do not follow "
+        r"the cables' path lengths for 'motor_angle\.\w+' \(57\.\d\).*\(in brackets: how "
+        r"many times the path's change the encoders' is, where 1 is expected\).*--drum-radius"
     )
     with pytest.warns(DiagnosisWarning, match=rf"deg\.parquet: {message}"):
         residuals_from_log(arm, degrees, spec=spec)
-    with pytest.warns(DiagnosisWarning, match=message.replace("0\\.003", "0\\.006")):
-        residuals_from_log(arm, logs[0], spec=replace(spec, drum_radius=0.006))
+    geared = r"drum radius 0\.012 m\) do not follow .* \(4(\.\d+)?\)"
+    with pytest.warns(DiagnosisWarning, match=geared):  # a 4:1 gearbox left out
+        residuals_from_log(arm, logs[0], spec=replace(spec, drum_radius=0.012))
     reeled_out = _rewrite(logs[0], tmp_path / "sign.parquet", scaled("motor_angle.", -1.0))
-    with pytest.warns(DiagnosisWarning, match=rf"sign\.parquet: {message}"):
+    with pytest.warns(DiagnosisWarning, match=r"sign\.parquet: .* \(-1(\.\d+)?\)"):
         residuals_from_log(arm, reeled_out, spec=spec)
+    # one winch mirrored: each cable is checked on its own, so one that moves little is
+    # caught too (a share pooled over all nine cables drowned it)
+    travel = spec.drum_radius * np.std(log.matrix("motor_angle", arm.cable_names), axis=0)
+    checked = np.flatnonzero(travel > 1.5 * MIN_CHECKED_TRAVEL)
+    least = arm.cable_names[int(checked[np.argmin(travel[checked])])]
+    mirrored = _rewrite(logs[0], tmp_path / "one.parquet", scaled(f"motor_angle.{least}", -1.0))
+    with pytest.warns(DiagnosisWarning, match=rf"one\.parquet: .* for 'motor_angle\.{least}' \(-"):
+        residuals_from_log(arm, mirrored, spec=spec)
+    # and the log as recorded: no warning about its scales
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        residuals_from_log(arm, logs[0], spec=spec)
+    assert not [w for w in caught if "times the load cells" in str(w.message)]
+    assert not [w for w in caught if "do not follow" in str(w.message)]
 
 
 def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):
@@ -470,6 +491,28 @@ def test_missing_values_in_a_column_not_read_change_nothing(logs, arm, tmp_path)
     _assert_same_residuals(got, residuals_from_log(arm, logs[0], spec=spec))
 
 
+def test_an_optional_channel_missing_in_many_rows_is_left_out_not_its_rows(logs, arm, tmp_path):
+    """Motor angles logged every other sample: their rows dropped would halve the rate, so
+    the channel is left out (as not logged) and every row is kept."""
+    spec = ResidualSpec(replay=False)
+    half = _with_missing(
+        logs[0], tmp_path / "half.parquet", "motor_angle.biceps", slice(1, None, 2), np.nan
+    )
+    with pytest.warns(DiagnosisWarning) as caught:
+        got = residuals_from_log(arm, half, spec=spec)
+    said = [str(w.message) for w in caught]
+    assert any(
+        "column 'motor_angle.biceps' has missing values in 50 % of the rows" in m
+        and "leaves it out instead, as if not logged" in m
+        for m in said
+    ), said
+    assert got.cable_length is None and len(got) == len(read_log(logs[0]))
+    few = _with_missing(logs[0], tmp_path / "few.parquet", "motor_angle.biceps", [100, 101], np.nan)
+    with pytest.warns(DiagnosisWarning, match="are left out, and the log is diagnosed around"):
+        got = residuals_from_log(arm, few, spec=spec)
+    assert got.cable_length is not None and len(got) == len(read_log(logs[0])) - 2
+
+
 def test_an_optional_column_with_no_value_is_taken_as_not_logged(logs, arm, tmp_path):
     """An empty ``tension_cmd`` column leaves the channel out (no drive residual), as a log
     without it; missing values in the channel's other columns then drop no row."""
@@ -552,7 +595,11 @@ def test_a_dead_sensor_channel_is_warned_once_per_log(logs, arm, tmp_path, monke
     err = capsys.readouterr().err
     assert err.count("column(s) 'q.elbow' hold one value") == 2, err
     assert f"msarm: warning: {both[0]}: column(s) 'q.elbow' hold one value" in err
-    summary = [line for line in err.splitlines() if line.endswith(f"1 more log(s): {both[1]}")]
+    summary = [
+        line
+        for line in err.splitlines()
+        if line.endswith(f"1 more log(s): {both[1]}") and "hold one value" in line
+    ]
     assert len(summary) == 1, err
     assert summary[0].startswith("msarm: warning: the same (column(s) 'q.elbow' hold one value")
 

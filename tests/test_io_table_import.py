@@ -70,7 +70,11 @@ def test_a_csv_in_other_units_and_order_becomes_the_log_it_records(arm, tmp_path
     assert got.metadata.sample_rate_hz == RATE  # from the median step
     assert got.metadata.model_sha256 == arm.sha256 and got.metadata.robot_model == arm.name
     assert dict(got.metadata.units) == {q: STANDARD_UNITS[q] for q in UNITS}
-    assert got.metadata.extra == {"imported_from": "run.csv"}
+    assert got.metadata.extra == {
+        "imported_from": "run.csv",
+        "time_origin": 0.0,
+        "time_origin_unit": "ms",
+    }
     # written and read back, it is a log like any other
     assert read_log(write_log(tmp_path / "run.parquet", got)) == got
 
@@ -145,10 +149,12 @@ def test_missing_values_are_refused_or_their_rows_left_out(arm, tmp_path):
     csv.write_text("t,q.elbow,q.shoulder_flexion\n0,1,\n0.004,,\n0.008,2,\n0.012,3,\n")
     with pytest.raises(InputError, match=r"gaps\.csv: 2 column\(s\) have missing values"):
         read_csv_log(csv, arm)
-    csv.write_text("t,q.elbow\n0,1\n0.004,\n0.008,2\n0.012,3\n")
+    rows = "".join(f"{0.004 * k:g},{'' if k == 3 else k}\n" for k in range(12))
+    csv.write_text("t,q.elbow\n" + rows)
     with pytest.warns(LogImportWarning, match=r"gaps\.csv: 1 row\(s\)"):
         got = read_csv_log(csv, arm, drop_missing=True)
-    np.testing.assert_array_equal(got.columns["q.elbow"], [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(got.columns["q.elbow"], [k for k in range(12) if k != 3])
+    assert got.metadata.sample_rate_hz == 250.0  # from the whole time column
 
 
 def test_bad_files_and_times_are_named(arm, tmp_path):
@@ -242,7 +248,7 @@ def test_msarm_log_import_writes_logs_the_diagnosis_reads(arm, tmp_path, monkeyp
             ["--unit", "q=deg", "--unit", "q=rad"],
             "--unit: quantity 'q' given twice ('deg' and 'rad')",
         ),
-        (["--time-unit", "h"], "--time-unit: expected one of s, ms, us, got 'h'"),
+        (["--time-unit", "h"], "--time-unit: expected one of s, ms, us, ns, got 'h'"),
         (["--rate", "0"], "--rate: expected a sample rate > 0 in Hz, got 0.0"),
     ],
 )
@@ -369,3 +375,59 @@ def test_spaces_around_header_names_and_compressed_files_are_read(arm, tmp_path)
     got = read_csv_log(path, arm)
     np.testing.assert_array_equal(got.columns["q.elbow"], [1.0, 2.0, 3.0])
     assert log_paths([path], None) == [tmp_path / "run.parquet"]
+
+
+def test_epoch_times_keep_their_steps_and_a_missing_time_is_refused(arm):
+    """An epoch time (1.7e9 s, or integer ms) is counted from its first sample, so that its
+    rate comes out exact; a missing time is refused even with drop_missing."""
+    start = 1.7e9
+    t = start + np.arange(1000) / RATE
+    got = log_from_columns({"t": t * 1e6, "q.elbow": np.zeros(1000)}, arm, time_unit="us")
+    assert got.metadata.sample_rate_hz == RATE
+    assert got.t[0] == 0.0 and got.metadata.extra["time_origin"] == t[0] * 1e6
+    millis = np.round(t * 1e3)  # integer epoch milliseconds, 4 ms apart
+    got = log_from_columns({"t": millis, "q.elbow": np.zeros(1000)}, arm, time_unit="ms")
+    assert got.metadata.sample_rate_hz == RATE
+    np.testing.assert_allclose(np.diff(got.t), 0.004, rtol=1e-12)
+    t = np.arange(20) / RATE
+    t[4] = np.nan
+    with pytest.raises(InputError, match=r"the time column 't' has 1 missing value\(s\), the "):
+        log_from_columns({"t": t, "q.elbow": np.zeros(20)}, arm, drop_missing=True)
+    with pytest.raises(InputError, match=r"table: no samples"):
+        log_from_columns({"t": np.array([]), "q.elbow": np.array([])}, arm)
+
+
+def test_dropping_rows_may_not_change_the_time_step(arm):
+    """A column logged every other row: its rows left out would make a log at half the rate,
+    so that is refused (with the hint to skip the column), and the hint comes without it."""
+    t = np.arange(100) / RATE
+    half = np.zeros(100)
+    half[1::2] = np.nan
+    columns = {"t": t, "q.elbow": np.zeros(100), "q_ref.elbow": half}
+    with pytest.raises(InputError, match=r"'q_ref\.elbow': a sensor logged at a lower rate"):
+        log_from_columns(columns, arm)
+    with pytest.raises(
+        InputError,
+        match=r"changes the time step from 0\.004 s to 0\.008 s \(median\): a column logged "
+        r"at a lower rate\? Leave it out \(--skip-column\)",
+    ):
+        log_from_columns(columns, arm, drop_missing=True)
+
+
+def test_the_other_conversions(arm):
+    t = np.arange(3) / RATE
+    got = log_from_columns(
+        {
+            "t": t,
+            "q.elbow": [0.0, 500.0, -1000.0],
+            "qd.elbow": [60.0, 0.0, -30.0],
+            "activation.biceps": [0.0, 50.0, 100.0],
+            "motor_torque.biceps": [1.0, 2.0, 3.0],
+        },
+        arm,
+        units={"q": "mrad", "qd": "rpm", "activation": "%", "motor_torque": "N mm"},
+    )
+    np.testing.assert_allclose(got.columns["q.elbow"], [0.0, 0.5, -1.0])
+    np.testing.assert_allclose(got.columns["qd.elbow"], [2 * np.pi, 0.0, -np.pi])
+    np.testing.assert_allclose(got.columns["activation.biceps"], [0.0, 0.5, 1.0])
+    np.testing.assert_allclose(got.columns["motor_torque.biceps"], [1e-3, 2e-3, 3e-3])

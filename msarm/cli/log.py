@@ -45,6 +45,12 @@ RESIDUAL_COLUMNS = {
 def parse_units(pairs: list[str]) -> dict[str, str]:
     """``["q=deg", "tension_motor=kN"]`` as ``{"q": "deg", "tension_motor": "kN"}``.
 
+    Args:
+        pairs: The ``--unit`` values, ``QUANTITY=UNIT`` each.
+
+    Returns:
+        Quantity -> unit.
+
     Raises:
         InputError: A pair without ``=``, with an empty side, or a quantity given twice.
     """
@@ -72,6 +78,13 @@ def log_paths(files: list[Path], out: Path | None) -> list[Path]:
 
     The name is the file's without its ending (``run.csv`` -> ``run.parquet``), and without
     a compression ending before that (``run.csv.gz`` -> ``run.parquet``).
+
+    Args:
+        files: The CSV files.
+        out: The folder for the logs, or None for each file's own folder.
+
+    Returns:
+        The log path of each file, in order.
 
     Raises:
         InputError: Two files would write one log, a log would replace one of the CSV files,
@@ -139,7 +152,7 @@ def import_command(
         str, typer.Option(metavar="NAME", help="Name of the time column.")
     ] = "t",
     time_unit: Annotated[
-        str, typer.Option(metavar="s|ms|us", help="Unit of the time column.")
+        str, typer.Option(metavar="s|ms|us|ns", help="Unit of the time column.")
     ] = "s",
     drop_missing: Annotated[
         bool,

@@ -208,6 +208,9 @@ def check_distinct_files(paths: Sequence[str | Path]) -> None:
     on; two copies in training would weigh that run twice. Files that cannot be read are
     left to the log reader, which names what is wrong with them.
 
+    Args:
+        paths: The log files.
+
     Raises:
         InputError: Two files have the same bytes (both named).
     """

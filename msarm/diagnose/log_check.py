@@ -13,14 +13,18 @@ together: one run under two names, and logs of different sample rates.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from msarm.errors import MsarmError
 from msarm.model import RobotModel
+
+if TYPE_CHECKING:
+    from msarm.diagnose.residuals import ResidualSpec
 
 __all__ = ["RESIDUALS_CHECKED", "LogCheck", "check_log", "check_logs"]
 
@@ -75,7 +79,7 @@ class LogCheck:
         return out
 
 
-def check_log(model: RobotModel, path: str | Path, spec: Any = None) -> LogCheck:
+def check_log(model: RobotModel, path: str | Path, spec: ResidualSpec | None = None) -> LogCheck:
     """Check a log as the diagnosis reads it (see the module docstring).
 
     Args:
@@ -94,14 +98,18 @@ def check_log(model: RobotModel, path: str | Path, spec: Any = None) -> LogCheck
 
     spec = replace(spec or ResidualSpec(), replay=False)
     source = str(path)
+    error: str | None = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DiagnosisWarning)
         try:
             check_log_file(Path(path))
             residuals = residuals_from_log(model, path, source=source, spec=spec)
         except MsarmError as exc:
-            return LogCheck(source, str(exc), _messages(caught, DiagnosisWarning))
+            error = str(exc)
+    # outside the recording: other warnings are passed on, not recorded again
     said = list(_messages(caught, DiagnosisWarning))
+    if error is not None:
+        return LogCheck(source, error, tuple(said))
     valid = residuals.valid
     travel = float(np.max(np.ptp(residuals.q[valid], axis=0))) if valid.any() else 0.0
     if travel < MIN_TRAVEL:
@@ -128,7 +136,7 @@ def check_log(model: RobotModel, path: str | Path, spec: Any = None) -> LogCheck
 
 
 def check_logs(
-    model: RobotModel, paths: list[str | Path], spec: Any = None
+    model: RobotModel, paths: Sequence[str | Path], spec: ResidualSpec | None = None
 ) -> tuple[list[LogCheck], list[str]]:
     """Check several logs (:func:`check_log`), and what the diagnosis refuses of them together.
 

@@ -11,6 +11,9 @@ by column, what it can still do (each case warned, naming the file and the colum
 - a column of an optional channel (``motor_angle``, ``tension_cmd``, ``q_ref``) with no
   value in any row is left out, so the channel counts as not logged (the terms that need it
   are skipped, as for a log without it);
+- an optional channel whose missing values fall in more than
+  :data:`OPTIONAL_MISSING_LIMIT` of the rows (a channel logged at a lower rate, say) is left
+  out too, rather than cut the log into pieces;
 - otherwise the rows with a missing value in a column the diagnosis reads (those above and
   ``q``, ``tension_motor``) are left out: the log is diagnosed around them as around a time
   gap (:func:`msarm.diagnose.residuals.gap_starts`), in contiguous segments, and a segment
@@ -33,7 +36,12 @@ from msarm.errors import LogError
 from msarm.io.logs import TIME, RunLog, read_log_with_missing_values
 from msarm.model import RobotModel
 
-__all__ = ["OPTIONAL_CHANNELS", "REQUIRED_CHANNELS", "read_log_for_diagnosis"]
+__all__ = [
+    "OPTIONAL_CHANNELS",
+    "OPTIONAL_MISSING_LIMIT",
+    "REQUIRED_CHANNELS",
+    "read_log_for_diagnosis",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -41,6 +49,9 @@ FloatArray = NDArray[np.float64]
 REQUIRED_CHANNELS = ("q", "tension_motor")
 #: Quantities the diagnosis reads when every one of their columns is logged.
 OPTIONAL_CHANNELS = ("motor_angle", "tension_cmd", "q_ref")
+#: Share of a log's rows above which the missing values of an optional channel leave the
+#: channel out (as not logged) instead of their rows.
+OPTIONAL_MISSING_LIMIT = 0.1
 #: Quantities whose channels run over the joints (the others run over the cables).
 _JOINT_QUANTITIES = ("q", "q_ref")
 #: Columns listed by name in a warning before the rest are counted.
@@ -103,8 +114,21 @@ def read_log_for_diagnosis(
             DiagnosisWarning,
             stacklevel=2,
         )
-    partial = [name for name in missing if name in read and name not in empty]
-    kept = {name: values for name, values in columns.items() if name not in unread + empty}
+    sparse = _sparse_optional_columns(model, missing, read, empty)
+    if sparse:
+        share = np.logical_or.reduce([missing[name] for name in sparse]).mean()
+        warnings.warn(
+            f"{source}: {_named(sparse)} {_have(sparse)} missing values in "
+            f"{100.0 * share:.2g} % of the rows ({_first(sparse, missing, columns)}; a channel "
+            "logged at a lower rate?); leaving those rows out would cost more than "
+            f"{100.0 * OPTIONAL_MISSING_LIMIT:g} % of the log, so the diagnosis leaves "
+            f"{_them(sparse)} out instead, as if not logged (the warning about the missing "
+            "channel says what that costs)",
+            DiagnosisWarning,
+            stacklevel=2,
+        )
+    partial = [name for name in missing if name in read and name not in empty + sparse]
+    kept = {name: values for name, values in columns.items() if name not in unread + empty + sparse}
     if not partial:
         return RunLog(kept, metadata)
     drop = np.logical_or.reduce([missing[name] for name in partial])
@@ -123,6 +147,36 @@ def read_log_for_diagnosis(
     )
     keep = ~drop
     return RunLog({name: values[keep] for name, values in kept.items()}, metadata)
+
+
+def _sparse_optional_columns(
+    model: RobotModel,
+    missing: dict[str, NDArray[np.bool_]],
+    read: set[str],
+    empty: list[str],
+) -> list[str]:
+    """The read columns of the optional channels with too many rows missing.
+
+    A channel qualifies when its missing rows (over its columns) are more than
+    :data:`OPTIONAL_MISSING_LIMIT` of the log. Such a channel (a sensor logged at a lower
+    rate, say) is better left out than have its gaps cut the log: rows dropped every other
+    sample would double the time step.
+    """
+    sparse: list[str] = []
+    for quantity in OPTIONAL_CHANNELS:
+        names = model.joint_names if quantity in _JOINT_QUANTITIES else model.cable_names
+        holed = [
+            f"{quantity}.{name}"
+            for name in names
+            if f"{quantity}.{name}" in missing
+            and f"{quantity}.{name}" in read
+            and f"{quantity}.{name}" not in empty
+        ]
+        if holed and np.logical_or.reduce([missing[c] for c in holed]).mean() > (
+            OPTIONAL_MISSING_LIMIT
+        ):
+            sparse.extend(holed)
+    return sparse
 
 
 def _columns_read(

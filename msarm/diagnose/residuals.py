@@ -54,10 +54,10 @@ from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 __all__ = [
     "FILTER_SPAN_S",
     "GAP_FACTOR",
-    "LENGTH_MISMATCH",
+    "LENGTH_SLOPE",
     "MIN_CHECKED_TRAVEL",
-    "TENSION_RATIO",
     "RESIDUAL_UNITS",
+    "TENSION_RATIO",
     "gap_starts",
     "replay_runs",
     "DiagnosisWarning",
@@ -76,12 +76,13 @@ _QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
 #: Range of the commanded tensions' median over the load cells' outside which a log is
 #: warned about (a unit slip: kN logged as N gives 0.001).
 TENSION_RATIO = (0.5, 2.0)
-#: Share of the motor-side cable travel (RMS) by which the encoder lengths may differ from
-#: the path lengths before a log is warned about (a unit, sign or drum-radius slip).
-LENGTH_MISMATCH = 0.25
-#: Least motor-side cable travel (RMS over a log) [m] for that check: below it, noise and
-#: slack could be a large share of it.
-MIN_CHECKED_TRAVEL = 1e-4
+#: Range of the slope of the encoder cable lengths over the path lengths (least squares,
+#: cable by cable) outside which a log is warned about: degrees read as radians give 57, a
+#: mirrored winch -1, a gearbox left out of the drum radius its ratio.
+LENGTH_SLOPE = (0.5, 2.0)
+#: Least travel of a cable's path (RMS over a log) [m] for that check: below it, the cable's
+#: stretch under changing tension can be as large as its travel.
+MIN_CHECKED_TRAVEL = 2e-3
 #: Time spans [s] of the derivative filter's window outside which a log is warned about
 #: (msarm's default: 25 samples at 250 Hz, 0.1 s).
 FILTER_SPAN_S = (0.01, 1.0)
@@ -396,7 +397,7 @@ def residuals_from_log(
             driving = out["tension_cmd"][part] if use_command else tension_all[part]
             out["replay"][part] = _replay(work, q, q_f, qd, driving, dt, spec)
         valid[part] = True
-    _warn_implausible_scales(source, out, tension_all, motor_all, valid, spec)
+    _warn_implausible_scales(source, out, tension_all, motor_all, valid, spec, cables)
     return Residuals(
         source=source,
         joint_names=tuple(joints),
@@ -429,16 +430,18 @@ def _warn_implausible_scales(
     motor: FloatArray | None,
     valid: NDArray[np.bool_],
     spec: ResidualSpec,
+    cable_names: list[str],
 ) -> None:
     """Warn when a channel's scale disagrees with what it should match (a unit or sign slip).
 
     - The commanded tensions against the load cells: the drives render each command at the
       load cell, so their medians agree within :data:`TENSION_RATIO` unless one is logged in
       another unit (kN as N). The drive residual ``F - F_cmd`` would then be mostly that.
-    - The cable lengths the motor encoders give against the cables' path lengths: their
-      difference (stretch, slack) is a small part of the travel unless the motor angles are
-      in another unit or sign, or the drum radius is wrong (a gearbox). Checked when the
-      motor-side travel is above :data:`MIN_CHECKED_TRAVEL` (RMS over the log).
+    - The cable lengths the motor encoders give against the cables' path lengths: the
+      first change as the second (a slope of 1 in :data:`LENGTH_SLOPE`) unless the motor
+      angles are in another unit or sign, or the drum radius is wrong (a gearbox). Checked
+      cable by cable (one winch may be mirrored), where the path's travel is above
+      :data:`MIN_CHECKED_TRAVEL` (RMS over the log).
     """
     if not valid.any():
         return
@@ -459,18 +462,27 @@ def _warn_implausible_scales(
             )
     length = out["cable_length"]
     if length is not None and motor is not None:
-        travel = spec.drum_radius * (motor[valid] - motor[valid].mean(axis=0))
-        scale = float(np.sqrt(np.mean(travel**2)))
-        error = length[valid] - length[valid].mean(axis=0)
-        share = float(np.sqrt(np.mean(error**2))) / scale if scale > 0 else 0.0
-        if scale > MIN_CHECKED_TRAVEL and share > LENGTH_MISMATCH:
+        # the encoders' length change against the path's, cable by cable: a slope of 1
+        # (stretch and slack scatter about it), 57 for degrees, -1 for a mirrored winch
+        encoder = -spec.drum_radius * (motor[valid] - motor[valid].mean(axis=0))
+        path = encoder - (length[valid] - length[valid].mean(axis=0))
+        spread = np.sqrt(np.mean(path**2, axis=0))
+        slope = np.sum(encoder * path, axis=0) / np.maximum(np.sum(path**2, axis=0), 1e-300)
+        low, high = LENGTH_SLOPE
+        off = np.flatnonzero((spread > MIN_CHECKED_TRAVEL) & ((slope < low) | (slope > high)))
+        if off.size:
+            named = ", ".join(
+                f"'motor_angle.{cable_names[k]}' ({float(slope[k]):.3g})" for k in off[:3]
+            )
+            more = f" and {off.size - 3} more" if off.size > 3 else ""
             warnings.warn(
                 f"{source}: the cable lengths the motor encoders give (drum radius "
-                f"{spec.drum_radius:g} m) differ from the cables' path lengths by "
-                f"{100 * share:.3g} % of their travel (RMS; stretch and slack are a few %): "
-                "are the motor_angle.* columns in rad, reel-in positive, and is the drum "
-                "radius right (--drum-radius; a gearbox between encoder and drum divides it "
-                "by its ratio)? The length terms are fitted to this mismatch",
+                f"{spec.drum_radius:g} m) do not follow the cables' path lengths for "
+                f"{named}{more} (in brackets: how many times the path's change the encoders' "
+                "is, where 1 is expected). Are the motor angles in rad and reel-in positive, "
+                "and is the drum radius right "
+                "(--drum-radius; a gearbox between encoder and drum divides it by its ratio)? "
+                "The length terms would be fitted to this mismatch",
                 DiagnosisWarning,
                 stacklevel=3,
             )

@@ -7,8 +7,10 @@ first; ``msarm log import`` writes the result as Parquet, ready for ``msarm diag
 
 What it does, and refuses (each error names the file, the column and what was expected):
 
-- the time column (``t`` unless told) becomes ``t`` in seconds (``time_unit`` ``s``, ``ms``
-  or ``us``); it must be strictly increasing;
+- the time column (``t`` unless told) becomes ``t`` in seconds from the first sample
+  (``time_unit`` ``s``, ``ms``, ``us`` or ``ns``; the first sample's time is kept in the log's
+  ``msarm.extra`` as ``time_origin``, in that unit, so that an epoch time keeps its steps'
+  digits); it must be strictly increasing and have no missing value;
 - every other column is a channel ``<quantity>.<name>``. Its unit is the one given for the
   quantity (``units``), else msarm's (:data:`~msarm.io.logs.STANDARD_UNITS`); a unit other
   than msarm's SI unit is converted to it by the factors of :data:`CONVERSIONS` (``deg`` to
@@ -94,7 +96,7 @@ CONVERSIONS: Mapping[str, Mapping[str, float]] = {
     "1": {"%": 1e-2},
 }
 #: Units of the time column -> factor to seconds.
-TIME_UNITS: Mapping[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+TIME_UNITS: Mapping[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: Significant digits of a sample rate taken from the time column.
 _RATE_DIGITS = 6
 #: Sample rates [Hz] a robot's log may have; outside, the time unit is likely wrong.
@@ -183,7 +185,20 @@ def log_from_columns(
     lengths = {len(values) for values in arrays.values()}
     if len(lengths) > 1:
         raise InputError(f"{source}: the columns have different lengths: {sorted(lengths)}")
-    time = arrays.pop(time_column) * TIME_UNITS[time_unit]
+    raw_time = arrays.pop(time_column)
+    if len(raw_time) == 0:
+        raise InputError(f"{source}: no samples (a header without rows?)")
+    lost = ~np.isfinite(raw_time)
+    if lost.any():
+        raise InputError(
+            f"{source}: the time column {time_column!r} has {int(lost.sum())} missing value(s), "
+            f"the first at row {int(np.argmax(lost))} ({_ROWS}); a sample cannot be placed "
+            "without its time (--drop-missing does not leave these out)"
+        )
+    # from the first sample: an epoch time (1.7e9 s) scaled whole loses its steps' digits
+    origin = float(raw_time[0])
+    time = (raw_time - origin) * TIME_UNITS[time_unit]
+    check_increasing_time(time, source, _ROWS)
     by_quantity: dict[str, dict[str, FloatArray]] = {}
     for name, values in arrays.items():
         try:
@@ -206,9 +221,10 @@ def log_from_columns(
         log_units[quantity] = unit
         for channel in _in_model_order(quantity, channels, model, source):
             out[f"{quantity}.{channel}"] = channels[channel] * factor
+    rate = _sample_rate(time, sample_rate_hz, time_column, time_unit, source)
     out = _without_missing(out, drop_missing, source)
-    check_increasing_time(out[TIME], source, _ROWS)
-    rate = _sample_rate(out[TIME], sample_rate_hz, time_column, time_unit, source)
+    _check_step_kept(out[TIME], rate, source)
+    extra = {**dict(extra or {}), "time_origin": origin, "time_origin_unit": time_unit}
     metadata = LogMetadata.for_model(model, rate, units=log_units, extra=extra)
     try:
         return RunLog(out, metadata)
@@ -364,7 +380,7 @@ def _without_missing(
     if not missing:
         return columns
     if not drop_missing:
-        sparse = [name for name, rows in missing.items() if rows.mean() > 0.5 and name != TIME]
+        sparse = [name for name, rows in missing.items() if rows.mean() >= 0.5]
         hint = (
             f"; a column missing in most rows ({sparse[0]!r}: a sensor logged at a lower "
             "rate?) is better skipped (--skip-column)"
@@ -376,7 +392,7 @@ def _without_missing(
             f"{_counts(missing)}); the log schema has none: fill them, or leave those rows out "
             f"(--drop-missing; the diagnosis then sees a time gap there){hint}"
         )
-    empty = [name for name, rows in missing.items() if rows.all() and name != TIME]
+    empty = [name for name, rows in missing.items() if rows.all()]
     if empty:
         warnings.warn(
             f"{source}: column(s) {', '.join(map(repr, empty))} have no value in any row and "
@@ -411,6 +427,21 @@ def _counts(missing: Mapping[str, NDArray[np.bool_]]) -> str:
     ]
     more = f", and {len(missing) - _NAMED} more column(s)" if len(missing) > _NAMED else ""
     return ", ".join(shown) + more + f"; {_ROWS}"
+
+
+def _check_step_kept(t: FloatArray, rate: float, source: str) -> None:
+    """Refuse a log whose rows left out (``drop_missing``) changed its time step.
+
+    Every other row dropped (a column logged at half the rate) doubles the median step: the
+    log would no longer be at its sample rate.
+    """
+    steps = np.diff(t)
+    if len(steps) and abs(float(np.median(steps)) * rate - 1.0) > _RATE_TOLERANCE:
+        raise InputError(
+            f"{source}: leaving out the rows with a missing value changes the time step from "
+            f"{1.0 / rate:.6g} s to {float(np.median(steps)):.6g} s (median): a column logged "
+            "at a lower rate? Leave it out (--skip-column) rather than its rows"
+        )
 
 
 def _sample_rate(
