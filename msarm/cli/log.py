@@ -32,6 +32,17 @@ log_app = typer.Typer(
     add_completion=False,
 )
 
+#: The ``--drum-radius`` option of both commands: the drums the diagnosis would read the
+#: motor angles with.
+DrumRadius = Annotated[
+    float,
+    typer.Option(
+        metavar="METRES",
+        help=r"Radius of the winch drums the diagnosis would use \[m] (msarm diagnose "
+        "--drum-radius): the motor angles' cable lengths are checked with it.",
+    ),
+]
+
 #: Short column names of the residuals in the check table
 #: (:data:`msarm.diagnose.log_check.RESIDUALS_CHECKED`).
 RESIDUAL_COLUMNS = {
@@ -171,14 +182,7 @@ def import_command(
             "rows); repeat the option for each.",
         ),
     ] = None,
-    drum_radius: Annotated[
-        float,
-        typer.Option(
-            metavar="METRES",
-            help=r"Radius of the winch drums the diagnosis would use \[m] (msarm diagnose "
-            "--drum-radius): the motor angles' cable lengths are checked with it.",
-        ),
-    ] = 0.003,
+    drum_radius: DrumRadius = 0.003,
     model_path: Annotated[
         Path | None,
         typer.Option(
@@ -251,14 +255,7 @@ def check_command(
             "diagnose --filter-window).",
         ),
     ] = 25,
-    drum_radius: Annotated[
-        float,
-        typer.Option(
-            metavar="METRES",
-            help=r"Radius of the winch drums the diagnosis would use \[m] (msarm diagnose "
-            "--drum-radius): the motor angles' cable lengths are checked with it.",
-        ),
-    ] = 0.003,
+    drum_radius: DrumRadius = 0.003,
     model_path: Annotated[
         Path | None,
         typer.Option(
