@@ -298,6 +298,20 @@ def output_folder(path: Path, option: str = "--out") -> Path:
     return path
 
 
+def check_drum_radius(drum_radius: float) -> None:
+    """Refuse a ``--drum-radius`` that is not a finite radius > 0 [m] (InputError)."""
+    if not (0 < drum_radius < float("inf")):
+        raise InputError(f"--drum-radius: expected a radius > 0 in metres, got {drum_radius}")
+
+
+def check_filter_window(filter_window: int) -> None:
+    """Refuse a ``--filter-window`` that is not an odd number of samples >= 5 (InputError)."""
+    if filter_window < 5 or filter_window % 2 == 0:
+        raise InputError(
+            f"--filter-window: expected an odd number of samples >= 5, got {filter_window}"
+        )
+
+
 def resolve_plant(spec: str) -> PlantConfig:
     """The arm plant from a preset name (``default``, ``ideal``) or a YAML file.
 

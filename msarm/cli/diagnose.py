@@ -24,7 +24,13 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import console, output_folder, progress_lines
+from msarm.cli.common import (
+    check_drum_radius,
+    check_filter_window,
+    console,
+    output_folder,
+    progress_lines,
+)
 from msarm.errors import InputError
 
 if TYPE_CHECKING:
@@ -327,14 +333,10 @@ def diagnose_command(
             f"--tension-timing: expected one of {', '.join(TENSION_TIMINGS)}, "
             f"got {tension_timing!r}"
         )
-    if not (0 < drum_radius < float("inf")):
-        raise InputError(f"--drum-radius: expected a radius > 0 in metres, got {drum_radius}")
+    check_drum_radius(drum_radius)
     if not (0 <= drive_gain < float("inf")):
         raise InputError(f"--drive-gain: expected a gain >= 0, got {drive_gain}")
-    if filter_window < 5 or filter_window % 2 == 0:
-        raise InputError(
-            f"--filter-window: expected an odd number of samples >= 5, got {filter_window}"
-        )
+    check_filter_window(filter_window)
     if out is not None:
         output_folder(out)  # before the diagnosis, not after it
     spec = ResidualSpec(

@@ -19,11 +19,18 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from msarm.cli.common import RepeatedWarnings, console, output_folder
+from msarm.cli.common import (
+    RepeatedWarnings,
+    check_drum_radius,
+    check_filter_window,
+    console,
+    output_folder,
+)
 from msarm.errors import InputError, MsarmError
 
 if TYPE_CHECKING:
     from msarm.diagnose.log_check import LogCheck
+    from msarm.diagnose.residuals import ResidualSpec
     from msarm.model import RobotModel
 
 log_app = typer.Typer(
@@ -201,7 +208,7 @@ def import_command(
     from msarm.model import ARM_MODEL_PATH, load_robot
 
     units = parse_units(list(unit or []))
-    _check_drum_radius(drum_radius)
+    check_drum_radius(drum_radius)
     if time_unit not in TIME_UNITS:
         raise InputError(f"--time-unit: expected one of {', '.join(TIME_UNITS)}, got {time_unit!r}")
     if rate is not None and not (0 < rate < float("inf")):
@@ -237,9 +244,10 @@ def import_command(
         )
     for log, target in zip(logs, targets, strict=True):
         write_log(target, log)
-    _report_checks(
-        model, targets, json_output, "logs written", sources=files, drum_radius=drum_radius
-    )
+    from msarm.diagnose.residuals import ResidualSpec
+
+    spec = ResidualSpec(drum_radius=drum_radius)
+    _report_checks(model, targets, spec, json_output, "logs written", sources=files)
 
 
 @log_app.command("check")
@@ -269,47 +277,34 @@ def check_command(
     """Say what msarm diagnose can make of each log: its residuals, warnings and errors."""
     from msarm.model import ARM_MODEL_PATH, load_robot
 
-    if filter_window < 5 or filter_window % 2 == 0:
-        raise InputError(
-            f"--filter-window: expected an odd number of samples >= 5, got {filter_window}"
-        )
+    check_filter_window(filter_window)
+    check_drum_radius(drum_radius)
     model = load_robot(model_path or ARM_MODEL_PATH)
-    _check_drum_radius(drum_radius)
-    _report_checks(
-        model,
-        logs,
-        json_output,
-        "logs checked",
-        filter_window=filter_window,
-        drum_radius=drum_radius,
-    )
+    from msarm.compensation.target import TargetSpec
+    from msarm.diagnose.residuals import ResidualSpec
 
-
-def _check_drum_radius(drum_radius: float) -> None:
-    if not (0 < drum_radius < float("inf")):
-        raise InputError(f"--drum-radius: expected a radius > 0 in metres, got {drum_radius}")
+    spec = ResidualSpec(target=TargetSpec(window=filter_window), drum_radius=drum_radius)
+    _report_checks(model, logs, spec, json_output, "logs checked")
 
 
 def _report_checks(
     model: RobotModel,
     logs: list[Path],
+    spec: ResidualSpec,
     json_output: bool,
     title: str,
     sources: list[Path] | None = None,
-    filter_window: int = 25,
-    drum_radius: float = 0.003,
 ) -> None:
     """Check the logs (:func:`msarm.diagnose.log_check.check_logs`) and print the result.
+
+    ``spec`` holds the filter window and drum radius the diagnosis would use.
 
     Raises:
         InputError: Some log cannot be diagnosed, or the logs not together (after all is
             printed), naming how many or why.
     """
-    from msarm.compensation.target import TargetSpec
     from msarm.diagnose.log_check import check_logs
-    from msarm.diagnose.residuals import ResidualSpec
 
-    spec = ResidualSpec(target=TargetSpec(window=filter_window), drum_radius=drum_radius)
     checks, together = check_logs(model, list(logs), spec)
     if json_output:
         rows = [check.as_dict() for check in checks]

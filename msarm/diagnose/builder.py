@@ -36,6 +36,7 @@ __all__ = [
     "check_distinct_files",
     "check_log_file",
     "check_same_rate",
+    "little_motion",
     "signals_from_logs",
 ]
 
@@ -71,6 +72,28 @@ def check_log_file(path: Path) -> None:
         )
 
 
+def little_motion(q: FloatArray, source: str) -> tuple[float, str | None]:
+    """The largest joint's travel in a log, and what to say when it is below MIN_TRAVEL.
+
+    Args:
+        q: Joint angles of the log's diagnosed samples [rad], shape ``(T, n)``.
+        source: The log, named in the message.
+
+    Returns:
+        ``(travel, message)``: the largest joint's range [rad], and the warning's text when
+        it is below :data:`MIN_TRAVEL` (friction and inertia cannot be told from noise), else
+        None.
+    """
+    travel = float(np.max(np.ptp(q, axis=0))) if len(q) else 0.0
+    if travel >= MIN_TRAVEL:
+        return travel, None
+    return travel, (
+        f"{source}: no joint moves more than {1e3 * travel:.2g} mrad in this log (less than "
+        f"{1e3 * MIN_TRAVEL:g} mrad): the friction and inertia terms cannot be told from "
+        "the noise on it; diagnose logs with motion"
+    )
+
+
 def _one_run(
     model: RobotModel, path: Path, spec: ResidualSpec
 ) -> tuple[dict[str, FloatArray], dict[str, FloatArray], float]:
@@ -89,15 +112,9 @@ def _one_run(
     else:
         motor = log.matrix("motor_angle", cables)
     q = residuals.q[valid]
-    travel = float(np.max(np.ptp(q, axis=0)))
-    if travel < MIN_TRAVEL:
-        warnings.warn(
-            f"{source}: no joint moves more than {1e3 * travel:.2g} mrad in this log (less than "
-            f"{1e3 * MIN_TRAVEL:g} mrad): the friction and inertia terms cannot be told from "
-            "the noise on it; diagnose logs with motion",
-            DiagnosisWarning,
-            stacklevel=3,
-        )
+    _, little = little_motion(q, source)
+    if little is not None:
+        warnings.warn(little, DiagnosisWarning, stacklevel=3)
     arrays = {
         "t": residuals.t[valid],
         "q": q,

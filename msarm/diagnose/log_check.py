@@ -18,8 +18,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from msarm.errors import MsarmError
 from msarm.model import RobotModel
 
@@ -93,7 +91,7 @@ def check_log(model: RobotModel, path: str | Path, spec: ResidualSpec | None = N
     """
     from dataclasses import replace
 
-    from msarm.diagnose.builder import MIN_TRAVEL, check_log_file
+    from msarm.diagnose.builder import check_log_file, little_motion
     from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, residuals_from_log
 
     spec = replace(spec or ResidualSpec(), replay=False)
@@ -111,12 +109,9 @@ def check_log(model: RobotModel, path: str | Path, spec: ResidualSpec | None = N
     if error is not None:
         return LogCheck(source, error, tuple(said))
     valid = residuals.valid
-    travel = float(np.max(np.ptp(residuals.q[valid], axis=0))) if valid.any() else 0.0
-    if travel < MIN_TRAVEL:
-        said.append(
-            f"{source}: no joint moves more than {1e3 * travel:.2g} mrad (less than "
-            f"{1e3 * MIN_TRAVEL:g} mrad): friction and inertia cannot be told from noise on it"
-        )
+    travel, little = little_motion(residuals.q[valid], source)
+    if little is not None:  # what the diagnosis warns of each log it reads
+        said.append(little)
     return LogCheck(
         path=source,
         error=None,

@@ -164,13 +164,10 @@ def _sparse_optional_columns(
     """
     sparse: list[str] = []
     for quantity in OPTIONAL_CHANNELS:
-        names = model.joint_names if quantity in _JOINT_QUANTITIES else model.cable_names
         holed = [
-            f"{quantity}.{name}"
-            for name in names
-            if f"{quantity}.{name}" in missing
-            and f"{quantity}.{name}" in read
-            and f"{quantity}.{name}" not in empty
+            column
+            for column in _channel_columns(model, quantity)
+            if column in missing and column in read and column not in empty
         ]
         if holed and np.logical_or.reduce([missing[c] for c in holed]).mean() > (
             OPTIONAL_MISSING_LIMIT
@@ -189,8 +186,7 @@ def _columns_read(
     """
     read: set[str] = set()
     for quantity in REQUIRED_CHANNELS + OPTIONAL_CHANNELS:
-        names = model.joint_names if quantity in _JOINT_QUANTITIES else model.cable_names
-        wanted = [f"{quantity}.{name}" for name in names]
+        wanted = _channel_columns(model, quantity)
         if quantity in REQUIRED_CHANNELS:
             read.update(name for name in wanted if name in columns)
             continue
@@ -205,6 +201,12 @@ def _columns_read(
             if name in columns and (complete or (name in missing and missing[name].all()))
         )
     return read
+
+
+def _channel_columns(model: RobotModel, quantity: str) -> list[str]:
+    """The columns ``quantity.<name>`` of every joint (or cable) of the model, in its order."""
+    names = model.joint_names if quantity in _JOINT_QUANTITIES else model.cable_names
+    return [f"{quantity}.{name}" for name in names]
 
 
 def _quantity(column: str) -> str:
