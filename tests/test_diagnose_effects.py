@@ -561,3 +561,45 @@ def test_the_compiled_direction_memory_is_the_implicit_euler_loop():
     np.testing.assert_array_equal(got, expected)
     assert np.all(got[300] == 0.0) and np.all(np.abs(got) < 1.0)
     np.testing.assert_array_equal(got[101:140], np.repeat(got[100:101], 39, axis=0))
+
+
+def test_stribeck_fit_keeps_the_breakaway_level_at_or_above_the_coulomb_level(signals):
+    """Friction that rises with speed (Coulomb + viscous) is not a Stribeck effect.
+
+    Unconstrained, the plain Stribeck term (no viscous part) fits this residual with a static
+    level below its Coulomb level: its exponential branch then rises with speed, standing in for
+    the viscous friction. With ``s >= c`` kept, the start and the fit stay on that order, and
+    the term with its own viscous part recovers the viscous coefficient.
+    """
+    coulomb, viscous = np.array([0.2, 0.3, 0.25, 0.15]), np.array([0.08, 0.05, 0.1, 0.06])
+    residual = CoulombFriction().torque(signals, coulomb) + ViscousFriction().torque(
+        signals, viscous
+    )
+    plain = StribeckFriction()
+    G = plain.constraints()
+    assert G.shape == (4, 12)
+    np.testing.assert_array_equal(G @ np.tile([0.2, 0.5, 0.1], 4), np.full(4, 0.3))  # s - c
+    for effect in (plain, StribeckFriction(viscous=True)):
+        start = effect.initial_guess(signals, residual)
+        assert np.all(effect.constraints() @ start >= 0.0)
+        theta = fit(effect, signals, residual).parameters
+        assert np.all(effect.constraints() @ theta >= -1e-7)
+    per = theta.reshape(4, 4)  # coulomb, static, Stribeck velocity, viscous per joint
+    # at s = c the Stribeck velocity plays no part (a flat direction of the fit, which the
+    # objective's tolerance leaves a few 1e-4 off): the fit is the Coulomb + viscous law
+    fitted = StribeckFriction(viscous=True).torque(signals, theta)
+    assert np.sqrt(np.mean((fitted - residual) ** 2)) < 1e-4 * np.sqrt(np.mean(residual**2))
+    np.testing.assert_allclose(per[:, 0], coulomb, rtol=1e-2)
+    np.testing.assert_allclose(per[:, 1], coulomb, rtol=1e-2)
+    np.testing.assert_allclose(per[:, 3], viscous, rtol=1e-3)
+
+
+def test_a_user_term_with_malformed_constraints_is_refused_by_name(signals):
+    class Misshapen(StribeckFriction):
+        name = "test_misshapen_constraints"
+
+        def constraints(self):
+            return np.ones(3)  # not (k, p)
+
+    with pytest.raises(InputError, match=r"test_misshapen_constraints: constraints\(\) must be"):
+        fit(Misshapen(), signals, StribeckFriction().torque(signals, np.tile([0.2, 0.4, 0.1], 4)))

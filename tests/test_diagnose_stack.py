@@ -343,3 +343,26 @@ def test_the_projection_is_the_optimum_the_blocks_cannot_improve(arm, make):
     )
     assert _train_error(sampled, joint) <= _train_error(sampled, blocks) * (1 + 1e-9)
     assert _train_error(sampled, again) == pytest.approx(_train_error(sampled, joint), rel=1e-7)
+
+
+def test_the_joint_optimum_keeps_a_terms_constraints(arm):
+    """Variable projection passes the Stribeck term's ``s >= c`` to IPOPT with the Dahl term's
+    linear part eliminated: on Coulomb + viscous friction beside a Dahl friction the joint fit
+    keeps the order and finds the laws that made the residual."""
+    coulomb, viscous = np.array([0.2, 0.3, 0.25, 0.15]), np.array([0.08, 0.05, 0.1, 0.06])
+    dahl_true = np.array([0.05, 0.1, 0.08, 0.04])
+    truth = [CoulombFriction(), ViscousFriction(), DahlFriction()]
+    signals = _make_signals(arm, seed=4)
+    torque = sum(
+        np.asarray(t.torque(signals, p))
+        for t, p in zip(truth, [coulomb, viscous, dahl_true], strict=True)
+    )
+    data = diagnosis_data(arm, signals, torque, [StribeckFriction(viscous=True), DahlFriction()])
+    stribeck, dahl = data.candidates
+    sampled = Sampled(data, 20_000)
+    joint = fit_together([stribeck, dahl], sampled)
+    theta = joint.parameters[0]
+    assert np.all(stribeck.constraints() @ theta >= -1e-7)
+    np.testing.assert_allclose(theta.reshape(4, 4)[:, 3], viscous, rtol=1e-3)
+    np.testing.assert_allclose(joint.parameters[1], dahl_true, rtol=1e-2)
+    assert _train_error(sampled, joint) < 1e-8 * float(np.sum(sampled.residual["train"] ** 2))

@@ -16,6 +16,7 @@ from msarm.diagnose.effects import (
     CandidateEffect,
     CoulombFriction,
     SensorBiasScale,
+    StribeckFriction,
     parameter_kind,
     register,
 )
@@ -219,6 +220,22 @@ def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):
     sensor = SensorBiasScale(n_cables=9, n_joints=4, shared=True, drive=True)
     assert "sheath" in _notes(sensor, np.zeros(2), np.zeros(2), ("joint",))[0]
     assert _notes(sensor, np.zeros(2), np.zeros(2), ("joint", "drive")) == ()
+
+
+def test_notes_flag_a_parameter_on_the_edge_of_its_search_range():
+    """A Stribeck velocity on its 0.01 or 10 rad/s bound is the range's, not the robot's; a
+    friction level on its physical bound (zero) is an answer and is not flagged."""
+    stribeck = StribeckFriction(joints=[0, 1])  # coulomb, static, Stribeck velocity per joint
+    theta = np.array([0.0, 0.2, 0.01 * (1 + 1e-9), 0.1, 0.3, 10.0])
+    (note,) = _notes(stribeck, theta, np.full(6, np.nan), ("joint",))
+    assert note.startswith(
+        "stribeck_velocity[0] = 0.01 rad/s, stribeck_velocity[1] = 10 rad/s on the edge"
+    )
+    assert "the values are the range's" in note
+    inside = np.array([0.0, 0.2, 0.05, 0.1, 0.3, 9.9])
+    assert _notes(stribeck, inside, np.full(6, np.nan), ("joint",)) == ()
+    (one,) = _notes(stribeck, np.array([0.0, 0.2, 0.05, 0.1, 0.3, 10.0]), np.zeros(6), ())
+    assert "stribeck_velocity[1] = 10 rad/s on the edge" in one and "its value is" in one
 
 
 def test_parameters_are_printed_with_their_units():

@@ -390,6 +390,18 @@ class CandidateEffect(ABC):
         """
         return np.full(self.n_parameters, -np.inf), np.full(self.n_parameters, np.inf)
 
+    def constraints(self) -> FloatArray:
+        """Linear inequalities ``G @ theta >= 0`` a nonlinear fit keeps (none by default).
+
+        For an order between parameters that :meth:`bounds` cannot state, e.g. a Stribeck
+        friction's breakaway level at or above its Coulomb level. IPOPT keeps them; a start
+        that breaks them is allowed.
+
+        Returns:
+            ``G``, shape ``(k, p)`` (``k = 0``: none).
+        """
+        return np.zeros((0, self.n_parameters))
+
     def check(self, signals: Signals) -> None:
         """Raise :class:`InputError` when ``signals`` do not fit this term (sizes).
 
@@ -640,7 +652,11 @@ class StribeckFriction(CandidateEffect):
 
     Parameters per joint: Coulomb level ``c_j`` [N m], static (breakaway) level ``s_j`` [N m],
     Stribeck velocity ``v_j`` [rad/s] (> 0) and, when ``viscous`` is set, ``b_j`` [N m s/rad].
-    ``eps`` [rad/s] is fixed.
+    ``eps`` [rad/s] is fixed. The fits keep ``s_j >= c_j`` (:meth:`constraints`): the friction
+    falls from its breakaway level to the Coulomb level as the joint speeds up. Without that
+    order the term's "Stribeck" branch rises with speed instead, which is viscous friction's
+    job: on plants with Coulomb and viscous friction it then stood in for the viscous part
+    with a Coulomb level many times the plant's at a Stribeck velocity on its bound.
     """
 
     name = "stribeck"
@@ -652,7 +668,7 @@ class StribeckFriction(CandidateEffect):
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb", "static", "stribeck_velocity"})
     description = (
         "r_j = (c_j + (s_j - c_j) exp(-(qd_j/v_j)^2)) tanh(qd_j/eps) [+ b_j qd_j]: "
-        "Coulomb level c, static level s, Stribeck velocity v"
+        "Coulomb level c, static level s >= c, Stribeck velocity v [, viscous b]"
     )
     linear = False
 
@@ -715,16 +731,42 @@ class StribeckFriction(CandidateEffect):
             sign = np.tanh(w / self.eps)
             # a joint that does not move (in these samples) tells nothing: the default start
             if residual is not None and np.max(np.abs(sign), initial=0.0) > STILL_SIGN:
-                r = residual[rows, j]
-                bump = np.exp(-((w[None, :] / grid[:, None]) ** 2)) * sign
-                columns = [sign - bump, bump] + [np.broadcast_to(w, bump.shape)] * self.viscous
-                Q, R = np.linalg.qr(np.stack(columns, axis=2))
-                projected = np.einsum("vtp,t->vp", Q, r)
-                k = int(np.argmax(np.sum(projected**2, axis=1)))  # least cost: most explained
-                x = np.linalg.lstsq(R[k], projected[k], rcond=None)[0]  # R may be singular
-                best = [x[0], x[1], grid[k]] + ([x[2]] if self.viscous else [])
+                best = self._best_start(w, sign, residual[rows, j], grid)
             guess += best
         return np.asarray(guess, dtype=float)
+
+    def _best_start(
+        self, w: FloatArray, sign: FloatArray, r: FloatArray, grid: FloatArray
+    ) -> list[float]:
+        """One joint's start ``[c, s, v(, b)]``: the least squares at the best grid velocity.
+
+        Where a grid velocity's least squares breaks ``s >= c``, the best start that keeps it
+        has ``s = c`` (the constraint's edge, where ``v`` plays no part): the Coulomb (and
+        viscous) fit, scored as such.
+        """
+        viscous = [w] if self.viscous else []
+        bump = np.exp(-((w[None, :] / grid[:, None]) ** 2)) * sign
+        columns = [sign - bump, bump] + [np.broadcast_to(x, bump.shape) for x in viscous]
+        Q, R = np.linalg.qr(np.stack(columns, axis=2))
+        projected = np.einsum("vtp,t->vp", Q, r)
+        energy = np.sum(projected**2, axis=1)  # least cost: most explained
+        x = np.stack([np.linalg.lstsq(R[k], projected[k], rcond=None)[0] for k in range(len(grid))])
+        flat, *_ = np.linalg.lstsq(np.stack([sign, *viscous], axis=1), r, rcond=None)
+        flat_energy = float(np.sum((np.stack([sign, *viscous], axis=1) @ flat) ** 2))
+        ordered = x[:, 1] >= x[:, 0]
+        if not ordered.any() or flat_energy >= energy[ordered].max():
+            middle = float(np.sqrt(grid[0] * grid[-1]))
+            return [flat[0], flat[0], middle] + ([flat[1]] if self.viscous else [])
+        k = int(np.flatnonzero(ordered)[np.argmax(energy[ordered])])
+        return [x[k, 0], x[k, 1], grid[k]] + ([x[k, 2]] if self.viscous else [])
+
+    def constraints(self) -> FloatArray:
+        """``s_j - c_j >= 0`` for each joint: the breakaway level at or above the Coulomb one."""
+        G = np.zeros((len(self.channels), self.n_parameters))
+        for k in range(len(self.channels)):
+            G[k, self._per * k] = -1.0
+            G[k, self._per * k + 1] = 1.0
+        return G
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
         lower = [0.0, 0.0, 1e-3 * self.max_stribeck_velocity]

@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ParamSpec, TypeVar
+from typing import Any, ParamSpec, TypeVar
 
 import casadi
 import numpy as np
@@ -258,6 +258,38 @@ IPOPT_OPTIONS: dict[str, object] = {
 }
 
 
+def constraint_matrix(effect: CandidateEffect) -> FloatArray:
+    """A term's :meth:`~CandidateEffect.constraints`, checked: ``G`` of shape ``(k, p)``.
+
+    Raises:
+        InputError: ``G`` is not a finite matrix with one column per parameter.
+    """
+    G = np.asarray(effect.constraints(), dtype=float)
+    p = effect.n_parameters
+    if G.ndim != 2 or G.shape[1] != p or not np.all(np.isfinite(G)):
+        raise InputError(
+            f"{effect.name}: constraints() must be a finite matrix of shape (k, {p}) (one "
+            f"column per parameter), got shape {G.shape}"
+        )
+    return G
+
+
+def add_constraints(problem: dict[str, Any], theta: Any, G: FloatArray) -> int:
+    """Put the linear inequalities ``G @ theta >= 0`` (``(k, p)``) in a casadi NLP ``problem``.
+
+    Returns:
+        ``k``, the number of constraints (none are added for ``k = 0``).
+    """
+    if G.shape[0]:
+        problem["g"] = casadi.mtimes(casadi.DM(G), theta)
+    return int(G.shape[0])
+
+
+def constraint_bounds(k: int) -> dict[str, FloatArray]:
+    """IPOPT's bounds of ``k`` constraints ``g >= 0`` (``lbg``, ``ubg``; none for ``k = 0``)."""
+    return {"lbg": np.zeros(k), "ubg": np.full(k, np.inf)} if k else {}
+
+
 class _NonlinearProblem:
     """IPOPT problem of a nonlinear candidate on fixed samples, with per-sample weights.
 
@@ -280,12 +312,9 @@ class _NonlinearProblem:
             casadi.dot(weights, reference), 1e-300
         )
         parameters = casadi.vertcat(weights, casadi.vec(target))
-        self.solver = casadi.nlpsol(
-            f"fit_{effect.name}",
-            "ipopt",
-            {"x": theta, "p": parameters, "f": objective},
-            IPOPT_OPTIONS,
-        )
+        problem = {"x": theta, "p": parameters, "f": objective}
+        self.n_constraints = add_constraints(problem, theta, constraint_matrix(effect))
+        self.solver = casadi.nlpsol(f"fit_{effect.name}", "ipopt", problem, IPOPT_OPTIONS)
         self.lower, self.upper = effect.bounds()
 
     def solve(
@@ -307,7 +336,9 @@ class _NonlinearProblem:
         x0 = np.clip(x0, self.lower, self.upper)
         w = np.ones(T) if weights is None else weights
         values = np.concatenate([w, r.reshape(-1, order="F")])
-        solution = self.solver(x0=x0, p=values, lbx=self.lower, ubx=self.upper)
+        solution = self.solver(
+            x0=x0, p=values, lbx=self.lower, ubx=self.upper, **constraint_bounds(self.n_constraints)
+        )
         stats = self.solver.stats()
         # IPOPT relaxes the bounds by up to 1e-8 (bound_relax_factor): a parameter at a bound
         # comes back just outside it (a friction coefficient of -1e-8); report it on the bound.

@@ -29,7 +29,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.effects import CandidateEffect, CasadiOps
-from msarm.diagnose.fitting import IPOPT_OPTIONS, LinearSolver, column_scale
+from msarm.diagnose.fitting import (
+    IPOPT_OPTIONS,
+    LinearSolver,
+    add_constraints,
+    column_scale,
+    constraint_bounds,
+    constraint_matrix,
+)
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 
@@ -96,12 +103,12 @@ class ProjectedProblem:
             objective = objective - casadi.dot(b, casadi.mtimes(inverse, b))
         reference = casadi.fmax(casadi.dot(w, casadi.vec(target) ** 2), 1e-300)
         parameters = casadi.vertcat(weights, casadi.vec(target), casadi.vec(inverse))
-        self.solver = casadi.nlpsol(
-            "fit_projected",
-            "ipopt",
-            {"x": casadi.vertcat(*thetas), "p": parameters, "f": objective / reference},
-            IPOPT_OPTIONS,
+        x = casadi.vertcat(*thetas)
+        problem = {"x": x, "p": parameters, "f": objective / reference}
+        self.n_constraints = add_constraints(
+            problem, x, _block_diagonal([constraint_matrix(t) for t in self.nonlinear])
         )
+        self.solver = casadi.nlpsol("fit_projected", "ipopt", problem, IPOPT_OPTIONS)
         bounds = [t.bounds() for t in self.nonlinear]
         self.lower = np.concatenate([low for low, _ in bounds])
         self.upper = np.concatenate([high for _, high in bounds])
@@ -156,7 +163,9 @@ class ProjectedProblem:
         values = np.concatenate(
             [w, residual.reshape(-1, order="F"), inverse.reshape(-1, order="F")]
         )
-        solution = self.solver(x0=x0, p=values, lbx=self.lower, ubx=self.upper)
+        solution = self.solver(
+            x0=x0, p=values, lbx=self.lower, ubx=self.upper, **constraint_bounds(self.n_constraints)
+        )
         status = str(self.solver.stats()["return_status"])
         x = np.clip(np.asarray(solution["x"], dtype=float).reshape(-1), self.lower, self.upper)
         thetas = np.split(x, np.cumsum(self.sizes)[:-1])
@@ -168,3 +177,14 @@ class ProjectedProblem:
             b = left.reshape(-1, 1, order="F")
             linear = solver.solve(b if root is None else b * root[:, None]) / self.scale
         return thetas, linear, status
+
+
+def _block_diagonal(blocks: Sequence[FloatArray]) -> FloatArray:
+    """The terms' constraint matrices ``(k_i, p_i)`` on their stacked parameters."""
+    rows = sum(b.shape[0] for b in blocks)
+    out = np.zeros((rows, sum(b.shape[1] for b in blocks)))
+    r = c = 0
+    for b in blocks:
+        out[r : r + b.shape[0], c : c + b.shape[1]] = b
+        r, c = r + b.shape[0], c + b.shape[1]
+    return out

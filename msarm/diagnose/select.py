@@ -171,7 +171,8 @@ def available_candidates(
 ) -> dict[str, CandidateEffect]:
     """Every built-in candidate, configured for ``model``, by name.
 
-    Joint-torque terms: Coulomb and viscous joint friction, Stribeck friction (nonlinear),
+    Joint-torque terms: Coulomb and viscous joint friction, Stribeck friction (nonlinear,
+    with its own viscous part),
     Dahl friction (pre-sliding hysteresis, 100 1/rad), capstan sheath friction (one shared
     ``mu``, nonlinear), capstan friction with stiction (``capstan_hysteresis``: stick-slip
     elements in log tension, weights bounded >= 0), the links' mass error (base set of masses
@@ -194,7 +195,7 @@ def available_candidates(
     effects: list[CandidateEffect] = [
         CoulombFriction(n_joints=n),
         ViscousFriction(n_joints=n),
-        StribeckFriction(n_joints=n),
+        StribeckFriction(n_joints=n, viscous=True),
         DahlFriction(n_joints=n),
         CableCapstanFriction(n_cables=m, n_joints=n, fit_eps=True),
         CableCapstanHysteresis(n_cables=m, n_joints=n),
@@ -437,6 +438,14 @@ def _notes(
                 else ""
             )
         )
+    edge = _on_search_edge(term, theta)
+    if edge:
+        one = len(edge) == 1
+        notes.append(
+            f"{', '.join(edge)} on the edge of the range the fit searches: the logs would put "
+            f"{'it' if one else 'them'} beyond, so {'its value is' if one else 'the values are'} "
+            "the range's, not the robot's (the term may stand in for another effect there)"
+        )
     if term.name == "sensor" and "drive" not in groups:
         notes.append(
             "the logs have no drive residual (no tension_cmd.<cable> columns): a load-cell "
@@ -450,6 +459,24 @@ def _notes(
             "inertia; " + _ELASTIC_DRIVE_NOTES[term.name]
         )
     return tuple(notes)
+
+
+def _on_search_edge(term: CandidateEffect, theta: FloatArray) -> list[str]:
+    """A nonlinear term's parameters fitted onto a finite, non-zero bound (``name = value``).
+
+    A bound at zero is a physical one (no friction); others only close the fit's search range
+    (a Stribeck velocity's 10 rad/s), so a parameter on one is not determined by the logs.
+    """
+    if term.linear:
+        return []
+    lower, upper = term.bounds()
+    out = []
+    for name, value, low, high in zip(term.parameter_names, theta, lower, upper, strict=True):
+        unit = term.unit_of(name)
+        for bound in (low, high):
+            if np.isfinite(bound) and bound != 0 and abs(value - bound) <= 1e-6 * abs(bound):
+                out.append(f"{name} = {value:.3g}{' ' + unit if unit not in ('', '-') else ''}")
+    return out
 
 
 def _check_design(term: CandidateEffect, signals: Signals) -> None:

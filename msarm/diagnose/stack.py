@@ -168,6 +168,9 @@ class Embedded(CandidateEffect):
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
         return self.term.bounds()
 
+    def constraints(self) -> FloatArray:  # noqa: D102
+        return self.term.constraints()
+
     def own_columns(self) -> NDArray[np.intp]:
         """Columns of the stack the term's groups occupy, in the term's group order."""
         return np.concatenate(
@@ -208,6 +211,9 @@ class OwnColumns(CandidateEffect):
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:  # noqa: D102
         return self.embedded.term.bounds()
+
+    def constraints(self) -> FloatArray:  # noqa: D102
+        return self.embedded.term.constraints()
 
 
 class Stacked(CandidateEffect):
