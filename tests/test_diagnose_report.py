@@ -116,6 +116,18 @@ def test_write_report_writes_every_file(arm, diagnosis, friction_logs, tmp_path)
     assert "### How far: the held-out gap before and after" in markdown
     assert markdown.index("where-joint_torque.png") < markdown.index("waterfall.png")
 
+    # every parameter of every named effect has its row, named by its joint
+    for effect in diagnosis.selected:
+        assert effect.parameter_labels == tuple(
+            n.replace(f"[{k}]", f"[{arm.joint_names[k]}]")
+            for n, k in zip(effect.parameter_names, range(arm.n_joints), strict=True)
+        )
+        for label, value in zip(effect.labels, effect.parameters, strict=True):
+            assert f"| {effect.name} | {label} | {value:.4g} |" in markdown
+    assert json.loads(paths["json"].read_text())["selected"][0]["labels"] == dict(
+        zip(diagnosis.selected[0].parameter_names, diagnosis.selected[0].labels, strict=True)
+    )
+
     page = paths["html"].read_text()
     assert page.startswith("<!DOCTYPE html>")
     assert "<table>" in page and first in page

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 from conftest import short_move_logs
 
+from msarm.diagnose.cable_effects import CableElasticity, WinchFriction
 from msarm.diagnose.effects import (
     CANDIDATES,
+    CableCapstanFriction,
     CandidateEffect,
     CoulombFriction,
     SensorBiasScale,
@@ -26,8 +28,8 @@ from msarm.diagnose.residuals import (
     ResidualSpec,
     residuals_from_log,
 )
-from msarm.diagnose.result import SelectedEffect
-from msarm.diagnose.select import _notes, diagnose, load_data
+from msarm.diagnose.result import SelectedEffect, label_parameters
+from msarm.diagnose.select import _notes, available_candidates, diagnose, load_data
 from msarm.errors import InputError, LogError
 from msarm.io.logs import RunLog, check_standard_units, read_log, write_log
 from msarm.plant import IDEAL_PLANT
@@ -236,6 +238,38 @@ def test_notes_flag_a_parameter_on_the_edge_of_its_search_range():
     assert _notes(stribeck, inside, np.full(6, np.nan), ("joint",)) == ()
     (one,) = _notes(stribeck, np.array([0.0, 0.2, 0.05, 0.1, 0.3, 10.0]), np.zeros(6), ())
     assert "stribeck_velocity[1] = 10 rad/s on the edge" in one and "its value is" in one
+
+
+def test_parameters_are_labelled_with_the_joint_or_cable_their_index_counts(arm):
+    joints, cables = arm.joint_names, arm.cable_names
+    assert label_parameters(["coulomb[0]", "coulomb[3]"], "joint", joints, cables) == (
+        f"coulomb[{joints[0]}]",
+        f"coulomb[{joints[3]}]",
+    )
+    assert label_parameters(["mu[8]", "mu", "bias[all]"], "cable", joints, cables) == (
+        f"mu[{cables[8]}]",
+        "mu",
+        "bias[all]",
+    )
+    # taps, thresholds and indices beyond the model are kept as they are
+    assert label_parameters(["w[1]", "a[mu=0.03]"], None, joints, cables) == ("w[1]", "a[mu=0.03]")
+    assert label_parameters(["mu[9]"], "cable", joints, cables) == ("mu[9]",)
+    # every built-in term, per cable where it can be: the bracket counts what it says
+    per_cable = [
+        WinchFriction(0.003, 4.0, n_cables=9, shared=False),
+        CableElasticity(n_cables=9, shared=False),
+        SensorBiasScale(n_cables=9, n_joints=4, shared=False),
+        CableCapstanFriction(per_cable=True),
+    ]
+    for term in [*available_candidates(arm).values(), *per_cable]:
+        labels = label_parameters(term.parameter_names, term.indexed_by, joints, cables)
+        if term.indexed_by is None:
+            assert labels == term.parameter_names, term.name
+        else:  # shared terms ([all]) have nothing to name; per-joint or per-cable ones all
+            assert not any(re.search(r"\[\d+\]$", x) for x in labels), term.name
+    for term in per_cable:
+        labels = label_parameters(term.parameter_names, term.indexed_by, joints, cables)
+        assert {x[x.index("[") + 1 : -1] for x in labels} == set(cables), term.name
 
 
 def test_parameters_are_printed_with_their_units():

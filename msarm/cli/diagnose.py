@@ -137,6 +137,10 @@ def where_breakdowns(
     return breakdowns, skipped
 
 
+#: Parameters of an effect shown in the console's table (the report lists every one).
+SHOWN_PARAMETERS = 8
+
+
 def _print_diagnosis(
     screen: Console, result: Diagnosis, n_train: int, n_held: int, where_skipped: dict[str, str]
 ) -> None:
@@ -157,12 +161,16 @@ def _print_diagnosis(
             str(k),
             escape(effect.name),
             ", ".join(effect.groups),
-            escape("\n".join(effect.parameter_texts(limit=8))),
+            escape("\n".join(effect.parameter_texts(limit=SHOWN_PARAMETERS))),
             f"{effect.explained_variance:.3f}",
             f"{effect.gain:+.3f}",
             confidence,
         )
     screen.print(table)
+    if any(len(effect.parameter_names) > SHOWN_PARAMETERS for effect in result.selected):
+        screen.print(
+            "the report and diagnosis.json list every parameter of each effect", highlight=False
+        )
     if any(not np.isfinite(effect.confidence) for effect in result.selected):
         screen.print(
             "confidence n/a and no parameter spread: no bootstrap ran (it redraws the "

@@ -81,6 +81,7 @@ class WinchFriction(CandidateEffect):
     [N m s/rad], shared by all winches or per winch; ``omega_s`` [rad/s] is fixed.
     """
 
+    indexed_by = "cable"
     name = "winch_friction"
     parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m", "viscous": "N m s/rad"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb", "viscous"})
@@ -136,6 +137,7 @@ class DriveCogging(CandidateEffect):
     motors (identical motors, one phase) or per motor.
     """
 
+    indexed_by = "cable"
     name = "motor_cogging"
     parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
@@ -252,6 +254,7 @@ class CableElasticity(CandidateEffect):
     term cannot explain: slack shows as what is left.
     """
 
+    indexed_by = "cable"
     name = "elasticity"
     parameter_units: ClassVar[Mapping[str, str]] = {"compliance": "m/N"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"compliance"})
@@ -327,6 +330,7 @@ class _DrumDirectionTerm(CandidateEffect):
     ``v = rho omega`` (positive reeling in), integrated per run from 0.
     """
 
+    indexed_by = "cable"
     linear = True
     groups = ("length",)
     #: The kind of the term's parameter, in its parameter names.
@@ -431,6 +435,7 @@ class CableSlack(CandidateEffect):
     cables never drop below a few ``F_0`` it explains nothing and is not selected.
     """
 
+    indexed_by = "cable"
     name = "slack"
     parameter_units: ClassVar[Mapping[str, str]] = {"slack": "m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"slack"})

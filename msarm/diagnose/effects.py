@@ -280,6 +280,11 @@ class CandidateEffect(ABC):
     #: fits and scores on only, not on the whole runs first. False (the safe default) for a
     #: term with memory.
     memoryless: ClassVar[bool] = False
+    #: What a whole number in brackets at the end of a parameter's name counts: ``"joint"``
+    #: (``coulomb[3]``: the model's joint 3), ``"cable"`` (``mu[2]``: cable 2) or None (a tap,
+    #: a level: nothing to name). The diagnosis shows such a parameter with the joint's or
+    #: cable's name (``coulomb[elbow]``).
+    indexed_by: ClassVar[str | None] = None
 
     def unit_of(self, parameter: str) -> str:
         """The unit of a parameter, by its kind (``""`` when the term states none).
@@ -540,6 +545,7 @@ class CoulombFriction(CandidateEffect):
     ``r_j = c_j tanh(qd_j / eps)``; ``c_j`` [N m] per joint, ``eps`` [rad/s] fixed.
     """
 
+    indexed_by = "joint"
     name = "coulomb"
     parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb"})
@@ -570,6 +576,7 @@ class CoulombFriction(CandidateEffect):
 class ViscousFriction(CandidateEffect):
     """Joint viscous friction: ``r_j = b_j qd_j``, ``b_j`` [N m s/rad] per joint."""
 
+    indexed_by = "joint"
     name = "viscous"
     parameter_units: ClassVar[Mapping[str, str]] = {"viscous": "N m s/rad"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"viscous"})
@@ -604,6 +611,7 @@ class DahlFriction(CandidateEffect):
     by least squares.
     """
 
+    indexed_by = "joint"
     name = "dahl"
     parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb"})
@@ -659,11 +667,13 @@ class StribeckFriction(CandidateEffect):
     with a Coulomb level many times the plant's at a Stribeck velocity on its bound.
     """
 
+    indexed_by = "joint"
     name = "stribeck"
     parameter_units: ClassVar[Mapping[str, str]] = {
         "coulomb": "N m",
         "static": "N m",
         "stribeck_velocity": "rad/s",
+        "viscous": "N m s/rad",
     }
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb", "static", "stribeck_velocity"})
     description = (
@@ -798,6 +808,7 @@ class CableCapstanFriction(CandidateEffect):
     fitted by least squares.
     """
 
+    indexed_by = "cable"
     name = "capstan"
     parameter_units: ClassVar[Mapping[str, str]] = {"mu": "1/rad", "eps": "m/s"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"mu", "eps"})
@@ -1055,6 +1066,7 @@ class MotorCogging(CandidateEffect):
     shared by all motors (``shared``: identical motors mounted in phase).
     """
 
+    indexed_by = "cable"
     name = "cogging"
     parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
@@ -1129,6 +1141,7 @@ class SensorBiasScale(CandidateEffect):
     command by ``e = b + (k - 1) F``.
     """
 
+    indexed_by = "cable"
     name = "sensor"
     parameter_units: ClassVar[Mapping[str, str]] = {"bias": "N", "scale_minus_1": "-"}
     description = (

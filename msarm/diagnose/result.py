@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -10,9 +12,41 @@ from numpy.typing import NDArray
 
 from msarm.diagnose.builder import GROUP_UNITS
 
-__all__ = ["Diagnosis", "SelectedEffect"]
+__all__ = ["Diagnosis", "SelectedEffect", "label_parameters"]
 
 FloatArray = NDArray[np.float64]
+
+
+_INDEX = re.compile(r"^(.*)\[(\d+)\]$")
+
+
+def label_parameters(
+    names: Sequence[str],
+    indexed_by: str | None,
+    joint_names: Sequence[str],
+    cable_names: Sequence[str],
+) -> tuple[str, ...]:
+    """Parameter names with the joint or cable their bracketed index counts.
+
+    Args:
+        names: The parameters' names, e.g. ``("coulomb[0]", "coulomb[3]")``.
+        indexed_by: What a whole number in brackets counts: ``"joint"``, ``"cable"`` (see
+            ``CandidateEffect.indexed_by``) or None (the names are kept).
+        joint_names: The model's joints, in order.
+        cable_names: The model's cables, in order.
+
+    Returns:
+        The labels, e.g. ``("coulomb[shoulder_abduction]", "coulomb[elbow]")``; a name
+        without such an index, or with one outside the model's count, is kept.
+    """
+    channels = {"joint": joint_names, "cable": cable_names}.get(indexed_by or "", ())
+    labels = []
+    for name in names:
+        match = _INDEX.match(name)
+        if match and int(match.group(2)) < len(channels):
+            name = f"{match.group(1)}[{channels[int(match.group(2))]}]"
+        labels.append(name)
+    return tuple(labels)
 
 
 @dataclass(frozen=True)
@@ -36,6 +70,9 @@ class SelectedEffect:
             ``(p,)`` strings; empty when not recorded.
         notes: What the reader should know about this result: a parameter below zero that no
             physical effect of the kind has, an effect the logs cannot tell from another.
+        parameter_labels: Each parameter's name as shown to a reader, with the joint or cable
+            its bracketed index counts (``coulomb[elbow]`` for ``coulomb[3]``; see
+            :func:`label_parameters`), ``(p,)`` strings; empty: the names themselves.
     """
 
     name: str
@@ -50,21 +87,30 @@ class SelectedEffect:
     message: str
     parameter_units: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    parameter_labels: tuple[str, ...] = ()
 
-    def parameter_texts(self, limit: int = 6, equals: str = " = ") -> list[str]:
-        """``name = value ± std unit`` of the first ``limit`` parameters, and how many more."""
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The parameters' names as shown: :attr:`parameter_labels`, or the names."""
+        return self.parameter_labels or self.parameter_names
+
+    def parameter_texts(self, limit: int | None = 6, equals: str = " = ") -> list[str]:
+        """``label = value ± std unit`` of the first ``limit`` parameters, and how many more.
+
+        ``limit=None`` gives every parameter.
+        """
         units = self.parameter_units or ("",) * len(self.parameter_names)
         parts = []
-        for name, value, std, unit in zip(
-            self.parameter_names, self.parameters, self.std, units, strict=True
+        for label, value, std, unit in zip(
+            self.labels, self.parameters, self.std, units, strict=True
         ):
-            text = f"{name}{equals}{value:.4g}"
+            text = f"{label}{equals}{value:.4g}"
             if np.isfinite(std):
                 text += f" ± {std:.2g}"
             if unit and unit != "-":
                 text += f" {unit}"
             parts.append(text)
-        if len(parts) > limit:
+        if limit is not None and len(parts) > limit:
             parts = [*parts[:limit], f"... ({len(parts) - limit} more)"]
         return parts
 
@@ -87,6 +133,7 @@ class SelectedEffect:
             if self.parameter_units
             else {},
             "notes": list(self.notes),
+            "labels": dict(zip(self.parameter_names, self.labels, strict=True)),
         }
 
 
@@ -276,6 +323,22 @@ class Diagnosis:
             "log_warnings": list(self.log_warnings),
         }
 
+    def _parameter_table(self) -> list[str]:
+        """Markdown lines: every parameter of the selected effects, one row each."""
+        lines = [
+            "Every parameter of the named effects (a bracket names the joint or cable it is of):",
+            "",
+            "| effect | parameter | value | bootstrap std | unit |",
+            "|---|---|---:|---:|---|",
+        ]
+        for s in self.selected:
+            units = s.parameter_units or ("",) * len(s.parameter_names)
+            for label, value, std, unit in zip(s.labels, s.parameters, s.std, units, strict=True):
+                spread = f"{std:.2g}" if np.isfinite(std) else "n/a"
+                unit = "" if unit == "-" else unit
+                lines.append(f"| {s.name} | {label} | {value:.4g} | {spread} | {unit} |")
+        return lines
+
     def to_markdown(self) -> str:
         """The diagnosis as Markdown (tables only; :mod:`msarm.diagnose.report` adds plots).
 
@@ -342,6 +405,7 @@ class Diagnosis:
             notes = [f"- {s.name}: {note}" for s in self.selected for note in s.notes]
             if notes:
                 lines += ["", "Notes:", "", *notes]
+            lines += ["", *self._parameter_table()]
         lines += ["", "## How far: the held-out gap before and after", ""]
         lines += ["| group | channel | before | after | shrink |", "|---|---|---|---|---|"]
         for g in self.groups:

@@ -94,7 +94,7 @@ from msarm.diagnose.effects import (
 )
 from msarm.diagnose.fitting import one_blas_thread
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
-from msarm.diagnose.result import Diagnosis, SelectedEffect
+from msarm.diagnose.result import Diagnosis, SelectedEffect, label_parameters
 from msarm.diagnose.signals import Signals
 from msarm.diagnose.stack import (
     CONFOUNDING_LIMIT,
@@ -395,6 +395,7 @@ def _notes(
     dt: float | None = None,
     named: Sequence[str] = (),
     confidence: float = float("nan"),
+    labels: Sequence[str] = (),
 ) -> tuple[str, ...]:
     """What a reader should know about a selected term's answer (see ``SelectedEffect.notes``).
 
@@ -404,8 +405,11 @@ def _notes(
     delay in seconds that a delay kernel's weights make (with the sample period ``dt`` [s]);
     a drive lag or winch friction named with cable elasticity (``named``: every selected
     term's name), which the elastic cables' drive dynamics give too; a ``confidence`` below
-    :data:`LOW_CONFIDENCE`.
+    :data:`LOW_CONFIDENCE`; a nonlinear parameter fitted onto the edge of its search range.
+    Parameters are named by ``labels`` (the names with their joints or cables; empty: the
+    term's names).
     """
+    labels = tuple(labels) or term.parameter_names
     notes = []
     if confidence < LOW_CONFIDENCE:
         notes.append(
@@ -420,8 +424,8 @@ def _notes(
             f"(dt times the weighted tap, dt = {1e3 * dt:.3g} ms)"
         )
     negative = [
-        f"{name} = {value:.3g}"
-        for name, value, spread in zip(term.parameter_names, theta, std, strict=True)
+        f"{label} = {value:.3g}"
+        for name, label, value, spread in zip(term.parameter_names, labels, theta, std, strict=True)
         if parameter_kind(name) in term.nonnegative
         and value < 0
         and not (np.isfinite(spread) and value > -2.0 * spread)
@@ -438,7 +442,7 @@ def _notes(
                 else ""
             )
         )
-    edge = _on_search_edge(term, theta)
+    edge = _on_search_edge(term, theta, labels)
     if edge:
         one = len(edge) == 1
         notes.append(
@@ -461,8 +465,15 @@ def _notes(
     return tuple(notes)
 
 
-def _on_search_edge(term: CandidateEffect, theta: FloatArray) -> list[str]:
-    """A nonlinear term's parameters fitted onto a finite, non-zero bound (``name = value``).
+def _labels(term: CandidateEffect, model: RobotModel) -> tuple[str, ...]:
+    """A term's parameter names with the model's joint or cable names (see ``indexed_by``)."""
+    return label_parameters(
+        term.parameter_names, term.indexed_by, model.joint_names, model.cable_names
+    )
+
+
+def _on_search_edge(term: CandidateEffect, theta: FloatArray, labels: Sequence[str]) -> list[str]:
+    """A nonlinear term's parameters fitted onto a finite, non-zero bound (``label = value``).
 
     A bound at zero is a physical one (no friction); others only close the fit's search range
     (a Stribeck velocity's 10 rad/s), so a parameter on one is not determined by the logs.
@@ -471,11 +482,13 @@ def _on_search_edge(term: CandidateEffect, theta: FloatArray) -> list[str]:
         return []
     lower, upper = term.bounds()
     out = []
-    for name, value, low, high in zip(term.parameter_names, theta, lower, upper, strict=True):
+    for name, label, value, low, high in zip(
+        term.parameter_names, labels, theta, lower, upper, strict=True
+    ):
         unit = term.unit_of(name)
         for bound in (low, high):
             if np.isfinite(bound) and bound != 0 and abs(value - bound) <= 1e-6 * abs(bound):
-                out.append(f"{name} = {value:.3g}{' ' + unit if unit not in ('', '-') else ''}")
+                out.append(f"{label} = {value:.3g}{' ' + unit if unit not in ('', '-') else ''}")
     return out
 
 
@@ -1043,11 +1056,26 @@ def select_effects(
             message=message,
             parameter_units=tuple(term.term.unit_of(p) for p in term.parameter_names),
             notes=_notes(
-                term.term, theta, std, layout.groups, data.train.dt, final_names, confidence[k]
+                term.term,
+                theta,
+                std,
+                layout.groups,
+                data.train.dt,
+                final_names,
+                confidence[k],
+                labels,
             ),
+            parameter_labels=labels,
         )
-        for k, (term, theta, std, message) in enumerate(
-            zip(final.terms, final.parameters, stds, final.messages, strict=True)
+        for k, (term, theta, std, message, labels) in enumerate(
+            zip(
+                final.terms,
+                final.parameters,
+                stds,
+                final.messages,
+                [_labels(t.term, data.model) for t in final.terms],
+                strict=True,
+            )
         )
     )
     return Diagnosis(
