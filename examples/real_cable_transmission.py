@@ -57,7 +57,7 @@ from msarm.diagnose.effects import (
     ViscousFriction,
     parameter_kind,
 )
-from msarm.diagnose.fitting import FitResult, bootstrap, fit
+from msarm.diagnose.fitting import FitResult, bootstrap, fit, stacked_constraints
 from msarm.diagnose.signals import Signals
 from msarm.io.atomic import atomic_path, write_json_atomic
 
@@ -430,6 +430,10 @@ class SumOfTerms(CandidateEffect):
         """The terms' bounds (none for linear terms)."""
         low, high = zip(*(t.bounds() for t in self.terms), strict=True)
         return np.concatenate(low), np.concatenate(high)
+
+    def constraints(self) -> FloatArray:
+        """The terms' constraints (a Stribeck term's ``s >= c``), block diagonal."""
+        return stacked_constraints(self.terms)
 
 
 # --------------------------------------------------------------------------- candidates

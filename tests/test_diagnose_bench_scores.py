@@ -161,3 +161,84 @@ def test_without_null_plants_there_is_no_floor_and_no_ceiling():
         assert summary[method]["false_alarms"] == 0
         assert summary[method]["both_found"] is None and summary[method]["pair_scenarios"] == 0
         assert summary[method]["mean_excess_shrink"] is None  # no floor: no excess
+
+
+def _plant_answer(effect: str, truth: dict, named: dict) -> dict:
+    return {"effects": [effect], "parameters": {effect: truth}, "msarm": {"parameters": named}}
+
+
+def test_parameters_are_compared_with_the_plants_by_hand():
+    from msarm.diagnose.bench_parameters import parameter_errors, summarise_parameter_errors
+
+    sheath = _plant_answer("sheath_friction", {"mu": 0.1}, {"capstan": {"mu": 0.11, "eps": 0.002}})
+    assert parameter_errors(sheath) == {"mu": pytest.approx(0.1)}
+    winch = _plant_answer(
+        "winch_friction",
+        {"coulomb": 0.02, "viscous": 0.0002},
+        {"winch_friction": {"coulomb[all]": 0.019, "viscous[all]": 0.0003}},
+    )
+    assert parameter_errors(winch) == {
+        "coulomb": pytest.approx(0.05),
+        "viscous": pytest.approx(0.5),
+    }
+    elastic = _plant_answer(
+        "elasticity", {"stiffness": 4e4}, {"elasticity": {"compliance[all]": 2.4e-5}}
+    )
+    assert parameter_errors(elastic) == {"compliance": pytest.approx(0.04)}  # 1/k = 2.5e-5
+    cogging = _plant_answer(
+        "cogging",
+        {"amplitude": 0.01},
+        {"motor_cogging": {"cogging_a[all]": 0.006, "cogging_b[all]": -0.008}},
+    )
+    assert parameter_errors(cogging) == {"amplitude": pytest.approx(0.0)}  # hypot = 0.01
+    bias = _plant_answer("sensor_bias", {"tension_bias": -2.0}, {"sensor": {"bias[all]": -1.9}})
+    assert parameter_errors(bias) == {"bias": pytest.approx(0.05)}
+    delay = _plant_answer(
+        "delay",
+        {"sensing_periods": 1, "actuation_periods": 1},
+        {"command_delay": {"w[1]": 0.2, "w[2]": 0.9, "w[3]": 0.0, "w[4]": 0.0}},
+    )
+    assert parameter_errors(delay) == {"delay": pytest.approx(0.0)}  # 0.2 + 1.8 = 2 samples
+    # joint friction: the steady curve c + b v at 0.05, 0.2, 0.5 rad/s; a Coulomb + viscous
+    # answer of the plant's law is exact, a Dahl level on top adds 0.1 N m at every speed
+    truth = {"coulomb": 0.2, "viscous": 0.1}
+    exact = {"coulomb": {f"coulomb[{j}]": 0.2 for j in range(4)}}
+    exact["viscous"] = {f"viscous[{j}]": 0.1 for j in range(4)}
+    assert parameter_errors(_plant_answer("joint_friction", truth, exact))["friction_curve"] == (
+        pytest.approx(0.0, abs=1e-15)
+    )
+    biased = {**exact, "dahl": {f"coulomb[{j}]": 0.1 for j in range(4)}}
+    curve = [0.2 + 0.1 * v for v in (0.05, 0.2, 0.5)]
+    expected = 0.1 / math.sqrt(sum(c * c for c in curve) / 3)
+    got = parameter_errors(_plant_answer("joint_friction", truth, biased))["friction_curve"]
+    assert got == pytest.approx(expected)
+    # the Stribeck law at its own speeds: s at rest falling to c, plus its viscous part
+    stribeck = {
+        "stribeck": {
+            k: v
+            for j in range(4)
+            for k, v in {
+                f"coulomb[{j}]": 0.2,
+                f"static[{j}]": 0.2,
+                f"stribeck_velocity[{j}]": 0.1,
+                f"viscous[{j}]": 0.1,
+            }.items()
+        }
+    }
+    assert parameter_errors(_plant_answer("joint_friction", truth, stribeck))["friction_curve"] == (
+        pytest.approx(0.0, abs=1e-15)
+    )
+    # not named: None, counted in the summary as not compared
+    missed = _plant_answer(
+        "sheath_friction", {"mu": 0.1}, {"capstan_hysteresis": {"a[mu=0.03]": 1.0}}
+    )
+    assert parameter_errors(missed) == {"mu": None}
+    assert parameter_errors({"effects": [], "parameters": {}, "msarm": {"parameters": {}}}) == {}
+    summary = summarise_parameter_errors([sheath, missed, winch])
+    assert summary["sheath_friction"]["mu"] == {
+        "median": pytest.approx(0.1),
+        "max": pytest.approx(0.1),
+        "compared": 1,
+        "scenarios": 2,
+    }
+    assert summary["winch_friction"]["viscous"]["median"] == pytest.approx(0.5)

@@ -603,3 +603,23 @@ def test_a_user_term_with_malformed_constraints_is_refused_by_name(signals):
 
     with pytest.raises(InputError, match=r"test_misshapen_constraints: constraints\(\) must be"):
         fit(Misshapen(), signals, StribeckFriction().torque(signals, np.tile([0.2, 0.4, 0.1], 4)))
+
+
+def test_the_real_data_examples_sums_keep_their_terms_constraints():
+    """examples/real_cable_transmission.py fits sums of terms: a Stribeck term in a sum keeps
+    its ``s >= c`` (the sum's parameters: viscous b, then Stribeck c, s, v)."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "real_cable_transmission.py"
+    spec = importlib.util.spec_from_file_location("real_cable_transmission", path)
+    module = sys.modules.get(spec.name)  # tests/test_real_cable_transmission.py loads it too
+    if module is None:
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module  # dataclasses look their module up
+        spec.loader.exec_module(module)
+    total = module.SumOfTerms([ViscousFriction(n_joints=1), StribeckFriction(n_joints=1)])
+    np.testing.assert_array_equal(total.constraints(), [[0.0, -1.0, 1.0, 0.0]])
+    linear = module.SumOfTerms([ViscousFriction(n_joints=1), CoulombFriction(n_joints=1)])
+    assert linear.constraints().shape == (0, 2)

@@ -259,6 +259,7 @@ def diagnose_bench(
         )
     console.print(rows)
     summary = report["summary"]
+    from msarm.diagnose.bench_parameters import JOINT_SPEEDS
 
     def fmt(value, pattern="{:.0%}"):
         return "n/a" if value is None else pattern.format(value)
@@ -335,6 +336,19 @@ def diagnose_bench(
         for e in ours["shrink_by_effect"]
     )
     console.print(f"held-out gap shrink by effect (msarm/PySINDy/ceiling): {shrink}")
+    errors = ours.get("parameter_error_by_effect", {})
+    if errors:
+        parts = [
+            f"{effect} {name} {fmt(e['median'], '{:.1%}')}/{fmt(e['max'], '{:.1%}')}"
+            + ("" if e["compared"] == e["scenarios"] else f" ({e['compared']}/{e['scenarios']})")
+            for effect, by_name in errors.items()
+            for name, e in by_name.items()
+        ]
+        console.print(
+            "msarm's parameters against the plant's, relative error median/largest "
+            f"(joint friction: its steady curve at {', '.join(map(str, JOINT_SPEEDS))} rad/s): "
+            + ", ".join(parts)
+        )
     for failure in report["failed"]:
         console.print(
             f"not scored (simulation diverged): {failure['scenario']}: {failure['error']}"

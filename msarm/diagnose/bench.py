@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from msarm.diagnose.baseline import DEFAULT_SINDY_THRESHOLD, check_setting, sindy_baseline
+from msarm.diagnose.bench_parameters import summarise_parameter_errors
 from msarm.diagnose.residuals import DiagnosisWarning
 from msarm.diagnose.scenarios import (
     Scenario,
@@ -494,6 +495,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             ),
             "selection_seconds_per_scenario": _mean_seconds(rows, method, "selection_seconds"),
         }
+    out["msarm"]["parameter_error_by_effect"] = summarise_parameter_errors(single)
     return out
 
 

@@ -399,8 +399,9 @@ class CandidateEffect(ABC):
         """Linear inequalities ``G @ theta >= 0`` a nonlinear fit keeps (none by default).
 
         For an order between parameters that :meth:`bounds` cannot state, e.g. a Stribeck
-        friction's breakaway level at or above its Coulomb level. IPOPT keeps them; a start
-        that breaks them is allowed.
+        friction's breakaway level at or above its Coulomb level. IPOPT keeps them (to its
+        constraint tolerance, about 1e-8); a start that breaks them is allowed. A linear
+        term's least squares does not read them.
 
         Returns:
             ``G``, shape ``(k, p)`` (``k = 0``: none).
@@ -675,7 +676,9 @@ class StribeckFriction(CandidateEffect):
         "stribeck_velocity": "rad/s",
         "viscous": "N m s/rad",
     }
-    nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb", "static", "stribeck_velocity"})
+    nonnegative: ClassVar[frozenset[str]] = frozenset(
+        {"coulomb", "static", "stribeck_velocity", "viscous"}
+    )
     description = (
         "r_j = (c_j + (s_j - c_j) exp(-(qd_j/v_j)^2)) tanh(qd_j/eps) [+ b_j qd_j]: "
         "Coulomb level c, static level s >= c, Stribeck velocity v [, viscous b]"

@@ -11,7 +11,7 @@ was not fitted on; :func:`bootstrap` gives the parameters' spread by resampling 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ParamSpec, TypeVar
 
@@ -271,6 +271,24 @@ def constraint_matrix(effect: CandidateEffect) -> FloatArray:
             f"{effect.name}: constraints() must be a finite matrix of shape (k, {p}) (one "
             f"column per parameter), got shape {G.shape}"
         )
+    return G
+
+
+def stacked_constraints(effects: Sequence[CandidateEffect]) -> FloatArray:
+    """The terms' checked constraints on their parameters side by side (block diagonal).
+
+    Args:
+        effects: Terms whose parameters are stacked in this order.
+
+    Returns:
+        ``G``, shape ``(sum k_i, sum p_i)``.
+    """
+    blocks = [constraint_matrix(e) for e in effects]
+    G = np.zeros((sum(b.shape[0] for b in blocks), sum(b.shape[1] for b in blocks)))
+    row = column = 0
+    for b in blocks:
+        G[row : row + b.shape[0], column : column + b.shape[1]] = b
+        row, column = row + b.shape[0], column + b.shape[1]
     return G
 
 

@@ -35,7 +35,7 @@ from msarm.diagnose.fitting import (
     add_constraints,
     column_scale,
     constraint_bounds,
-    constraint_matrix,
+    stacked_constraints,
 )
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
@@ -105,9 +105,7 @@ class ProjectedProblem:
         parameters = casadi.vertcat(weights, casadi.vec(target), casadi.vec(inverse))
         x = casadi.vertcat(*thetas)
         problem = {"x": x, "p": parameters, "f": objective / reference}
-        self.n_constraints = add_constraints(
-            problem, x, _block_diagonal([constraint_matrix(t) for t in self.nonlinear])
-        )
+        self.n_constraints = add_constraints(problem, x, stacked_constraints(self.nonlinear))
         self.solver = casadi.nlpsol("fit_projected", "ipopt", problem, IPOPT_OPTIONS)
         bounds = [t.bounds() for t in self.nonlinear]
         self.lower = np.concatenate([low for low, _ in bounds])
@@ -177,14 +175,3 @@ class ProjectedProblem:
             b = left.reshape(-1, 1, order="F")
             linear = solver.solve(b if root is None else b * root[:, None]) / self.scale
         return thetas, linear, status
-
-
-def _block_diagonal(blocks: Sequence[FloatArray]) -> FloatArray:
-    """The terms' constraint matrices ``(k_i, p_i)`` on their stacked parameters."""
-    rows = sum(b.shape[0] for b in blocks)
-    out = np.zeros((rows, sum(b.shape[1] for b in blocks)))
-    r = c = 0
-    for b in blocks:
-        out[r : r + b.shape[0], c : c + b.shape[1]] = b
-        r, c = r + b.shape[0], c + b.shape[1]
-    return out

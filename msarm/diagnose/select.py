@@ -489,6 +489,7 @@ def _on_search_edge(term: CandidateEffect, theta: FloatArray, labels: Sequence[s
         for bound in (low, high):
             if np.isfinite(bound) and bound != 0 and abs(value - bound) <= 1e-6 * abs(bound):
                 out.append(f"{label} = {value:.3g}{' ' + unit if unit not in ('', '-') else ''}")
+                break
     return out
 
 
