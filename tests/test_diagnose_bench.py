@@ -59,6 +59,12 @@ def test_tiny_benchmark_names_the_withheld_effects(report):
     # not past it by more than the noise floor's own scatter between plants
     assert ours["mean_shrink"] - 0.02 < summary["shrink_ceiling"] < 1.0
     assert set(summary["shrink_ceiling_by_effect"]) == {"winch_friction", "sensor_bias"}
+    # both methods' parameters against the plant's (bench_parameters): found near them
+    for method in ("msarm", "sindy"):
+        errors = summary[method]["parameter_error_by_effect"]
+        assert set(errors) == {"winch_friction", "sensor_bias"}
+        assert errors["winch_friction"]["coulomb"]["median"] < 0.1
+        assert errors["sensor_bias"]["bias"]["median"] < 0.1
     # the timings are recorded (their definitions are checked on a fake clock in
     # test_the_timings_are_taken_at_the_marks_they_are_named_for); each includes reading the
     # logs, so they are marks of one monotonic clock in order: no comparison of two
@@ -103,7 +109,9 @@ def test_the_timings_are_taken_at_the_marks_they_are_named_for(monkeypatch):
 
     def baseline(data, threshold):
         advance(7.0)
-        return SimpleNamespace(names=(), contributions={}, gap_before={}, gap_after={})
+        return SimpleNamespace(
+            names=(), contributions={}, gap_before={}, gap_after={}, parameters={}
+        )
 
     monkeypatch.setattr(bench_module, "time", SimpleNamespace(perf_counter=lambda: now[0]))
     monkeypatch.setattr(bench_module, "load_data", load_data)
@@ -190,6 +198,13 @@ def test_baseline_runs_on_the_same_data(arm, report):
     # winch friction)
     assert "winch_friction" in result.names
     assert "stribeck" in result.excluded and "capstan" in result.library
+    # its coefficients, by term and parameter, in the parameters' units: the winch's Coulomb
+    # friction near the plant's (what the benchmark compares, bench_parameters)
+    assert list(result.parameters) == list(result.names)
+    truth = json.loads((out / "logs" / "winch_friction-0" / "scenario.json").read_text())
+    coulomb = result.parameters["winch_friction"]["coulomb[all]"]
+    assert coulomb == pytest.approx(truth["parameters"]["winch_friction"]["coulomb"], rel=0.1)
+    assert result.as_dict()["parameters"] == result.parameters
     assert result.group_shrink("drive") > 0.3
     with pytest.raises(InputError, match="threshold"):
         sindy_baseline(data, threshold=-1.0)

@@ -234,6 +234,9 @@ def test_parameters_are_compared_with_the_plants_by_hand():
     )
     assert parameter_errors(missed) == {"mu": None}
     assert parameter_errors({"effects": [], "parameters": {}, "msarm": {"parameters": {}}}) == {}
+    # the baseline's answer is read from its own entry
+    sindy = {**winch, "sindy": {"parameters": {"winch_friction": {"coulomb[all]": 0.03}}}}
+    assert parameter_errors(sindy, "sindy") == {"coulomb": pytest.approx(0.5), "viscous": None}
     summary = summarise_parameter_errors([sheath, missed, winch])
     assert summary["sheath_friction"]["mu"] == {
         "median": pytest.approx(0.1),

@@ -338,16 +338,23 @@ def diagnose_bench(
     console.print(f"held-out gap shrink by effect (msarm/PySINDy/ceiling): {shrink}")
     errors = ours.get("parameter_error_by_effect", {})
     if errors:
+        other = theirs.get("parameter_error_by_effect", {})
+
+        def median(e):
+            text = fmt(None if e is None else e["median"], "{:.1%}")
+            if e is not None and e["compared"] < e["scenarios"]:
+                text += f" ({e['compared']} of {e['scenarios']})"
+            return text
+
         parts = [
-            f"{effect} {name} {fmt(e['median'], '{:.1%}')}/{fmt(e['max'], '{:.1%}')}"
-            + ("" if e["compared"] == e["scenarios"] else f" ({e['compared']}/{e['scenarios']})")
+            f"{effect} {name} {median(e)}/{median(other.get(effect, {}).get(name))}"
             for effect, by_name in errors.items()
             for name, e in by_name.items()
         ]
         console.print(
-            "msarm's parameters against the plant's, relative error median/largest "
-            f"(joint friction: its steady curve at {', '.join(map(str, JOINT_SPEEDS))} rad/s): "
-            + ", ".join(parts)
+            "parameters against the plant's, median relative error msarm/PySINDy "
+            f"(joint friction: its steady curve at {', '.join(map(str, JOINT_SPEEDS))} rad/s; "
+            "n of m: compared where the term was named): " + ", ".join(parts)
         )
     for failure in report["failed"]:
         console.print(

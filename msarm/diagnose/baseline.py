@@ -17,7 +17,7 @@ RMSE as the diagnosis.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,6 +48,8 @@ class BaselineResult:
         gap_before: Pooled held-out RMSE of each group, nominal model (group units).
         gap_after: The same after subtracting the sparse model's prediction.
         excluded: Candidates left out of the library (no linear form), with the reason.
+        parameters: Each named term's coefficients in its parameters' units, by parameter
+            name (a capstan term's ``mu`` is that of its linearised form).
     """
 
     names: tuple[str, ...]
@@ -56,6 +58,7 @@ class BaselineResult:
     gap_before: dict[str, float]
     gap_after: dict[str, float]
     excluded: dict[str, str]
+    parameters: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def group_shrink(self, group: str) -> float:
         """``1 - RMSE_after / RMSE_before`` of a group, pooled over its channels [-]."""
@@ -71,6 +74,7 @@ class BaselineResult:
             "gap_before": dict(self.gap_before),
             "gap_after": dict(self.gap_after),
             "excluded": dict(self.excluded),
+            "parameters": {k: dict(v) for k, v in self.parameters.items()},
         }
 
 
@@ -152,11 +156,13 @@ def sindy_baseline(
     parts = np.split(coefficients, np.cumsum(sizes)[:-1])
 
     energy: dict[str, float] = {}
+    parameters: dict[str, dict[str, float]] = {}
     hold_prediction = np.zeros_like(data.r_hold)
     for term, design, theta in zip(library, train_design, parts, strict=True):
         if not np.any(theta != 0.0):
             continue
         energy[term.name] = float(np.sum(np.einsum("tnp,p->tn", design, theta) ** 2))
+        parameters[term.name] = dict(zip(term.parameter_names, map(float, theta), strict=True))
         hold_prediction += np.einsum("tnp,p->tn", term.design(data.hold), theta)
     total = sum(energy.values()) or 1.0
     names = tuple(sorted(energy, key=lambda n: -energy[n]))
@@ -169,4 +175,5 @@ def sindy_baseline(
         gap_before={g: pooled_rmse(v) for g, v in before.items()},
         gap_after={g: pooled_rmse(v) for g, v in after.items()},
         excluded=excluded,
+        parameters={n: parameters[n] for n in names},
     )

@@ -244,6 +244,7 @@ def _diagnose_scenario(
             "contributions": baseline.contributions,
             "gap_before": baseline.gap_before,
             "gap_after": baseline.gap_after,
+            "parameters": baseline.parameters,
             "seconds": (done - selected) + (loaded - start),
         },
         "load_seconds": loaded - start,
@@ -494,8 +495,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 float(np.mean([r[method]["seconds"] for r in rows])) if rows else None
             ),
             "selection_seconds_per_scenario": _mean_seconds(rows, method, "selection_seconds"),
+            "parameter_error_by_effect": summarise_parameter_errors(single, method),
         }
-    out["msarm"]["parameter_error_by_effect"] = summarise_parameter_errors(single)
     return out
 
 

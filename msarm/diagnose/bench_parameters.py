@@ -17,9 +17,10 @@ parameters the plant was built with:
   Stribeck, Dahl) give at 0.05, 0.2 and 0.5 rad/s on every joint, against the plant's
   ``coulomb + viscous * speed``: the RMS of the difference over the RMS of the plant's.
 
-Each is a relative error ``|fitted - true| / |true|``; None where msarm did not name a term
-that carries the parameter (the benchmark's names score that case). PySINDy's baseline reports
-no parameters, so this score is msarm's alone. The joint friction's is a curve over the speeds
+Each is a relative error ``|fitted - true| / |true|``; None where the method did not name a
+term that carries the parameter (the benchmark's names score that case). The same comparison
+runs on the PySINDy baseline's coefficients (its capstan term is linearised, so its ``mu`` is
+that of the first-order law). The joint friction's is a curve over the speeds
 the tasks reach, not its terms' parameters: the plant has no Stribeck effect, and how the
 named Stribeck and Dahl terms split the friction between them is not the plant's to say
 (before 2026-11-29 a Stribeck term fitted that curve with a Coulomb level of 6.19 N m, within
@@ -75,12 +76,13 @@ def _joint_friction_curve(named: Mapping[str, Mapping[str, float]], speeds: np.n
     return curve or None
 
 
-def parameter_errors(row: Mapping[str, Any]) -> dict[str, float | None]:
-    """Relative errors of msarm's parameters on one single-effect scenario (see the module).
+def parameter_errors(row: Mapping[str, Any], method: str = "msarm") -> dict[str, float | None]:
+    """Relative errors of a method's parameters on one single-effect scenario (see the module).
 
     Args:
         row: A scenario's entry of the benchmark's results (``effects``, ``parameters``: the
-            plant's draw, ``msarm.parameters``: the named terms' fitted parameters by name).
+            plant's draw, ``<method>.parameters``: the named terms' fitted parameters by name).
+        method: ``"msarm"`` or ``"sindy"``.
 
     Returns:
         ``{parameter: relative error or None}`` for the scenario's effect; empty for a null
@@ -94,7 +96,7 @@ def parameter_errors(row: Mapping[str, Any]) -> dict[str, float | None]:
     true = row.get("parameters", {}).get(effect)
     if not true:  # results without the plant's draw (hand-made ones)
         return {}
-    named: Mapping[str, Mapping[str, float]] = row.get("msarm", {}).get("parameters", {})
+    named: Mapping[str, Mapping[str, float]] = row.get(method, {}).get("parameters", {})
     if effect == "sheath_friction":
         mu = named.get("capstan", {}).get("mu")
         return {"mu": None if mu is None else _relative(mu, true["mu"])}
@@ -137,12 +139,13 @@ def parameter_errors(row: Mapping[str, Any]) -> dict[str, float | None]:
 
 
 def summarise_parameter_errors(
-    rows: list[Mapping[str, Any]],
+    rows: list[Mapping[str, Any]], method: str = "msarm"
 ) -> dict[str, dict[str, dict[str, float | int | None]]]:
     """Median and largest relative error of each effect's parameters over its scenarios.
 
     Args:
         rows: The benchmark's scenario entries (single-effect ones are used).
+        method: ``"msarm"`` or ``"sindy"``.
 
     Returns:
         ``{effect: {parameter: {"median", "max", "compared", "scenarios"}}}``: over the
@@ -151,7 +154,7 @@ def summarise_parameter_errors(
     """
     collected: dict[str, dict[str, list[float | None]]] = {}
     for row in rows:
-        for name, error in parameter_errors(row).items():
+        for name, error in parameter_errors(row, method).items():
             effect = row["effects"][0]
             collected.setdefault(effect, {}).setdefault(name, []).append(error)
     out: dict[str, dict[str, dict[str, float | int | None]]] = {}
