@@ -11,7 +11,11 @@ cables minus the nominal inverse dynamics, i.e. the torque lost between load cel
   (``("joint",)``: it predicts the joint-torque residual only);
 - in ``__init__`` set ``parameter_names`` (its ``p`` parameters) and ``channels`` (the joints);
 - return its regressor from ``design(signals)``, shape ``(T, n, p)``, so that the prediction
-  is ``design @ theta`` (the diagnosis fits it by least squares, jointly with the others).
+  is ``design @ theta`` (the diagnosis fits it by least squares, jointly with the others);
+- optionally, for parameters named per joint or per cable (``loss[2]``), set ``indexed_by =
+  "joint"`` or ``"cable"``: the report then names them ``loss[shoulder_rotation]``. A
+  nonlinear term (``linear = False``) writes ``torque`` with ``ops`` and may state ``bounds()``
+  and an order between its parameters, ``constraints()`` (``G @ theta >= 0``).
 
 The lossy pulley of ``examples/custom_effect.py`` delivers ``(1 - loss) F`` at the insertion,
 so the joints get ``-(1 - loss) J_c^T F`` and ``r = -J_c^T F + (1 - loss) J_c^T F =
