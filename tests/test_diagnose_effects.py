@@ -623,3 +623,89 @@ def test_the_real_data_examples_sums_keep_their_terms_constraints():
     np.testing.assert_array_equal(total.constraints(), [[0.0, -1.0, 1.0, 0.0]])
     linear = module.SumOfTerms([ViscousFriction(n_joints=1), CoulombFriction(n_joints=1)])
     assert linear.constraints().shape == (0, 2)
+
+
+def _stribeck_with(**methods):
+    """A Stribeck term (two joints) whose methods are replaced, named for the test."""
+    cls = type("Broken", (StribeckFriction,), {"name": "test_broken", **methods})
+    return cls(joints=[0, 1])
+
+
+@pytest.mark.parametrize(
+    ("constraints", "message"),
+    [
+        (lambda self: [[1.0, 0.0], [1.0]], r"must be a matrix of numbers of shape \(k, 6\)"),
+        (lambda self: "nonsense", r"must be a matrix of numbers"),
+        (lambda self: np.ones((1, 5)), r"got shape \(1, 5\)"),
+        (
+            lambda self: np.array([[0.0, 1.0, np.nan, 0.0, 0.0, 0.0]]),
+            r"non-finite value \(NaN or inf\) at row 0, column 2 \(stribeck_velocity\[0\]\)",
+        ),
+    ],
+)
+def test_malformed_constraints_are_refused_with_the_term_and_what_is_wrong(
+    signals, constraints, message
+):
+    from msarm.diagnose.fitting import check_interface
+
+    term = _stribeck_with(constraints=constraints)
+    with pytest.raises(InputError, match=r"test_broken: constraints\(\)"):
+        check_interface(term)
+    with pytest.raises(InputError, match=message):
+        fit(term, signals, term.torque(signals, np.tile([0.2, 0.4, 0.1], 2)))
+
+
+def test_an_empty_constraint_list_is_no_constraint(signals):
+    from msarm.diagnose.fitting import constraint_matrix
+
+    term = _stribeck_with(constraints=lambda self: [])
+    assert constraint_matrix(term).shape == (0, 6)
+    truth = np.tile([0.2, 0.4, 0.1], 2)
+    np.testing.assert_allclose(fit(term, signals, term.torque(signals, truth)).parameters, truth)
+
+
+@pytest.mark.parametrize(
+    ("bounds", "message"),
+    [
+        (lambda self: (np.zeros(3), np.ones(3)), r"got shapes \(3,\) and \(3,\)"),
+        (lambda self: None, r"must return two arrays \(lower, upper\) of 6 numbers"),
+        (
+            lambda self: (np.full(6, np.nan), np.full(6, np.inf)),
+            r"the lower bound of coulomb\[0\] is NaN",
+        ),
+        (
+            lambda self: (np.ones(6), np.zeros(6)),
+            r"the lower bound of coulomb\[0\] \(1\) is above its upper bound \(0\)",
+        ),
+    ],
+)
+def test_malformed_bounds_are_refused_with_the_term_and_the_parameter(signals, bounds, message):
+    from msarm.diagnose.fitting import check_interface
+
+    term = _stribeck_with(bounds=bounds)
+    with pytest.raises(InputError, match=rf"test_broken: bounds\(\).*{message}"):
+        check_interface(term)
+    with pytest.raises(InputError, match=message):
+        fit(term, signals, np.zeros((signals.n_samples, 4)))
+
+
+def test_a_linear_term_may_state_no_constraint_and_indexed_by_is_checked():
+    from msarm.diagnose.fitting import check_interface
+
+    class Capped(CoulombFriction):
+        name = "test_capped"
+
+        def constraints(self):
+            return -np.eye(self.n_parameters)
+
+    with pytest.raises(InputError, match="test_capped: a linear term is fitted by least squares"):
+        check_interface(Capped())
+
+    class Misspelt(CoulombFriction):
+        name = "test_misspelt"
+        indexed_by = "joints"
+
+    with pytest.raises(InputError, match=r"test_misspelt: indexed_by must be 'joint', 'cable'"):
+        check_interface(Misspelt())
+    for fine in (CoulombFriction(), StribeckFriction(), CableCapstanFriction()):
+        check_interface(fine)

@@ -346,6 +346,23 @@ def test_a_user_candidate_with_a_bad_design_is_named(logs, arm):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Nan()])
 
 
+class _Ordered(_Offset):
+    name = "test_ordered"
+
+    def constraints(self):
+        return np.eye(self.n_parameters)
+
+
+def test_a_user_candidate_with_a_bad_interface_is_refused_before_any_fit(logs, arm, monkeypatch):
+    import msarm.diagnose.select as select
+
+    fitted = []
+    monkeypatch.setattr(select, "select_effects", lambda *a, **k: fitted.append(1))
+    with pytest.raises(InputError, match="test_ordered: a linear term is fitted by least squares"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Ordered()])
+    assert not fitted
+
+
 def test_a_delay_kernel_is_also_given_in_milliseconds():
     from msarm.diagnose.cable_effects import CommandDelay
 
@@ -716,3 +733,16 @@ def test_an_effect_few_bootstrap_draws_need_is_flagged():
     assert "in only 35 % of the (bootstrap draw, held-out run) pairs" in note
     for sure in (0.5, 1.0, float("nan")):  # nan: no bootstrap
         assert _notes(coulomb, theta, std, ("joint",), confidence=sure) == ()
+
+
+def test_notes_say_when_a_nonlinear_fit_did_not_reach_an_optimum():
+    stribeck = StribeckFriction(joints=[0])
+    theta, std = np.array([0.1, 0.2, 0.5]), np.full(3, np.nan)
+    (note,) = _notes(
+        stribeck, theta, std, ("joint",), message="Infeasible_Problem_Detected (joint)"
+    )
+    assert note.startswith("its fit did not end at an optimum (IPOPT: Infeasible_Problem_Detected)")
+    for fine in ("Solve_Succeeded (joint)", "Solved_To_Acceptable_Level", ""):
+        assert _notes(stribeck, theta, std, ("joint",), message=fine) == ()
+    coulomb = CoulombFriction(n_joints=4)
+    assert _notes(coulomb, np.full(4, 0.1), np.full(4, np.nan), ("joint",), message="x") == ()

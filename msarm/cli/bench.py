@@ -347,14 +347,16 @@ def diagnose_bench(
             return text
 
         parts = [
-            f"{effect} {name} {median(e)}/{median(other.get(effect, {}).get(name))}"
+            (effect if name == effect else f"{effect} {name}")
+            + f" {median(e)}/{median(other.get(effect, {}).get(name))}"
             for effect, by_name in errors.items()
             for name, e in by_name.items()
         ]
         console.print(
             "parameters against the plant's, median relative error msarm/PySINDy "
             f"(joint friction: its steady curve at {', '.join(map(str, JOINT_SPEEDS))} rad/s; "
-            "n of m: compared where the term was named): " + ", ".join(parts)
+            "'n of m' where a method named the term on only n of the m scenarios): "
+            + ", ".join(parts)
         )
     for failure in report["failed"]:
         console.print(

@@ -169,7 +169,9 @@ def _print_diagnosis(
     screen.print(table)
     if any(len(effect.parameter_names) > SHOWN_PARAMETERS for effect in result.selected):
         screen.print(
-            "the report and diagnosis.json list every parameter of each effect", highlight=False
+            "every parameter of each effect: in the report and diagnosis.json (--out DIR writes "
+            "them) or with --json",
+            highlight=False,
         )
     if any(not np.isfinite(effect.confidence) for effect in result.selected):
         screen.print(

@@ -261,17 +261,94 @@ IPOPT_OPTIONS: dict[str, object] = {
 def constraint_matrix(effect: CandidateEffect) -> FloatArray:
     """A term's :meth:`~CandidateEffect.constraints`, checked: ``G`` of shape ``(k, p)``.
 
+    An empty answer (``[]``) is taken as no constraint.
+
     Raises:
-        InputError: ``G`` is not a finite matrix with one column per parameter.
+        InputError: ``G`` is not a matrix of numbers with one column per parameter, or holds
+            a NaN or infinity (the term named).
     """
-    G = np.asarray(effect.constraints(), dtype=float)
     p = effect.n_parameters
-    if G.ndim != 2 or G.shape[1] != p or not np.all(np.isfinite(G)):
+    expected = f"a matrix of numbers of shape (k, {p}) (one column per parameter)"
+    try:
+        G = np.asarray(effect.constraints(), dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{effect.name}: constraints() must be {expected} ({exc})") from exc
+    if G.size == 0:
+        return np.zeros((0, p))
+    if G.ndim != 2 or G.shape[1] != p:
+        raise InputError(f"{effect.name}: constraints() must be {expected}, got shape {G.shape}")
+    if not np.all(np.isfinite(G)):
+        row, column = (int(i) for i in np.argwhere(~np.isfinite(G))[0])
         raise InputError(
-            f"{effect.name}: constraints() must be a finite matrix of shape (k, {p}) (one "
-            f"column per parameter), got shape {G.shape}"
+            f"{effect.name}: constraints() has a non-finite value (NaN or inf) at row {row}, "
+            f"column {column} ({effect.parameter_names[column]})"
         )
     return G
+
+
+def bounds_of(effect: CandidateEffect) -> tuple[FloatArray, FloatArray]:
+    """A term's :meth:`~CandidateEffect.bounds`, checked: ``(lower, upper)``, each ``(p,)``.
+
+    Raises:
+        InputError: Not two arrays of ``p`` numbers, a NaN bound, or a lower bound above its
+            upper one (the term and the parameter named).
+    """
+    p = effect.n_parameters
+    expected = f"two arrays (lower, upper) of {p} numbers each, -inf / inf for none"
+    try:
+        lower, upper = (np.asarray(b, dtype=float) for b in effect.bounds())
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{effect.name}: bounds() must return {expected} ({exc})") from exc
+    if lower.shape != (p,) or upper.shape != (p,):
+        raise InputError(
+            f"{effect.name}: bounds() must return {expected}, got shapes {lower.shape} and "
+            f"{upper.shape}"
+        )
+    for which, values in (("lower", lower), ("upper", upper)):
+        if np.isnan(values).any():
+            k = int(np.flatnonzero(np.isnan(values))[0])
+            raise InputError(
+                f"{effect.name}: bounds(): the {which} bound of {effect.parameter_names[k]} is "
+                "NaN (use -inf / inf for none)"
+            )
+    crossed = np.flatnonzero(lower > upper)
+    if crossed.size:
+        k = int(crossed[0])
+        raise InputError(
+            f"{effect.name}: bounds(): the lower bound of {effect.parameter_names[k]} "
+            f"({lower[k]:g}) is above its upper bound ({upper[k]:g})"
+        )
+    return lower, upper
+
+
+#: What :attr:`CandidateEffect.indexed_by` may be.
+INDEXED_BY = (None, "joint", "cable")
+
+
+def check_interface(effect: CandidateEffect) -> None:
+    """Refuse a candidate whose declared interface is malformed (the term named).
+
+    Checks :attr:`~CandidateEffect.indexed_by`, and :meth:`~CandidateEffect.constraints`
+    and :meth:`~CandidateEffect.bounds` of a nonlinear term; a linear term may state no
+    constraint, since its least squares cannot keep one.
+
+    Raises:
+        InputError: What is wrong and what was expected.
+    """
+    if effect.indexed_by not in INDEXED_BY:
+        raise InputError(
+            f"{effect.name}: indexed_by must be 'joint', 'cable' or None (what a bracketed "
+            f"index in a parameter's name counts), got {effect.indexed_by!r}"
+        )
+    G = constraint_matrix(effect)
+    if effect.linear and G.shape[0]:
+        raise InputError(
+            f"{effect.name}: a linear term is fitted by least squares, which cannot keep the "
+            f"{G.shape[0]} constraint(s) its constraints() states: set linear = False (its "
+            "torque() written with ops) for IPOPT to keep them, or state none"
+        )
+    if not effect.linear:
+        bounds_of(effect)
 
 
 def stacked_constraints(effects: Sequence[CandidateEffect]) -> FloatArray:
@@ -333,7 +410,7 @@ class _NonlinearProblem:
         problem = {"x": theta, "p": parameters, "f": objective}
         self.n_constraints = add_constraints(problem, theta, constraint_matrix(effect))
         self.solver = casadi.nlpsol(f"fit_{effect.name}", "ipopt", problem, IPOPT_OPTIONS)
-        self.lower, self.upper = effect.bounds()
+        self.lower, self.upper = bounds_of(effect)
 
     def solve(
         self,

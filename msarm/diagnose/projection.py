@@ -33,6 +33,7 @@ from msarm.diagnose.fitting import (
     IPOPT_OPTIONS,
     LinearSolver,
     add_constraints,
+    bounds_of,
     column_scale,
     constraint_bounds,
     stacked_constraints,
@@ -107,7 +108,7 @@ class ProjectedProblem:
         problem = {"x": x, "p": parameters, "f": objective / reference}
         self.n_constraints = add_constraints(problem, x, stacked_constraints(self.nonlinear))
         self.solver = casadi.nlpsol("fit_projected", "ipopt", problem, IPOPT_OPTIONS)
-        bounds = [t.bounds() for t in self.nonlinear]
+        bounds = [bounds_of(t) for t in self.nonlinear]
         self.lower = np.concatenate([low for low, _ in bounds])
         self.upper = np.concatenate([high for _, high in bounds])
         self.p = p

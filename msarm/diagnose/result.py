@@ -326,7 +326,8 @@ class Diagnosis:
     def _parameter_table(self) -> list[str]:
         """Markdown lines: every parameter of the selected effects, one row each."""
         lines = [
-            "Every parameter of the named effects (a bracket names the joint or cable it is of):",
+            "Every parameter of the named effects (an index that counts joints or cables is "
+            "shown by the joint's or cable's name):",
             "",
             "| effect | parameter | value | bootstrap std | unit |",
             "|---|---|---:|---:|---|",

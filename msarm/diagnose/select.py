@@ -92,7 +92,7 @@ from msarm.diagnose.effects import (
     ViscousFriction,
     parameter_kind,
 )
-from msarm.diagnose.fitting import one_blas_thread
+from msarm.diagnose.fitting import check_interface, one_blas_thread
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.result import Diagnosis, SelectedEffect, label_parameters
 from msarm.diagnose.signals import Signals
@@ -367,6 +367,8 @@ def _resolve(
     return out, True
 
 
+#: IPOPT's statuses of a fit that ended at an optimum (others get a note).
+_SOLVED = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
 #: How the warning about the candidates the logs cannot support begins.
 _NOT_TRIED = "candidates not tried: "
 #: A named effect whose confidence is below this gets a note that it may fit by chance.
@@ -396,6 +398,7 @@ def _notes(
     named: Sequence[str] = (),
     confidence: float = float("nan"),
     labels: Sequence[str] = (),
+    message: str = "",
 ) -> tuple[str, ...]:
     """What a reader should know about a selected term's answer (see ``SelectedEffect.notes``).
 
@@ -405,12 +408,18 @@ def _notes(
     delay in seconds that a delay kernel's weights make (with the sample period ``dt`` [s]);
     a drive lag or winch friction named with cable elasticity (``named``: every selected
     term's name), which the elastic cables' drive dynamics give too; a ``confidence`` below
-    :data:`LOW_CONFIDENCE`; a nonlinear parameter fitted onto the edge of its search range.
-    Parameters are named by ``labels`` (the names with their joints or cables; empty: the
-    term's names).
+    :data:`LOW_CONFIDENCE`; a nonlinear parameter fitted onto the edge of its search range;
+    a fit whose solver ``message`` (IPOPT's status) is not an optimum. Parameters are named by
+    ``labels`` (the names with their joints or cables; empty: the term's names).
     """
     labels = tuple(labels) or term.parameter_names
     notes = []
+    status = message.split(" (")[0]
+    if not term.linear and status and status not in _SOLVED:
+        notes.append(
+            f"its fit did not end at an optimum (IPOPT: {status}): the parameters are where "
+            "the solver stopped and may break the term's bounds or constraints"
+        )
     if confidence < LOW_CONFIDENCE:
         notes.append(
             f"confidence {confidence:.2f}: leaving it out lowers the held-out explained share "
@@ -858,6 +867,8 @@ def load_data(
     names = [c.name for c in [*pool, *extras]]
     if len(set(names)) != len(names):
         raise InputError(f"extra_candidates: names must be unique, got {names}")
+    for candidate in [*pool, *extras]:
+        check_interface(candidate)
     required = {c.name for c in pool} if named else set()
     required |= {c.name for c in extras}
     usable, skipped = _usable([*pool, *extras], layout, train, required, absent, hold)
@@ -1065,6 +1076,7 @@ def select_effects(
                 final_names,
                 confidence[k],
                 labels,
+                message,
             ),
             parameter_labels=labels,
         )
