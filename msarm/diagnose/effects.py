@@ -1246,6 +1246,19 @@ class TensionDelay(CandidateEffect):
 _INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 
 
+def _moved_bodies(pin_model: Any) -> list[str]:
+    """For each Pinocchio joint but the universe, the first body it moves (else its name)."""
+    names = []
+    for joint in range(1, pin_model.njoints):
+        bodies = [
+            f.name
+            for f in pin_model.frames
+            if f.parentJoint == joint and f.type == pinocchio.FrameType.BODY
+        ]
+        names.append(bodies[0] if bodies else pin_model.names[joint])
+    return names
+
+
 @register
 class InertiaError(CandidateEffect):
     """Mass and inertia error of the links, through Pinocchio's joint-torque regressor.
@@ -1254,6 +1267,11 @@ class InertiaError(CandidateEffect):
     them, so ``r = Y(q, qd, qdd) dpi`` with ``Y`` = ``pinocchio.computeJointTorqueRegressor``
     (``n x 10 nbodies``; per body ``m`` [kg], ``m c`` [kg m], ``I`` [kg m^2] about the joint
     frame, Pinocchio's order ``m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz``).
+
+    Parameters are named ``<body>.<kind>`` after the first body each Pinocchio joint moves
+    (``upper_arm.m``, ``forearm.mcx``; the bodies fixed to it, such as the hand, are in its
+    inertia), not after the joint (the parser merges the shoulder's three hinges into one
+    ``Composite_shoulder_abduction`` joint).
 
     Parameter set: ``subset="mass"`` keeps each body's mass and first moments (4 per body);
     ``subset="all"`` all 10. Either way, the kept columns are reduced to an identifiable set
@@ -1314,7 +1332,7 @@ class InertiaError(CandidateEffect):
                 f"nq={self.pin_model.nq}, nv={self.pin_model.nv}"
             )
         self.channels = tuple(range(self.n_joints))
-        bodies = [self.pin_model.names[i] for i in range(1, self.pin_model.njoints)]
+        bodies = _moved_bodies(self.pin_model)
         per = 4 if subset == "mass" else 10
         candidates = [10 * b + k for b in range(len(bodies)) for k in range(per)]
         rng = np.random.default_rng(seed)
