@@ -679,6 +679,10 @@ def test_an_empty_constraint_list_is_no_constraint(signals):
             lambda self: (np.ones(6), np.zeros(6)),
             r"the lower bound of coulomb\[0\] \(1\) is above its upper bound \(0\)",
         ),
+        (
+            lambda self: (np.full(6, np.inf), np.full(6, np.inf)),
+            r"the lower bound of coulomb\[0\] is \+inf, which leaves the parameter no value",
+        ),
     ],
 )
 def test_malformed_bounds_are_refused_with_the_term_and_the_parameter(signals, bounds, message):
@@ -709,5 +713,8 @@ def test_a_linear_term_may_state_no_constraint_and_indexed_by_is_checked():
 
     with pytest.raises(InputError, match=r"test_misspelt: indexed_by must be 'joint', 'cable'"):
         check_interface(Misspelt())
-    for fine in (CoulombFriction(), StribeckFriction(), CableCapstanFriction()):
+    held = CableCapstanFriction(
+        fit_eps=True, eps=0.003, eps_bounds=(0.003, 0.003)
+    )  # eps held fixed
+    for fine in (CoulombFriction(), StribeckFriction(), CableCapstanFriction(), held):
         check_interface(fine)

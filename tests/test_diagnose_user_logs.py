@@ -238,6 +238,9 @@ def test_notes_flag_a_parameter_on_the_edge_of_its_search_range():
     assert _notes(stribeck, inside, np.full(6, np.nan), ("joint",)) == ()
     (one,) = _notes(stribeck, np.array([0.0, 0.2, 0.05, 0.1, 0.3, 10.0]), np.zeros(6), ())
     assert "stribeck_velocity[1] = 10 rad/s on the edge" in one and "its value is" in one
+    # a parameter the term holds fixed (equal bounds) is not searched: no note
+    held = CableCapstanFriction(fit_eps=True, eps=0.003, eps_bounds=(0.003, 0.003))
+    assert _notes(held, np.array([0.1, 0.003]), np.zeros(2), ("joint",)) == ()
 
 
 def test_parameters_are_labelled_with_the_joint_or_cable_their_index_counts(arm):

@@ -14,8 +14,11 @@ parameters the plant was built with:
 - ``delay``: the delay kernel's ``sum_j j w_j`` [samples] against the plant's sensing plus
   actuation delay [control periods = log samples];
 - ``joint_friction``: model-free, the steady friction the named joint terms (Coulomb, viscous,
-  Stribeck, Dahl) give at 0.05, 0.2 and 0.5 rad/s on every joint, against the plant's
-  ``coulomb + viscous * speed``: the RMS of the difference over the RMS of the plant's.
+  Stribeck, Dahl) give at 0.05, 0.2 and 0.5 rad/s on every joint up to the highest one a named
+  term acts on (all of them, with the library's terms), against the plant's
+  ``coulomb + viscous * speed``: the RMS of the difference over the RMS of the plant's. The
+  smoothed signs are taken as reached (``tanh(0.05 / 0.01) = 1`` to 1e-4, with the library's
+  ``eps`` of 0.01 rad/s), and a Dahl term at its steady level.
 
 Each is a relative error ``|fitted - true| / |true|``; None where the method did not name a
 term that carries the parameter (the benchmark's names score that case). The same comparison
@@ -40,7 +43,10 @@ __all__ = ["JOINT_SPEEDS", "parameter_errors", "summarise_parameter_errors"]
 JOINT_SPEEDS = (0.05, 0.2, 0.5)
 
 
-def _relative(fitted: float, true: float) -> float:
+def _relative(fitted: float, true: float) -> float | None:
+    """``|fitted - true| / |true|``; None for a true value of 0 (no relative error)."""
+    if float(true) == 0.0:
+        return None
     return abs(float(fitted) - float(true)) / abs(float(true))
 
 

@@ -28,11 +28,18 @@ __all__ = [
     "IPOPT_OPTIONS",
     "BootstrapResult",
     "FitResult",
+    "INDEXED_BY",
     "LinearSolver",
+    "add_constraints",
     "bootstrap",
+    "bounds_of",
+    "check_interface",
     "column_scale",
+    "constraint_bounds",
+    "constraint_matrix",
     "fit",
     "one_blas_thread",
+    "stacked_constraints",
 ]
 
 P = ParamSpec("P")
@@ -290,8 +297,9 @@ def bounds_of(effect: CandidateEffect) -> tuple[FloatArray, FloatArray]:
     """A term's :meth:`~CandidateEffect.bounds`, checked: ``(lower, upper)``, each ``(p,)``.
 
     Raises:
-        InputError: Not two arrays of ``p`` numbers, a NaN bound, or a lower bound above its
-            upper one (the term and the parameter named).
+        InputError: Not two arrays of ``p`` numbers, a NaN bound, a lower bound of +inf or an
+            upper one of -inf, or a lower bound above its upper one (the term and the
+            parameter named). Equal bounds (a parameter held fixed) are allowed.
     """
     p = effect.n_parameters
     expected = f"two arrays (lower, upper) of {p} numbers each, -inf / inf for none"
@@ -310,6 +318,13 @@ def bounds_of(effect: CandidateEffect) -> tuple[FloatArray, FloatArray]:
             raise InputError(
                 f"{effect.name}: bounds(): the {which} bound of {effect.parameter_names[k]} is "
                 "NaN (use -inf / inf for none)"
+            )
+    for which, values, bad in (("lower", lower, np.inf), ("upper", upper, -np.inf)):
+        if (values == bad).any():
+            k = int(np.flatnonzero(values == bad)[0])
+            raise InputError(
+                f"{effect.name}: bounds(): the {which} bound of {effect.parameter_names[k]} is "
+                f"{bad:+g}, which leaves the parameter no value"
             )
     crossed = np.flatnonzero(lower > upper)
     if crossed.size:

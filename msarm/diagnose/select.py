@@ -418,7 +418,7 @@ def _notes(
     if not term.linear and status and status not in _SOLVED:
         notes.append(
             f"its fit did not end at an optimum (IPOPT: {status}): the parameters are where "
-            "the solver stopped and may break the term's bounds or constraints"
+            "the solver stopped (clipped to the term's bounds) and may break its constraints"
         )
     if confidence < LOW_CONFIDENCE:
         notes.append(
@@ -494,6 +494,8 @@ def _on_search_edge(term: CandidateEffect, theta: FloatArray, labels: Sequence[s
     for name, label, value, low, high in zip(
         term.parameter_names, labels, theta, lower, upper, strict=True
     ):
+        if low == high:  # held fixed by the term, not searched
+            continue
         unit = term.unit_of(name)
         for bound in (low, high):
             if np.isfinite(bound) and bound != 0 and abs(value - bound) <= 1e-6 * abs(bound):
