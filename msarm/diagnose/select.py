@@ -836,6 +836,16 @@ def load_data(
     if unknown or not wanted:
         raise InputError(f"groups: expected some of {', '.join(GROUPS)}, got {list(wanted)}")
     pool, named = _resolve(model, candidates, spec)
+    # the candidates are checked before the logs are read
+    extras = list(extra_candidates)
+    for extra in extras:
+        if not isinstance(extra, CandidateEffect):
+            raise InputError(f"extra_candidates: expected CandidateEffect instances, got {extra!r}")
+    names = [c.name for c in [*pool, *extras]]
+    if len(set(names)) != len(names):
+        raise InputError(f"extra_candidates: names must be unique, got {names}")
+    for candidate in [*pool, *extras]:
+        check_interface(candidate)
     train, g_train, train_names = channels_from_logs(model, train_paths, spec)
     hold, g_hold, hold_names = channels_from_logs(model, holdout_paths, spec)
     check_same_rate(train, train_names[0], hold, hold_names[0], ("training", "held-out"))
@@ -862,15 +872,6 @@ def load_data(
     r_train = layout.stack(g_train)
     r_hold = layout.stack(g_hold)
     absent = {g for g in wanted if g not in g_train or g not in g_hold}
-    extras = list(extra_candidates)
-    for extra in extras:
-        if not isinstance(extra, CandidateEffect):
-            raise InputError(f"extra_candidates: expected CandidateEffect instances, got {extra!r}")
-    names = [c.name for c in [*pool, *extras]]
-    if len(set(names)) != len(names):
-        raise InputError(f"extra_candidates: names must be unique, got {names}")
-    for candidate in [*pool, *extras]:
-        check_interface(candidate)
     required = {c.name for c in pool} if named else set()
     required |= {c.name for c in extras}
     usable, skipped = _usable([*pool, *extras], layout, train, required, absent, hold)
