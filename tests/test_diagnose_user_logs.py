@@ -365,6 +365,18 @@ def test_a_user_candidate_with_a_bad_interface_is_refused_before_any_fit(logs, a
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Ordered()])
     assert not fitted
 
+    class TwoGroups(_Offset):  # joint and length; its joint-only form has the bad interface
+        name = "test_two_groups"
+        groups = ("joint", "length")
+
+        def restricted(self, groups):
+            return _Ordered()
+
+    # these logs' cables are rigid: no length residual, so the joint-only form is the one used
+    with pytest.raises(InputError, match="test_ordered: a linear term is fitted by least squares"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[TwoGroups()])
+    assert not fitted
+
 
 def test_a_delay_kernel_is_also_given_in_milliseconds():
     from msarm.diagnose.cable_effects import CommandDelay

@@ -563,6 +563,7 @@ def _usable(
         if missing:
             smaller = term.restricted([g for g in term.groups if g in layout.groups])
             if smaller is not None:
+                check_interface(smaller)
                 term, missing = smaller, []
         reason = ""
         if missing:
