@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from msarm.diagnose.effects import parameter_index, parameter_kind
+
 __all__ = ["JOINT_SPEEDS", "parameter_errors", "summarise_parameter_errors"]
 
 #: Joint speeds [rad/s] at which the joint friction's steady curve is compared.
@@ -54,9 +56,9 @@ def _indexed(parameters: Mapping[str, float], kind: str) -> dict[int, float]:
     """``{j: value}`` of the parameters named ``kind[j]``."""
     out = {}
     for name, value in parameters.items():
-        head, _, rest = name.partition("[")
-        if head == kind and rest[:-1].isdigit():
-            out[int(rest[:-1])] = float(value)
+        index = parameter_index(name)
+        if index is not None and parameter_kind(name) == kind:
+            out[index] = float(value)
     return out
 
 

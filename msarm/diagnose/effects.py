@@ -465,6 +465,16 @@ def parameter_kind(parameter: str) -> str:
     return base.rsplit(".", 1)[-1]
 
 
+def parameter_index(parameter: str) -> int | None:
+    """The whole number in brackets that ends a parameter's name, else None.
+
+    ``coulomb[3]`` -> 3; ``mu``, ``bias[all]``, ``a[mu=0.03]`` -> None.
+    """
+    base, bracket, rest = parameter.partition("[")
+    index = rest[:-1] if bracket and rest.endswith("]") else ""
+    return int(index) if index.isdigit() else None
+
+
 #: Registered candidate classes by name.
 CANDIDATES: dict[str, type[CandidateEffect]] = {}
 

@@ -35,7 +35,6 @@ __all__ = [
     "bounds_of",
     "check_interface",
     "column_scale",
-    "constraint_bounds",
     "constraint_matrix",
     "fit",
     "one_blas_thread",
@@ -384,20 +383,18 @@ def stacked_constraints(effects: Sequence[CandidateEffect]) -> FloatArray:
     return G
 
 
-def add_constraints(problem: dict[str, Any], theta: Any, G: FloatArray) -> int:
+def add_constraints(problem: dict[str, Any], theta: Any, G: FloatArray) -> dict[str, FloatArray]:
     """Put the linear inequalities ``G @ theta >= 0`` (``(k, p)``) in a casadi NLP ``problem``.
 
     Returns:
-        ``k``, the number of constraints (none are added for ``k = 0``).
+        The solver's arguments that bound them, ``{"lbg": 0, "ubg": inf}`` (each ``(k,)``),
+        to pass with every solve; empty (and nothing added) for ``k = 0``.
     """
-    if G.shape[0]:
-        problem["g"] = casadi.mtimes(casadi.DM(G), theta)
-    return int(G.shape[0])
-
-
-def constraint_bounds(k: int) -> dict[str, FloatArray]:
-    """IPOPT's bounds of ``k`` constraints ``g >= 0`` (``lbg``, ``ubg``; none for ``k = 0``)."""
-    return {"lbg": np.zeros(k), "ubg": np.full(k, np.inf)} if k else {}
+    k = int(G.shape[0])
+    if not k:
+        return {}
+    problem["g"] = casadi.mtimes(casadi.DM(G), theta)
+    return {"lbg": np.zeros(k), "ubg": np.full(k, np.inf)}
 
 
 class _NonlinearProblem:
@@ -423,7 +420,7 @@ class _NonlinearProblem:
         )
         parameters = casadi.vertcat(weights, casadi.vec(target))
         problem = {"x": theta, "p": parameters, "f": objective}
-        self.n_constraints = add_constraints(problem, theta, constraint_matrix(effect))
+        self.constraint_bounds = add_constraints(problem, theta, constraint_matrix(effect))
         self.solver = casadi.nlpsol(f"fit_{effect.name}", "ipopt", problem, IPOPT_OPTIONS)
         self.lower, self.upper = bounds_of(effect)
 
@@ -447,7 +444,7 @@ class _NonlinearProblem:
         w = np.ones(T) if weights is None else weights
         values = np.concatenate([w, r.reshape(-1, order="F")])
         solution = self.solver(
-            x0=x0, p=values, lbx=self.lower, ubx=self.upper, **constraint_bounds(self.n_constraints)
+            x0=x0, p=values, lbx=self.lower, ubx=self.upper, **self.constraint_bounds
         )
         stats = self.solver.stats()
         # IPOPT relaxes the bounds by up to 1e-8 (bound_relax_factor): a parameter at a bound

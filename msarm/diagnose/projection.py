@@ -35,7 +35,6 @@ from msarm.diagnose.fitting import (
     add_constraints,
     bounds_of,
     column_scale,
-    constraint_bounds,
     stacked_constraints,
 )
 from msarm.diagnose.signals import Signals
@@ -106,7 +105,7 @@ class ProjectedProblem:
         parameters = casadi.vertcat(weights, casadi.vec(target), casadi.vec(inverse))
         x = casadi.vertcat(*thetas)
         problem = {"x": x, "p": parameters, "f": objective / reference}
-        self.n_constraints = add_constraints(problem, x, stacked_constraints(self.nonlinear))
+        self.constraint_bounds = add_constraints(problem, x, stacked_constraints(self.nonlinear))
         self.solver = casadi.nlpsol("fit_projected", "ipopt", problem, IPOPT_OPTIONS)
         bounds = [bounds_of(t) for t in self.nonlinear]
         self.lower = np.concatenate([low for low, _ in bounds])
@@ -163,7 +162,7 @@ class ProjectedProblem:
             [w, residual.reshape(-1, order="F"), inverse.reshape(-1, order="F")]
         )
         solution = self.solver(
-            x0=x0, p=values, lbx=self.lower, ubx=self.upper, **constraint_bounds(self.n_constraints)
+            x0=x0, p=values, lbx=self.lower, ubx=self.upper, **self.constraint_bounds
         )
         status = str(self.solver.stats()["return_status"])
         x = np.clip(np.asarray(solution["x"], dtype=float).reshape(-1), self.lower, self.upper)

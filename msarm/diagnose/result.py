@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -11,13 +10,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.builder import GROUP_UNITS
+from msarm.diagnose.effects import parameter_index
 
 __all__ = ["Diagnosis", "SelectedEffect", "label_parameters"]
 
 FloatArray = NDArray[np.float64]
-
-
-_INDEX = re.compile(r"^(.*)\[(\d+)\]$")
 
 
 def label_parameters(
@@ -42,9 +39,9 @@ def label_parameters(
     channels = {"joint": joint_names, "cable": cable_names}.get(indexed_by or "", ())
     labels = []
     for name in names:
-        match = _INDEX.match(name)
-        if match and int(match.group(2)) < len(channels):
-            name = f"{match.group(1)}[{channels[int(match.group(2))]}]"
+        index = parameter_index(name)
+        if index is not None and index < len(channels):
+            name = f"{name.rsplit('[', 1)[0]}[{channels[index]}]"
         labels.append(name)
     return tuple(labels)
 
@@ -94,20 +91,30 @@ class SelectedEffect:
         """The parameters' names as shown: :attr:`parameter_labels`, or the names."""
         return self.parameter_labels or self.parameter_names
 
+    def parameter_rows(self) -> list[tuple[str, float, float, str]]:
+        """``(label, value, bootstrap std, unit)`` of each parameter.
+
+        The unit is ``""`` when the term states none or the parameter is dimensionless.
+        """
+        units = self.parameter_units or ("",) * len(self.parameter_names)
+        return [
+            (label, float(value), float(std), "" if unit == "-" else unit)
+            for label, value, std, unit in zip(
+                self.labels, self.parameters, self.std, units, strict=True
+            )
+        ]
+
     def parameter_texts(self, limit: int | None = 6, equals: str = " = ") -> list[str]:
         """``label = value ± std unit`` of the first ``limit`` parameters, and how many more.
 
         ``limit=None`` gives every parameter.
         """
-        units = self.parameter_units or ("",) * len(self.parameter_names)
         parts = []
-        for label, value, std, unit in zip(
-            self.labels, self.parameters, self.std, units, strict=True
-        ):
+        for label, value, std, unit in self.parameter_rows():
             text = f"{label}{equals}{value:.4g}"
             if np.isfinite(std):
                 text += f" ± {std:.2g}"
-            if unit and unit != "-":
+            if unit:
                 text += f" {unit}"
             parts.append(text)
         if limit is not None and len(parts) > limit:
@@ -333,10 +340,8 @@ class Diagnosis:
             "|---|---|---:|---:|---|",
         ]
         for s in self.selected:
-            units = s.parameter_units or ("",) * len(s.parameter_names)
-            for label, value, std, unit in zip(s.labels, s.parameters, s.std, units, strict=True):
+            for label, value, std, unit in s.parameter_rows():
                 spread = f"{std:.2g}" if np.isfinite(std) else "n/a"
-                unit = "" if unit == "-" else unit
                 lines.append(f"| {s.name} | {label} | {value:.4g} | {spread} | {unit} |")
         return lines
 
