@@ -17,6 +17,7 @@ from msarm.diagnose.effects import (
     CableCapstanFriction,
     CandidateEffect,
     CoulombFriction,
+    InertiaError,
     SensorBiasScale,
     StribeckFriction,
     parameter_kind,
@@ -210,6 +211,38 @@ def test_a_channel_in_another_unit_than_its_partner_is_warned(logs, arm, tmp_pat
         residuals_from_log(arm, logs[0], spec=spec)
     assert not [w for w in caught if "times the load cells" in str(w.message)]
     assert not [w for w in caught if "do not follow" in str(w.message)]
+    assert not [w for w in caught if "outside the model's joint range" in str(w.message)]
+
+
+def test_joint_angles_in_degrees_are_warned_about_by_name(logs, arm, tmp_path):
+    """Degrees read as radians put the postures far outside the joint range: the q columns are
+    named (before, only the motor angles' mismatch with the path lengths was said)."""
+    log = read_log(logs[0])
+    columns = {
+        k: (v * 180 / np.pi if k.startswith(("q.", "q_ref.")) else v)
+        for k, v in log.columns.items()
+    }
+    degrees = _rewrite(logs[0], tmp_path / "qdeg.parquet", columns)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        residuals_from_log(arm, degrees, spec=ResidualSpec(replay=False))
+    (said,) = [str(w.message) for w in caught if "joint range" in str(w.message)]
+    assert "qdeg.parquet: joint angles far outside the model's joint range: " in said
+    assert "--unit q=deg" in said
+    # every joint leaves its range by far: the first three named, the fourth counted
+    for joint in arm.joint_names[:3]:
+        assert f"'q.{joint}' spans" in said, joint
+    assert f"'q.{arm.joint_names[3]}'" not in said and "and 1 more, in rad" in said
+    # 0.4 rad beyond a limit (a calibration offset, say) is not a unit slip
+    q = log.matrix("q", arm.joint_names)
+    offset = dict(log.columns)
+    name = f"q.{arm.joint_names[0]}"
+    offset[name] = offset[name] + (arm.joint_upper[0] + 0.4 - q[:, 0].max())
+    shifted = _rewrite(logs[0], tmp_path / "offset.parquet", offset)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        residuals_from_log(arm, shifted, spec=ResidualSpec(replay=False))
+    assert not [w for w in caught if "joint range" in str(w.message)]
 
 
 def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):
@@ -222,6 +255,47 @@ def test_notes_flag_unphysical_signs_and_a_sensor_without_drive(arm):
     sensor = SensorBiasScale(n_cables=9, n_joints=4, shared=True, drive=True)
     assert "sheath" in _notes(sensor, np.zeros(2), np.zeros(2), ("joint",))[0]
     assert _notes(sensor, np.zeros(2), np.zeros(2), ("joint", "drive")) == ()
+    bias_only = sensor.restricted(("joint",))
+    assert (
+        "only the load cells' bias is fitted"
+        in _notes(bias_only, np.zeros(1), np.zeros(1), ("joint",))[0]
+    )
+
+
+def test_without_the_drive_residual_the_sensor_term_fits_the_bias_alone(logs, arm, tmp_path):
+    """On the joint torques alone a load-cell scale and the mass error take the nominal model
+    apart (see SensorBiasScale): logs without tension_cmd get the bias-only form."""
+    sensor = SensorBiasScale(n_cables=9, n_joints=4, drive=True)
+    joint_only = sensor.restricted(("joint",))
+    assert joint_only.groups == ("joint",)
+    assert joint_only.parameter_names == tuple(f"bias[{c}]" for c in range(9))
+    assert SensorBiasScale(bias=False, drive=True).restricted(("joint",)) is None
+    stripped = []
+    for k, path in enumerate(logs):
+        log = read_log(path)
+        kept = {n: v for n, v in log.columns.items() if not n.startswith("tension_cmd.")}
+        stripped.append(_rewrite(path, tmp_path / f"nocmd{k}.parquet", kept))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DiagnosisWarning)
+        data = load_data(arm, stripped[:2], stripped[2:], candidates=["sensor", "inertia"])
+    (term,) = [c.term for c in data.candidates if c.name == "sensor"]
+    assert {parameter_kind(p) for p in term.parameter_names} == {"bias"}
+
+
+def test_a_mass_error_that_leaves_a_link_no_mass_is_flagged(arm):
+    inertia = InertiaError(arm)
+    heavy = np.zeros(inertia.n_parameters)
+    at = inertia.parameter_names.index("forearm.m")
+    nominal = inertia.nominal[at]
+    assert nominal > 0.5  # the forearm with the hand, from the model file
+    heavy[at] = -0.5 * nominal  # lighter, still a body
+    assert inertia.impossible_masses(heavy) == []
+    assert not any("no positive mass" in n for n in _notes(inertia, heavy, heavy * 0, ("joint",)))
+    heavy[at] = -2.2 * nominal
+    (got,) = inertia.impossible_masses(heavy)
+    assert got[0] == "forearm.m" and got[2] == pytest.approx(-1.2 * nominal)
+    (note,) = [n for n in _notes(inertia, heavy, heavy * 0, ("joint",)) if "no positive" in n]
+    assert f"forearm.m {-1.2 * nominal:.3g} kg (nominal {nominal:.3g} kg)" in note
 
 
 def test_notes_flag_a_parameter_on_the_edge_of_its_search_range():

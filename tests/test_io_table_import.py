@@ -259,9 +259,11 @@ def test_msarm_log_import_checks_its_options(tmp_path, monkeypatch, capsys, args
     assert code == 2 and err.strip() == f"msarm: error: {message}"
 
 
-def test_msarm_log_import_writes_nothing_when_one_file_is_bad(tmp_path, monkeypatch, capsys):
+def test_msarm_log_import_writes_nothing_when_one_file_is_bad(arm, tmp_path, monkeypatch, capsys):
     good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
-    good.write_text("t,q.elbow\n0,1\n0.004,2\n")
+    names = [f"q.{j}" for j in arm.joint_names] + [f"tension_motor.{c}" for c in arm.cable_names]
+    rows = [",".join(["t", *names])] + [f"{t},{','.join(['1'] * len(names))}" for t in (0, 0.004)]
+    good.write_text("\n".join(rows) + "\n")
     bad.write_text("t,q.knee\n0,1\n0.004,2\n")
     code, _, err = _main(monkeypatch, capsys, "log", "import", str(good), str(bad))
     assert code == 2 and "bad.csv: column 'q.knee' names no joint" in err
@@ -288,6 +290,16 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(tmp_path, monkeypa
     )
     assert code == 2 and "run.csv would all write the log" in err
     assert not (tmp_path / "out" / "run.parquet").exists()
+    # a CSV without every q.<joint> and tension_motor.<cable> column is refused before any
+    # log is written (before, its log was written and then refused by the check)
+    partial = tmp_path / "partial.csv"
+    partial.write_text("t,q.elbow\n0,1\n0.004,2\n")
+    code, _, err = _main(monkeypatch, capsys, "log", "import", str(partial), str(good))
+    assert code == 2 and err.count("\n") == 1
+    assert "partial.csv: columns 'q.shoulder_abduction', 'q.shoulder_flexion'," in err
+    assert "the diagnosis needs q.<joint> for every joint and tension_motor.<cable>" in err
+    assert "(nothing written)" in err
+    assert not (tmp_path / "partial.parquet").exists() and not (tmp_path / "good.parquet").exists()
     # a log never replaces a file given, nor is written when another's path is a folder
     own = tmp_path / "own.parquet"
     own.write_text("t,q.elbow\n0,1\n0.004,2\n")

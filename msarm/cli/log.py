@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -235,8 +236,15 @@ def import_command(
             )
         except MsarmError as exc:
             errors.append(str(exc))
+            continue
+        lacking = _required_columns_missing(logs[-1].columns, model)
+        if lacking:
+            errors.append(
+                f"{path}: {lacking}; the diagnosis needs q.<joint> for every joint and "
+                "tension_motor.<cable> for every cable"
+            )
     if len(errors) == 1:
-        raise InputError(errors[0])
+        raise InputError(errors[0] + " (nothing written)")
     if errors:
         raise InputError(
             f"{len(errors)} of {len(files)} CSV files cannot be imported (nothing written): "
@@ -248,6 +256,24 @@ def import_command(
 
     spec = ResidualSpec(drum_radius=drum_radius)
     _report_checks(model, targets, spec, json_output, "logs written", sources=files)
+
+
+def _required_columns_missing(columns: Mapping[str, object], model: RobotModel) -> str:
+    """What a log lacks of the columns every diagnosis reads, in words; empty if nothing."""
+    from msarm.diagnose.missing_values import REQUIRED_CHANNELS
+
+    names = {"q": model.joint_names, "tension_motor": model.cable_names}
+    missing = [
+        f"{quantity}.{name}"
+        for quantity in REQUIRED_CHANNELS
+        for name in names[quantity]
+        if f"{quantity}.{name}" not in columns
+    ]
+    if not missing:
+        return ""
+    listed = ", ".join(repr(name) for name in missing[:4])
+    more = f" and {len(missing) - 4} more" if len(missing) > 4 else ""
+    return f"column{'s' if len(missing) > 1 else ''} {listed}{more} missing"
 
 
 @log_app.command("check")

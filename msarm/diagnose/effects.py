@@ -53,7 +53,7 @@ from typing import Any, ClassVar, TypeVar
 import casadi
 import numpy as np
 import pinocchio
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from msarm.diagnose.signals import Signals, direction_memory, stick_slip_tension
 from msarm.errors import InputError
@@ -1152,6 +1152,15 @@ class SensorBiasScale(CandidateEffect):
     With ``drive`` the term also predicts the drive residual (groups ``joint`` and ``drive``):
     a drive that closes its loop on the true tension makes the reading differ from the
     command by ``e = b + (k - 1) F``.
+
+    On logs without the drive residual, the diagnosis tries the term's joint-only form
+    (:meth:`restricted`) with the bias alone. The scale's regressor on the joint group is the
+    torque the load cells deliver, ``J_c^T F``, which the mass-error term (its regressor spans
+    the inverse dynamics that torque balances) and the friction terms span but for the gap
+    itself: fitted together they take the nominal model apart and "explain" any residual.
+    On logs of the default plant without ``tension_cmd`` columns they did, naming a load-cell
+    scale of +0.98 and a forearm mass error of -3.3 kg (a negative mass), both with
+    confidence 1. The drive residual, ``F - F_cmd``, is what tells a scale error apart.
     """
 
     indexed_by = "cable"
@@ -1191,11 +1200,12 @@ class SensorBiasScale(CandidateEffect):
         self.parameter_names = tuple(f"{k}[{c}]" for k in kinds for c in cables)
         self.groups = ("joint", "drive") if drive else ("joint",)
 
-    def restricted(self, groups: Sequence[str]) -> CandidateEffect | None:  # noqa: D102
-        if "joint" not in groups:
+    def restricted(self, groups: Sequence[str]) -> CandidateEffect | None:
+        """The joint-only form: the bias alone (None for a scale-only term; see above)."""
+        if "joint" not in groups or not self.bias:
             return None
         return SensorBiasScale(
-            self.n_cables, self.n_joints, self.shared, self.bias, self.scale, drive=False
+            self.n_cables, self.n_joints, self.shared, bias=True, scale=False, drive=False
         )
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
@@ -1364,6 +1374,30 @@ class InertiaError(CandidateEffect):
         self.parameter_names = tuple(
             f"{bodies[c // 10]}.{_INERTIAL_NAMES[c % 10]}" for c in self.columns
         )
+        nominal = [
+            np.asarray(self.pin_model.inertias[j].toDynamicParameters(), dtype=float)
+            for j in range(1, self.pin_model.njoints)
+        ]
+        #: The nominal model's value of each kept parameter, shape ``(p,)`` (units as above).
+        self.nominal = np.concatenate(nominal)[self.columns]
+
+    def impossible_masses(self, theta: ArrayLike) -> list[tuple[str, float, float]]:
+        """The bodies that a fitted error ``theta`` leaves with no positive mass.
+
+        Args:
+            theta: Fitted parameter errors, shape ``(p,)``.
+
+        Returns:
+            ``(parameter, nominal, nominal + error)`` [kg] for each mass parameter whose
+            corrected value is ``<= 0``: no physical body, so the term stands in for
+            something else.
+        """
+        theta = self._check_theta(theta)
+        return [
+            (name, float(nominal), float(nominal + value))
+            for name, nominal, value in zip(self.parameter_names, self.nominal, theta, strict=True)
+            if parameter_kind(name) == "m" and nominal + value <= 0.0
+        ]
 
     def _regressor(self, q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
         """Joint-torque regressor in msarm joint order, shape ``(n, 10 nbodies)``."""

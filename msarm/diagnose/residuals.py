@@ -54,6 +54,7 @@ from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 __all__ = [
     "FILTER_SPAN_S",
     "GAP_FACTOR",
+    "JOINT_RANGE_MARGIN",
     "LENGTH_SLOPE",
     "MIN_CHECKED_TRAVEL",
     "RESIDUAL_UNITS",
@@ -83,6 +84,9 @@ LENGTH_SLOPE = (0.5, 2.0)
 #: Least travel of a cable's path (RMS over a log) [m] for that check: below it, the cable's
 #: stretch under changing tension can be as large as its travel.
 MIN_CHECKED_TRAVEL = 2e-3
+#: How far [rad] a logged joint angle may lie outside the model's joint range before the log
+#: is warned about (a unit slip: degrees read as radians put a 90 deg posture at 90 rad).
+JOINT_RANGE_MARGIN = 0.5
 #: Time spans [s] of the derivative filter's window outside which a log is warned about
 #: (msarm's default: 25 samples at 250 Hz, 0.1 s).
 FILTER_SPAN_S = (0.01, 1.0)
@@ -347,6 +351,7 @@ def residuals_from_log(
     motor_all = log.matrix("motor_angle", cables) if has_motor else None
     command_all = log.matrix("tension_cmd", cables) if has_command else None
     reference_all = log.matrix("q_ref", joints) if has_reference else None
+    _warn_outside_joint_range(source, q_all, model, joints)
     _warn_constant_sensors(
         source,
         [("q", joints, q_all), ("tension_motor", cables, tension_all)]
@@ -486,6 +491,39 @@ def _warn_implausible_scales(
                 DiagnosisWarning,
                 stacklevel=3,
             )
+
+
+def _warn_outside_joint_range(
+    source: str, q: FloatArray, model: RobotModel, joints: list[str]
+) -> None:
+    """Warn when joint angles lie far outside the model's joint range (a unit slip).
+
+    ``q`` ``(T, n)`` [rad] in the order of ``joints``; a joint with no finite limit is not
+    checked. "Far": more than :data:`JOINT_RANGE_MARGIN` beyond a limit.
+    """
+    lower = np.asarray(model.joint_lower, dtype=float)
+    upper = np.asarray(model.joint_upper, dtype=float)
+    with np.errstate(invalid="ignore"):
+        below = np.where(np.isfinite(lower), lower - np.nanmin(q, axis=0), -np.inf)
+        above = np.where(np.isfinite(upper), np.nanmax(q, axis=0) - upper, -np.inf)
+    off = np.flatnonzero(np.maximum(below, above) > JOINT_RANGE_MARGIN)
+    if not off.size:
+        return
+    named = ", ".join(
+        f"'q.{joints[k]}' spans [{np.nanmin(q[:, k]):.3g}, {np.nanmax(q[:, k]):.3g}] "
+        f"(range [{lower[k]:.3g}, {upper[k]:.3g}])"
+        for k in off[:3]
+    )
+    more = f" and {off.size - 3} more" if off.size > 3 else ""
+    warnings.warn(
+        f"{source}: joint angles far outside the model's joint range: {named}{more}, in rad. "
+        "Are the joint angles in rad (degrees read as radians are 57 times too large; "
+        "msarm log import --unit q=deg converts them), and is this the robot's model? The "
+        "cable geometry and the inverse dynamics would be evaluated at postures the robot "
+        "cannot take",
+        DiagnosisWarning,
+        stacklevel=3,
+    )
 
 
 def _has_channels(log: RunLog, quantity: str, names: list[str], source: str, without: str) -> bool:

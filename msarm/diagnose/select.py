@@ -451,6 +451,18 @@ def _notes(
                 else ""
             )
         )
+    if isinstance(term, InertiaError):
+        masses = term.impossible_masses(theta)
+        if masses:
+            named = ", ".join(
+                f"{name} {total:.3g} kg (nominal {nominal:.3g} kg)"
+                for name, nominal, total in masses
+            )
+            notes.append(
+                f"it leaves no positive mass: {named}. No physical link has that; the term "
+                "stands in for another effect (on the joint torques alone a load-cell scale "
+                "error, or a loss in proportion to the tension, looks like a mass error)"
+            )
     edge = _on_search_edge(term, theta, labels)
     if edge:
         one = len(edge) == 1
@@ -460,10 +472,18 @@ def _notes(
             "the range's, not the robot's (the term may stand in for another effect there)"
         )
     if term.name == "sensor" and "drive" not in groups:
+        scale = any(parameter_kind(p) == "scale_minus_1" for p in term.parameter_names)
         notes.append(
-            "the logs have no drive residual (no tension_cmd.<cable> columns): a load-cell "
-            "scale error and a loss in proportion to the tension (sheath friction) act alike "
-            "on the joint residual, so this may be friction in the sheaths"
+            "the logs have no drive residual (tension_cmd.<cable> columns missing in some "
+            "log): "
+            + (
+                "a load-cell scale error and a loss in proportion to the tension (sheath "
+                "friction) act alike on the joint residual, so this may be friction in the "
+                "sheaths"
+                if scale
+                else "only the load cells' bias is fitted, as their scale cannot be told "
+                "from a mass error on the joint torques alone"
+            )
         )
     if term.name in _ELASTIC_DRIVE_NOTES and "elasticity" in named:
         notes.append(
