@@ -7,6 +7,7 @@ from msarm.allocation import make_allocator
 from msarm.allocation.batched import dual_newton
 from msarm.allocation.benchmark import arm_problems, cdpr_problems
 from msarm.allocation.testing import random_problem
+from msarm.errors import InputError
 
 
 def stack(problems):
@@ -70,3 +71,27 @@ def test_shared_bounds_and_reference_override():
     looped = make_allocator(9, 4, "fast").solve_batch(M, b, f_min, f_max, f_ref=ref)
     np.testing.assert_array_equal(batched.feasible, looped.feasible)
     np.testing.assert_allclose(batched.f, looped.f, rtol=1e-7, atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    "solver", ["fast", "newton", "batched", "cvxpy", "closed_form", "improved_closed_form"]
+)
+def test_a_tick_may_ask_for_the_midpoint_reference_by_name(solver):
+    """``solve(..., f_ref="midpoint")`` is the midpoint of that tick's bounds, as the spec's
+    ``make_allocator(f_ref="midpoint")`` (it raised a bare ValueError before); another word
+    is refused by name."""
+    rng = np.random.default_rng(25)
+    problem = random_problem(rng, 6, 8)
+    args = (problem.M, problem.b, problem.f_min, problem.f_max)
+    alloc = make_allocator(8, 6, solver)
+    by_name = alloc.solve(*args, f_ref="midpoint")
+    by_value = alloc.solve(*args, f_ref=0.5 * (problem.f_min + problem.f_max))
+    spec = make_allocator(8, 6, solver, f_ref="midpoint").solve(*args)
+    np.testing.assert_allclose(by_name.f, by_value.f, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(by_name.f, spec.f, rtol=0, atol=1e-9)
+    M, b, f_min, f_max = stack([problem, random_problem(rng, 6, 8)])
+    batch = alloc.solve_batch(M, b, f_min, f_max, f_ref="midpoint")
+    np.testing.assert_allclose(batch.f[0], by_name.f, rtol=0, atol=1e-7)
+    for bad in ("mid", ["a"] * 8):
+        with pytest.raises(InputError, match=r"f_ref must be None, 'midpoint' or an array"):
+            alloc.solve(*args, f_ref=bad)

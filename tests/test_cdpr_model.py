@@ -419,6 +419,10 @@ def test_workspace_box_is_feasible(model):
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     assert model.feasible_poses(grid).all()
     assert model.first_infeasible(grid) is None
+    # bounds of another length or a word are named (a bare numpy error before)
+    for bad in (np.ones(3), "a"):
+        with pytest.raises(InputError, match=r"f_min must be a number or of shape \(8,\) \[N\]"):
+            model.feasible_poses(grid[:2], f_min=bad)
 
 
 def test_pose_near_frame_corner_is_infeasible(model):

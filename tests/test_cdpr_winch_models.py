@@ -393,3 +393,13 @@ def test_sensitivity_map_is_mirror_symmetric():
         g[others] = np.linalg.solve(At[k][:, others], -WEIGHT - At[k][:, [0, 3]] @ g[[0, 3]])
         assert min(g.min() - 5.0, 35.0 - g.max()) >= a.margin.ravel()[k] - 1e-9
     assert 0.0 <= a.fraction_acceptable(1.5) <= 1.0
+
+
+def test_words_for_numbers_are_named():
+    """A string where a number goes gave a bare ValueError; now the argument is named."""
+    with pytest.raises(InputError, match=r"delta \(the step of alpha per cycle\) must be finite"):
+        switching_cycles("a")
+    with pytest.raises(InputError, match=r"cable force f \[N\] must be numbers, got 'a'"):
+        friction_torque("a", 0.01)
+    with pytest.raises(InputError, match=r"cable velocity v \[m/s\] must be numbers"):
+        friction_force(10.0, "fast")

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from msarm.errors import InputError
+from msarm.tasks import metrics
 from msarm.tasks.metrics import (
     cable_length_error,
     final_position_error,
@@ -132,3 +133,23 @@ def test_cable_travel_finds_each_cable_s_extremes_between_grid_points(arm):
     coarse = list(joint_grid(arm.joint_lower, arm.joint_upper, 7))
     lengths = cable_kinematics_batch(arm, coarse, with_wrap_angles=False).lengths
     assert np.max(travel / (lengths.max(axis=0) - lengths.min(axis=0))) > 1.005
+
+
+def test_infinite_values_and_words_are_refused_by_name():
+    """Infinity gave inf or NaN back, and a word a bare numpy or Python error; each is now
+    an InputError naming the argument (an infinite bound is still no bound)."""
+    with pytest.raises(InputError, match=r"p_target has inf \(not finite\) at index \(0,\)"):
+        metrics.final_position_error([0, 0, 0], [np.inf, 0, 0], [0, 0, 0])
+    q = np.zeros((11, 4))
+    with pytest.raises(InputError, match=r"q has -inf \(not finite\) at index \(0, 0\)"):
+        metrics.joint_rmse(np.full((11, 4), -np.inf), q)
+    with pytest.raises(InputError, match=r"threshold must be a number or of shape \(3,\)"):
+        metrics.slack_events(np.ones((5, 3)), "a")
+    with pytest.raises(InputError, match=r"dt must be a number, got 'x'"):
+        metrics.time_outside_bounds(np.ones((5, 3)), 0.0, 10.0, dt="x")
+    with pytest.raises(InputError, match=r"dt must be a number, got None"):
+        metrics.time_outside_bounds(np.ones((5, 3)), 0.0, 10.0, dt=None)
+    with pytest.raises(InputError, match=r"delay must be a number, got 'x'"):
+        metrics.settle_sample(np.arange(4.0), np.zeros((4, 2)), "x")
+    outside = metrics.time_outside_bounds(np.full((5, 3), 40.0), -np.inf, np.inf, 0.01)
+    np.testing.assert_array_equal(outside, 0.0)

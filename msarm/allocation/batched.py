@@ -317,7 +317,7 @@ class BatchedAllocator(Allocator):
         f_min: ArrayLike,
         f_max: ArrayLike,
         *,
-        f_ref: ArrayLike | None = None,
+        f_ref: ArrayLike | str | None = None,
     ) -> AllocationResult:
         """One tick through the batched path (a batch of one); see ``Allocator.solve``.
 
@@ -326,7 +326,8 @@ class BatchedAllocator(Allocator):
             b: Shape (n,): joint torques [N m] for the arm, ``-w`` for a cable robot.
             f_min: Lower force bounds [N], shape (m,) or scalar, finite.
             f_max: Upper force bounds [N], shape (m,) or scalar, finite, >= f_min.
-            f_ref: Overrides the spec's reference force for this tick [N], shape (m,).
+            f_ref: Overrides the spec's reference force for this tick: forces [N], shape
+                (m,), or ``"midpoint"`` (of this tick's bounds).
 
         Returns:
             The forces and how they were found (the batch's single answer, with the time of
@@ -358,7 +359,7 @@ class BatchedAllocator(Allocator):
         f_min: ArrayLike,
         f_max: ArrayLike,
         *,
-        f_ref: ArrayLike | None = None,
+        f_ref: ArrayLike | str | None = None,
     ) -> BatchAllocationResult:
         """Allocate forces for N problems at once.
 
@@ -367,7 +368,8 @@ class BatchedAllocator(Allocator):
             b: Shape (N, n).
             f_min: Lower bounds [N], shape (m,), (N, m) or scalar.
             f_max: Upper bounds [N], shape (m,), (N, m) or scalar.
-            f_ref: Reference forces [N], shape (m,) or (N, m), overriding the spec's.
+            f_ref: Reference forces [N], shape (m,) or (N, m), or ``"midpoint"`` (of each
+                problem's bounds), overriding the spec's.
 
         Returns:
             The N answers; each equal to what the fast path gives for that problem.

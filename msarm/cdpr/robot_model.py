@@ -419,7 +419,12 @@ class CableRobotModel:
             if value is None:
                 out.append(np.asarray(default, dtype=np.float64))
                 continue
-            arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_cables,))
+            try:
+                arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_cables,))
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"{name} must be a number or of shape ({self.n_cables},) [N], got {value!r}"
+                ) from None
             if not np.isfinite(arr).all() or np.any(arr < 0.0):
                 raise InputError(f"{name} must be finite and >= 0 N, got {value!r}")
             out.append(arr.astype(np.float64))

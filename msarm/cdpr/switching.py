@@ -44,7 +44,10 @@ HALF_PI = 0.5 * math.pi
 
 
 def _check_delta(delta: float) -> float:
-    d = float(delta)
+    try:
+        d = float(delta)
+    except (TypeError, ValueError):
+        d = math.nan
     if not (math.isfinite(d) and d > 0.0):
         raise InputError(
             f"delta (the step of alpha per cycle) must be finite and > 0 rad, got {delta}"

@@ -361,8 +361,14 @@ class WinchFrictionModel:
         )
 
     def _inputs(self, f: ArrayLike, v: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        f_arr = np.asarray(f, dtype=np.float64)
-        v_arr = np.asarray(v, dtype=np.float64)
+        try:
+            f_arr = np.asarray(f, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"cable force f [N] must be numbers, got {f!r}") from None
+        try:
+            v_arr = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"cable velocity v [m/s] must be numbers, got {v!r}") from None
         if f_arr.shape == v_arr.shape and f_arr.ndim == 1 and self._fast_ok(f_arr, v_arr):
             return f_arr, v_arr  # what the checks below return for them
         try:

@@ -6,7 +6,9 @@ the cable ("muscle") lengths as a share of each cable's travel (eq. 12-13). The 
 the tension counts (slack events, time outside the tension bounds) complete them.
 
 Shapes: ``T`` samples, ``n`` joints, ``m`` cables, ``d`` Cartesian dimensions. Every function
-refuses NaN and shape mismatches with an :class:`~msarm.errors.InputError` naming the argument.
+refuses NaN, infinite values (bounds excepted: an infinite bound is no bound), values that
+are not numbers and shape mismatches with an :class:`~msarm.errors.InputError` naming the
+argument.
 """
 
 from __future__ import annotations
@@ -36,10 +38,19 @@ def _array(value: ArrayLike, name: str, ndim: int) -> FloatArray:
     if arr.ndim != ndim:
         shape = {0: "a scalar", 1: "of shape (k,)", 2: "of shape (T, k)"}[ndim]
         raise InputError(f"{name} must be {shape}, got shape {arr.shape}")
-    if np.isnan(arr).any():
-        where = tuple(int(i) for i in np.argwhere(np.isnan(arr))[0])
-        raise InputError(f"{name} has NaN at index {where}")
+    if not np.isfinite(arr).all():
+        where = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        label = "NaN" if np.isnan(arr[where]) else f"{arr[where]} (not finite)"
+        raise InputError(f"{name} has {label} at index {where}")
     return arr
+
+
+def _scalar(value: float, name: str) -> float:
+    """A number, or an InputError naming ``name`` and what it got."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {value!r}") from None
 
 
 def _same_shape(a: FloatArray, b: FloatArray, name_a: str, name_b: str) -> None:
@@ -48,8 +59,11 @@ def _same_shape(a: FloatArray, b: FloatArray, name_a: str, name_b: str) -> None:
 
 
 def _per_cable(value: ArrayLike, name: str, m: int) -> FloatArray:
-    """A scalar or ``(m,)`` bound, broadcast to ``(m,)``."""
-    arr = np.asarray(value, dtype=np.float64)
+    """A scalar or ``(m,)`` bound, broadcast to ``(m,)`` (infinite: no bound)."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number or of shape ({m},), got {value!r}") from None
     if arr.ndim == 0:
         arr = np.full(m, float(arr))
     if arr.shape != (m,):
@@ -72,12 +86,13 @@ def settle_sample(t: ArrayLike, q_ref: ArrayLike, delay: float) -> int | None:
         reference never comes to rest (it changes between its last two samples).
 
     Raises:
-        InputError: Shapes differ, NaN, or a negative delay.
+        InputError: Shapes differ, NaN or infinite values, or a bad delay.
     """
     times = _array(t, "t", 1)
     ref = _array(q_ref, "q_ref", 2)
     if ref.shape[0] != times.shape[0]:
         raise InputError(f"q_ref has {ref.shape[0]} samples but t has {times.shape[0]}")
+    delay = _scalar(delay, "delay")
     if not delay >= 0.0:
         raise InputError(f"delay must be >= 0 [s], got {delay}")
     moving = np.flatnonzero(np.any(np.diff(ref, axis=0) != 0.0, axis=1))
@@ -105,7 +120,8 @@ def final_position_error(
         ``(error, percent)``: the distance ``z`` [m] and ``r_p`` [%].
 
     Raises:
-        InputError: Shapes differ, NaN, or ``p_target == p_start`` (no displacement).
+        InputError: Shapes differ, NaN or infinite values, or ``p_target == p_start`` (no
+            displacement).
     """
     p = _array(p_final, "p_final", 1)
     p_d = _array(p_target, "p_target", 1)
@@ -132,7 +148,7 @@ def joint_rmse(q: ArrayLike, q_ref: ArrayLike) -> FloatArray:
         ``sqrt(mean_t (q - q_ref)^2)`` [rad], shape ``(n,)``.
 
     Raises:
-        InputError: Shapes differ, no samples, or NaN.
+        InputError: Shapes differ, no samples, or NaN or infinite values.
     """
     q = _array(q, "q", 2)
     q_ref = _array(q_ref, "q_ref", 2)
@@ -161,7 +177,8 @@ def cable_length_error(
         ``(rmse, percent)``: [m] and [%], each shape ``(m,)``.
 
     Raises:
-        InputError: Shapes differ, no samples, NaN, or a travel that is not > 0.
+        InputError: Shapes differ, no samples, NaN or infinite values, or a travel that is
+            not > 0.
     """
     l_valid = _array(l_valid, "l_valid", 2)
     l_theory = _array(l_theory, "l_theory", 2)
@@ -196,7 +213,7 @@ def slack_events(tension: ArrayLike, threshold: ArrayLike) -> NDArray[np.int64]:
         Count per cable, shape ``(m,)``, int.
 
     Raises:
-        InputError: Bad shapes or NaN.
+        InputError: Bad shapes, NaN or infinite values.
     """
     tension = _array(tension, "tension", 2)
     threshold = _per_cable(threshold, "threshold", tension.shape[1])
@@ -229,7 +246,7 @@ def time_outside_bounds(
     if (lower > upper).any():
         j = int(np.argmax(lower > upper))
         raise InputError(f"lower > upper at cable {j}: {lower[j]} > {upper[j]}")
-    dt = float(dt)
+    dt = _scalar(dt, "dt")
     if not (np.isfinite(dt) and dt >= 0):
         raise InputError(f"dt must be finite and >= 0 [s], got {dt}")
     outside = (tension < lower) | (tension > upper)

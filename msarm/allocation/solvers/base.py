@@ -104,11 +104,22 @@ class Allocator(ABC):
         return f, iterations + extra
 
     def _reference(
-        self, f_min: FloatArray, f_max: FloatArray, f_ref: ArrayLike | None
+        self, f_min: FloatArray, f_max: FloatArray, f_ref: ArrayLike | str | None
     ) -> FloatArray:
         if f_ref is None:
             return self.spec.reference(f_min, f_max)
-        ref = np.asarray(f_ref, dtype=np.float64)
+        if isinstance(f_ref, str):
+            if f_ref != "midpoint":
+                raise InputError(
+                    f"f_ref must be None, 'midpoint' or an array of forces [N], got {f_ref!r}"
+                )
+            return 0.5 * (f_min + f_max)
+        try:
+            ref = np.asarray(f_ref, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise InputError(
+                f"f_ref must be None, 'midpoint' or an array of forces [N], got {f_ref!r}"
+            ) from exc
         if ref.shape != f_min.shape[-1:] and ref.shape != f_min.shape:
             raise InputError(
                 f"f_ref must have shape ({self.n_actuators},) [N] or match the bounds, got "
@@ -125,7 +136,7 @@ class Allocator(ABC):
         f_min: ArrayLike,
         f_max: ArrayLike,
         *,
-        f_ref: ArrayLike | None = None,
+        f_ref: ArrayLike | str | None = None,
     ) -> AllocationResult:
         """Allocate forces for one tick.
 
@@ -137,7 +148,8 @@ class Allocator(ABC):
             b: Shape (n,): joint torques [N m] for the arm, ``-w`` for a cable robot.
             f_min: Lower force bounds [N], shape (m,) or scalar, finite.
             f_max: Upper force bounds [N], shape (m,) or scalar, finite, >= f_min.
-            f_ref: Overrides the spec's reference force for this tick [N], shape (m,).
+            f_ref: Overrides the spec's reference force for this tick: forces [N], shape
+                (m,), or ``"midpoint"`` (of this tick's bounds).
 
         Returns:
             The forces and how they were found.
@@ -186,7 +198,7 @@ class Allocator(ABC):
         f_min: ArrayLike,
         f_max: ArrayLike,
         *,
-        f_ref: ArrayLike | None = None,
+        f_ref: ArrayLike | str | None = None,
     ) -> BatchAllocationResult:
         """Allocate forces for N problems (this default loops over ``solve``).
 
@@ -195,7 +207,8 @@ class Allocator(ABC):
             b: Shape (N, n).
             f_min: Lower bounds [N], shape (m,), (N, m) or scalar.
             f_max: Upper bounds [N], shape (m,), (N, m) or scalar.
-            f_ref: Reference forces [N], shape (m,) or (N, m), overriding the spec's.
+            f_ref: Reference forces [N], shape (m,) or (N, m), or ``"midpoint"`` (of each
+                problem's bounds), overriding the spec's.
 
         Returns:
             The N answers as arrays.
