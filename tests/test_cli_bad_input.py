@@ -81,6 +81,31 @@ def test_train_refuses_a_data_folder_that_is_a_file(monkeypatch, capsys, tmp_pat
     assert f"{recipe}: key 'data.folder'" in line and f"{blocker} is a file" in line
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_train_refuses_a_data_folder_that_cannot_be_created(
+    monkeypatch, capsys, tmp_path, no_training
+):
+    """A folder under /proc cannot be made, even by root: before, a traceback at the first
+    write (FileNotFoundError); now one line naming the key, the folder and the reason."""
+    recipe = _recipe(tmp_path, folder="/proc/msarm-no-such-folder/runs")
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert (
+        f"{recipe}: key 'data.folder': cannot create the folder /proc/msarm-no-such-folder/runs ("
+        in line
+    )
+    assert "expected a folder that can be written" in line
+
+
+def test_train_names_the_recipe_for_gains_of_the_wrong_count(
+    monkeypatch, capsys, tmp_path, no_training
+):
+    recipe = _recipe(tmp_path, extra="controller:\n  kp: [90, 90, 45]\n")
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'controller': controller kp needs 4 gains, got (90.0, 90.0, 45.0)" in (
+        line
+    )
+
+
 def test_train_refuses_a_checkpoint_in_a_file(monkeypatch, capsys, tmp_path, no_training):
     blocker = tmp_path / "a_file"
     blocker.write_text("")

@@ -214,3 +214,32 @@ def test_track_list_prints_json_with_json(monkeypatch, capsys):
     assert choices["plants"]["ideal"] == []
     assert set(choices["effects"]) == set(EFFECT_NAMES)
     assert choices["effects"]["sheath_friction"]["default_plant"] is True
+
+
+def test_a_partial_controller_file_with_ff_keeps_the_trained_gains(tmp_path):
+    """With --ff, a --controller file that gives kp alone changed ki, kd and the integral
+    limit to ArmControllerConfig's defaults (the ideal plant's) without a word; now the
+    others stay the compensator's, and the gains that differ are named."""
+    import dataclasses
+    import warnings
+
+    from msarm.cli.common import read_config_section
+    from msarm.cli.track import _over_trained_gains
+    from msarm.control import ArmControllerConfig
+    from msarm.errors import MsarmWarning
+
+    trained = dataclasses.replace(
+        ArmControllerConfig(), ki=(640.0, 640.0, 320.0, 320.0), integral_limit=10.0
+    )
+    path = tmp_path / "kp.yaml"
+    path.write_text("kp: [70, 70, 35, 35]\n")
+    gains, given = read_config_section(path, ArmControllerConfig, "controller")
+    with pytest.warns(MsarmWarning, match=r"kp differ from the gains the compensator c\.pt"):
+        chosen = _over_trained_gains(gains, set(given), trained, path, Path("c.pt"))
+    assert chosen.kp == (70.0, 70.0, 35.0, 35.0)
+    assert chosen.ki == trained.ki and chosen.integral_limit == 10.0
+    path.write_text(f"ki: {list(trained.ki)}\n")  # the trained gains again: no warning
+    gains, given = read_config_section(path, ArmControllerConfig, "controller")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _over_trained_gains(gains, set(given), trained, path, Path("c.pt")) == trained

@@ -3,6 +3,8 @@ reason), and the numpy fast path against torch."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -120,6 +122,21 @@ def test_load_refuses_another_robot_model(compensator, tmp_path):
     del no_sha.metadata["model_sha256"]
     with pytest.raises(CheckpointError, match="no 'model_sha256'"):
         Compensator.load(no_sha.save(tmp_path / "nosha.pt"), expected_model_sha256=SHA)
+
+
+def test_load_refuses_weights_that_are_not_finite(compensator, tmp_path):
+    """A NaN weight was refused only at the first call, as an "overflow" of |x| = 1 with no
+    file named; now at load, naming the file and the tensor."""
+    saved = torch.load(compensator.save(tmp_path / "comp.pt"), weights_only=True)
+    name = next(iter(saved["state_dict"]))
+    saved["state_dict"][name][0, 0] = float("nan")
+    torch.save(saved, tmp_path / "nan.pt")
+    with pytest.raises(
+        CheckpointError,
+        match=rf"nan\.pt: the network's weights '{re.escape(name)}' hold 1 value\(s\) that "
+        "are not finite",
+    ):
+        Compensator.load(tmp_path / "nan.pt", expected_model_sha256=SHA)
 
 
 def test_load_refuses_another_feature_spec(compensator, tmp_path):

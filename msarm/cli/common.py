@@ -145,7 +145,9 @@ def read_config_section(path: Path, cls: type[T], section: str) -> tuple[T, obje
     return load_config(path, cls), raw
 
 
-def check_controller_file(model: RobotModel, gains: ArmControllerConfig, source: Path) -> None:
+def check_controller_file(
+    model: RobotModel, gains: ArmControllerConfig, source: str | Path
+) -> None:
     """Check gains read from ``source`` against the arm, naming the file.
 
     The controller checks them too, but deep in a run and without the file. The control

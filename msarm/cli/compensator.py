@@ -14,6 +14,7 @@ from rich.table import Table
 from msarm.cli.common import (
     PLANTS,
     check_control_period,
+    check_controller_file,
     console,
     note_first_compile,
     output_folder,
@@ -38,7 +39,12 @@ def train_command(
         ),
     ] = DEFAULT_RECIPE,
     fresh: Annotated[
-        bool, typer.Option("--fresh", help="Ignore an interrupted training; start over.")
+        bool,
+        typer.Option(
+            "--fresh",
+            help="Ignore an interrupted training; start the training over (runs already "
+            "collected with the same settings are still reused).",
+        ),
     ] = False,
     json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
 ) -> None:
@@ -82,6 +88,7 @@ def train_command(
     # up front: found after collecting, these would lose the runs' minutes
     check_recipe_paths(recipe, source)
     check_recipe_plant(recipe, plant, source)
+    check_controller_file(arm, recipe.controller, f"{source}: key 'controller'")
     check_control_period(
         recipe.controller,
         plant,
@@ -108,8 +115,8 @@ def train_command(
             line(f"run {done}/{total} collected{' (reused)' if reused else ''}")
 
         def on_epoch(epoch: int, total: int, train_loss: float, val_loss: float) -> None:
-            if epoch % 10 == 0:
-                line(f"epoch {epoch}: train {train_loss:.4f}, validation {val_loss:.4f}")
+            # every epoch (about a second each): early stopping ends a round after a few
+            line(f"epoch {epoch}: train {train_loss:.4f}, validation {val_loss:.4f}")
             bar.update(
                 epochs,
                 visible=True,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
@@ -22,6 +22,9 @@ from msarm.cli.common import (
     resolve_plant,
     seed_suffix,
 )
+
+if TYPE_CHECKING:
+    from msarm.control import ArmControllerConfig
 
 ListOption = Annotated[
     bool,
@@ -122,6 +125,40 @@ def default_folder(task: str, plant: str, seed: int, ff: bool) -> Path:
     return Path("runs") / f"track-{task}-{plant}{seed_suffix(seed)}{'-ff' if ff else ''}"
 
 
+def _over_trained_gains(
+    gains: ArmControllerConfig,
+    given_keys: set[str],
+    trained: ArmControllerConfig,
+    controller: Path,
+    ff: Path,
+) -> ArmControllerConfig:
+    """The trained gains with those a ``--controller`` file gives, and a warning if they differ.
+
+    A file that gives only some gains (``kp`` alone, say) keeps the compensator's others,
+    not :class:`ArmControllerConfig`'s defaults (which are the ideal plant's).
+    """
+    import dataclasses
+    import warnings
+
+    from msarm.control import ArmControllerConfig
+    from msarm.errors import MsarmWarning
+
+    fields = {f.name for f in dataclasses.fields(ArmControllerConfig)}
+    chosen = dataclasses.replace(
+        trained, **{key: getattr(gains, key) for key in given_keys & fields}
+    )
+    differ = [key for key in sorted(fields) if getattr(chosen, key) != getattr(trained, key)]
+    if differ:
+        warnings.warn(
+            f"--controller {controller}: {', '.join(differ)} differ from the gains the "
+            f"compensator {ff} was trained with (its feedforward was learned under them); "
+            "the others are the trained ones",
+            MsarmWarning,
+            stacklevel=2,
+        )
+    return chosen
+
+
 def track_command(
     task: Annotated[
         str, typer.Option(help="Task name: table1-1 ... table1-4, random-<seed>.")
@@ -136,7 +173,8 @@ def track_command(
         typer.Option(
             help="YAML file of controller gains (ArmControllerConfig), or a file with a "
             "controller: section (a training recipe, a run's config.yaml); default: the "
-            "defaults, or with --ff the gains the compensator was trained with."
+            "defaults, or with --ff the gains the compensator was trained with (with --ff, "
+            "the file's gains replace those they name, with a warning)."
         ),
     ] = None,
     ff: Annotated[
@@ -170,14 +208,15 @@ def track_command(
     arm = load_arm()
     task_obj = get_task(task, arm)
     plant_config = resolve_plant(plant)
-    gains = None
+    gains, given_keys = None, set()
     if controller is not None:
         folder = folder_instead_of_file(
             controller, "a YAML file of controller gains, or one with a controller: section"
         )
         if folder is not None:
             raise InputError(f"--controller: {folder}")
-        gains, _ = read_config_section(controller, ArmControllerConfig, "controller")
+        gains, given = read_config_section(controller, ArmControllerConfig, "controller")
+        given_keys = set(given) if isinstance(given, dict) else set()
         check_controller_file(arm, gains, controller)
     feedforward = None
     if ff is not None:
@@ -189,7 +228,11 @@ def track_command(
 
         feedforward = load_feedforward(ff, arm)
         warn_if_other_plant(feedforward.compensator, plant_config, str(ff))
-        gains = gains or trained_controller(feedforward.compensator)
+        trained = trained_controller(feedforward.compensator)
+        if gains is None:
+            gains = trained
+        else:
+            gains = _over_trained_gains(gains, given_keys, trained, controller, ff)
     if controller is not None:
         gains_from = f"gains from {controller}"
     elif feedforward is not None:

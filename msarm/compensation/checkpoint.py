@@ -400,6 +400,14 @@ class Compensator:
             )
         if not isinstance(saved["state_dict"], Mapping):
             raise CheckpointError(f"{source}: state_dict must be a dict of tensors")
+        for name, tensor in saved["state_dict"].items():
+            if isinstance(tensor, torch.Tensor) and not bool(torch.isfinite(tensor).all()):
+                bad = int((~torch.isfinite(tensor)).sum())
+                raise CheckpointError(
+                    f"{source}: the network's weights {name!r} hold {bad} value(s) that are "
+                    "not finite (NaN or infinite); a corrupt or diverged compensator, expected "
+                    "finite weights: train it again"
+                )
         try:
             return cls(saved["state_dict"], in_norm, out_norm, config, saved["metadata"])
         except InputError as exc:

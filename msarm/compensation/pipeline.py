@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
 import time
 import warnings
 from collections.abc import Callable
@@ -147,6 +148,35 @@ def check_recipe_paths(recipe: CompensatorRecipe, source: str = "the recipe") ->
             f"{source}: key 'checkpoint': {checkpoint}: {block} is a file; expected a file "
             "path in a folder (created if missing)"
         )
+    for key, place in (("data.folder", folder), ("checkpoint", checkpoint.parent)):
+        reason = _cannot_create(place)
+        if reason:
+            raise ConfigError(
+                f"{source}: key '{key}': {reason}; expected a folder that can be written "
+                "(created if missing)"
+            )
+
+
+def _cannot_create(folder: Path) -> str:
+    """Why ``folder`` cannot be created or written, in words; empty if it can.
+
+    The missing part of the path is created to find out, then removed again (a check leaves
+    nothing behind).
+    """
+    missing = [part for part in (folder, *folder.parents) if not part.exists()]
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"cannot create the folder {folder} ({exc.strerror or exc})"
+    finally:
+        for part in missing:  # deepest first
+            try:
+                part.rmdir()
+            except OSError:
+                pass
+    if folder.exists() and not os.access(folder, os.W_OK | os.X_OK):
+        return f"the folder {folder} cannot be written"
+    return ""
 
 
 def check_recipe_plant(
