@@ -24,6 +24,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("runs/tour"), help="folder for plots")
     args = parser.parse_args()
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out: {args.out} is a file; expected a folder (created if missing)")
 
     arm = load_arm()
     print(f"model {arm.path} (sha256 {arm.sha256[:12]}…)")

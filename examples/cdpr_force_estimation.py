@@ -22,7 +22,7 @@ import numpy as np
 
 from msarm.cdpr import force_from_following_error, force_from_motor_torque
 from msarm.cdpr.robot_model import load_cable_robot
-from msarm.control.cdpr_controllers import DRIVE_P, make_cdpr_controller
+from msarm.control.cdpr_controllers import CDPR_CONTROLLERS, DRIVE_P, make_cdpr_controller
 from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT
 from msarm.tasks.cdpr_runner import run_cdpr
 from msarm.tasks.cdpr_trajectories import get_cdpr_trajectory
@@ -43,6 +43,16 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=None, help="simulate only this long")
     parser.add_argument("--controller", default="hc-e", help="hc-e, hc-e-all, hc-tau, ...")
     args = parser.parse_args()
+    if args.controller not in CDPR_CONTROLLERS:
+        parser.error(
+            f"--controller: unknown controller {args.controller!r}; expected one of "
+            f"{', '.join(CDPR_CONTROLLERS)}"
+        )
+    if args.seconds is not None and not args.seconds > 2 * START_UP:
+        parser.error(
+            f"--seconds: expected more than {2 * START_UP:g} s (the first {START_UP:g} s are "
+            f"left out of the errors), got {args.seconds:g}"
+        )
 
     robot = load_cable_robot()
     trajectory = get_cdpr_trajectory("triangle-12")

@@ -286,7 +286,8 @@ def load_robot(path: str | Path) -> RobotModel:
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
-        raise ModelError(f"{path}: MuJoCo cannot load the file: {exc}") from exc
+        reason = " ".join(str(exc).split())  # MuJoCo's text spans lines: one line here
+        raise ModelError(f"{path}: MuJoCo cannot load the file: {reason}") from exc
     if mj_model.ntendon == 0:
         raise ModelError(
             f"{path}: the model has no tendons; msarm needs one <spatial> tendon per cable"

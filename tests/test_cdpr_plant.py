@@ -517,3 +517,21 @@ def test_the_cable_robot_plant_takes_the_arm_plant_s_seeds(cdpr):
     generator.standard_normal(5)  # the caller's generator moving on changes nothing
     np.testing.assert_array_equal(noise(plant), by_number)
     np.testing.assert_array_equal(noise(plant), by_number)  # every reset starts again
+
+
+def test_drives_too_weak_for_the_least_force_are_warned_about():
+    """A torque limit below f_min r_D (5 N x 20 mm) was taken without a word; its runs ended
+    hundreds of millimetres off."""
+    import warnings
+
+    from msarm.errors import MsarmWarning
+
+    model = load_cable_robot()
+    weak = replace(
+        DEFAULT_CDPR_PLANT, name="weak", winch=replace(DEFAULT_CDPR_PLANT.winch, torque_limit=0.05)
+    )
+    with pytest.warns(MsarmWarning, match=r"plant 'weak': winch.torque_limit 0.05 N m is below"):
+        CdprPlant(model, weak)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MsarmWarning)
+        CdprPlant(model, DEFAULT_CDPR_PLANT)

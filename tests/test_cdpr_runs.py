@@ -507,3 +507,14 @@ def test_the_readme_plant_file_is_the_default_plant(tmp_path):
     (tmp_path / "plant.yaml").write_text(block)
     written = load_config(tmp_path / "plant.yaml", CdprPlantConfig)
     assert replace(written, name=CdprPlantConfig().name) == CdprPlantConfig()
+
+
+def test_the_time_in_bounds_is_not_rounded_up_to_100():
+    """99.96 % was printed 100.0, which reads as "always inside"."""
+    from msarm.cli.cdpr import _share_inside
+
+    assert _share_inside(99.96) == "99.96"
+    assert _share_inside(99.999) == "99.99"
+    assert _share_inside(100.0) == "100"
+    assert _share_inside(98.94) == "98.9"
+    assert _share_inside(float("nan")) == "-"

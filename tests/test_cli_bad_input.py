@@ -223,3 +223,40 @@ def test_a_file_that_is_not_a_checkpoint_is_said_to_be_not_one(monkeypatch, caps
         assert "format None" not in line
     with pytest.raises(CheckpointError, match="no 'format' tag; its keys: 'weights'"):
         Compensator.load(other)
+
+
+def test_track_names_a_cable_robots_run_config_given_as_controller(monkeypatch, capsys, tmp_path):
+    """It said "unknown key 'controller'" of a file that has one."""
+    config = tmp_path / "config.yaml"
+    config.write_text("controller: hc-e\ncontroller_options: {}\ntrajectory: triangle-12\n")
+    line = _error(monkeypatch, capsys, "track", "--controller", str(config))
+    assert f"{config}: its 'controller' is the name 'hc-e'" in line
+    assert "this is a cable robot's run config (msarm cdpr run), not one of the arm's" in line
+
+
+def test_an_out_folder_made_for_a_refused_command_is_not_left_behind(monkeypatch, capsys, tmp_path):
+    """diagnose made --out, then refused its logs, and left the empty folders; an --out that
+    existed, or holds files, is kept."""
+    from msarm.cli import common
+
+    monkeypatch.setattr(common, "CREATED_FOLDERS", [])
+    out = tmp_path / "new" / "deeper"
+    first, second = tmp_path / "a.parquet", tmp_path / "b.parquet"
+    first.write_text("not a log")
+    second.write_text("not a log")  # refused after --out is made: one run under two names
+    from msarm.cli import main
+
+    def refused(folder):
+        monkeypatch.setattr(sys, "argv", ["msarm", "diagnose", str(first), str(second)])
+        sys.argv += ["--out", str(folder)]
+        with pytest.raises(SystemExit) as exit_info:
+            main()
+        assert exit_info.value.code == 2
+        return capsys.readouterr().err
+
+    assert "has the same contents as" in refused(out)
+    assert common.CREATED_FOLDERS == [] and not (tmp_path / "new").exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    refused(kept)
+    assert kept.is_dir()

@@ -507,7 +507,8 @@ def load_cable_robot(path: str | Path | None = None) -> CableRobotModel:
     try:
         mj_model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
-        raise ModelError(f"{path}: MuJoCo cannot load the file: {exc}") from exc
+        reason = " ".join(str(exc).split())  # MuJoCo's text spans lines: one line here
+        raise ModelError(f"{path}: MuJoCo cannot load the file: {reason}") from exc
     body = _check_platform(mj_model, path)
     cable_names, frame_sites, platform_sites = _read_cables(mj_model, body, path)
     f_min, f_max = _read_force_bounds(mj_model, len(cable_names), path)

@@ -141,6 +141,9 @@ def main() -> None:
             args=spread_multi_value_options(sys.argv[1:]), prog_name="msarm", standalone_mode=False
         )
     except MsarmError as exc:
+        from msarm.cli.common import remove_empty_created_folders
+
+        remove_empty_created_folders()  # an --out made for a command refused: not left behind
         print(f"msarm: error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
     except NoArgsIsHelpError as exc:  # a command group without its command: its help

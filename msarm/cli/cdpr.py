@@ -60,12 +60,23 @@ def _plant_suffix(config) -> str:
     return "" if config.name == "default" else f"-{config.name}"
 
 
+def _share_inside(percent: float) -> str:
+    """A time share in % to 0.1, or to 0.01 near 100: 99.96 % is not printed as 100.0."""
+    if np.isnan(percent):
+        return "-"
+    if percent >= 100.0:
+        return "100"
+    if percent >= 99.95:
+        return f"{np.floor(percent * 100.0) / 100.0:.2f}"
+    return f"{percent:.1f}"
+
+
 def _metric_cells(m) -> list[str]:
     rms = "-" if np.isnan(m.force_rms_error) else f"{m.force_rms_error:.2f}"
     return [
         f"{m.max_position_error_mm:.2f}",
         f"{m.mean_position_error_mm:.2f}",
-        f"{m.time_in_bounds_percent:.1f}",
+        _share_inside(m.time_in_bounds_percent),
         f"{m.min_force:.1f}-{m.max_force:.1f}",
         rms,
     ]

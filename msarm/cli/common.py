@@ -135,6 +135,13 @@ def read_config_section(path: Path, cls: type[T], section: str) -> tuple[T, obje
         raw = None  # load_config says what is wrong with the file
     fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     part = raw.get(section) if isinstance(raw, dict) and section not in fields else None
+    if isinstance(part, str) and isinstance(raw, dict) and "trajectory" in raw:
+        raise ConfigError(
+            f"{path}: its '{section}' is the name {part!r}, not a section of "
+            f"{cls.__name__}'s keys: this is a cable robot's run config (msarm cdpr run), "
+            "not one of the arm's; expected a YAML file of the arm's controller gains, or one "
+            f"with a '{section}:' section of them"
+        )
     if isinstance(part, dict) and not set(raw) <= fields:
         try:
             return load_config(part, cls), part
@@ -283,8 +290,15 @@ def seed_suffix(seed: int) -> str:
     return f"-s{seed}" if seed else ""
 
 
+#: Folders :func:`output_folder` created in this process, deepest first within each call.
+CREATED_FOLDERS: list[Path] = []
+
+
 def output_folder(path: Path, option: str = "--out") -> Path:
     """Create the output folder ``path`` up front, before any long run writes into it.
+
+    The folders it creates are remembered (:data:`CREATED_FOLDERS`): a command that then
+    fails on its input leaves none of them behind empty (:func:`remove_empty_created_folders`).
 
     Raises:
         InputError: ``path`` is an existing file, or the folder cannot be created (the reason
@@ -293,11 +307,23 @@ def output_folder(path: Path, option: str = "--out") -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"{option}: {path} is a file; expected a folder (created if missing)")
+    missing = [part for part in (path, *path.parents) if not part.exists()]
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"{option}: cannot create the folder {path}: {exc.strerror}") from None
+    CREATED_FOLDERS.extend(missing)
     return path
+
+
+def remove_empty_created_folders() -> None:
+    """Remove the folders :func:`output_folder` created that are still empty (deepest first)."""
+    while CREATED_FOLDERS:
+        folder = CREATED_FOLDERS.pop(0)
+        try:
+            folder.rmdir()  # only if empty
+        except OSError:
+            pass
 
 
 def check_drum_radius(drum_radius: float) -> None:

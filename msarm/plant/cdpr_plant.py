@@ -68,6 +68,7 @@ from __future__ import annotations
 import copy
 import math
 import numbers
+import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -84,7 +85,7 @@ from msarm.cdpr.robot_model import (
     qpos_from_pose,
     twist_from_qvel,
 )
-from msarm.errors import InputError
+from msarm.errors import InputError, MsarmWarning
 from msarm.numba_cache import drop_stale_kernels
 from msarm.plant.arm_plant import SimulationDivergedError
 from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT, DRIVE_MODES, CdprPlantConfig
@@ -398,6 +399,24 @@ def _vector(value: ArrayLike, size: int, name: str, unit: str) -> FloatArray:
     return array.copy()
 
 
+def _warn_weak_drives(config: CdprPlantConfig, model: CableRobotModel) -> None:
+    """Warn when the drives cannot give the torque the least cable force needs at the drum.
+
+    ``winch.torque_limit < f_min r_D``: every drive saturates at the model's lower force
+    bound, so no controller can keep the cables' forces in their bounds.
+    """
+    needed = float(np.max(model.f_min)) * config.winch.drum_radius
+    if config.winch.torque_limit < needed:
+        warnings.warn(
+            f"plant {config.name!r}: winch.torque_limit {config.winch.torque_limit:g} N m is "
+            f"below the {needed:g} N m the model's least cable force needs at the drum "
+            f"({float(np.max(model.f_min)):g} N x drum_radius {config.winch.drum_radius:g} m): "
+            "the drives saturate and no controller keeps the forces in their bounds",
+            MsarmWarning,
+            stacklevel=3,
+        )
+
+
 class CdprPlant:
     """The simulated IPAnema 3 Mini of paper 000: the "real" cable robot of msarm.
 
@@ -423,6 +442,7 @@ class CdprPlant:
         self.seed = seed
         self._seed_rng = seed_generator(seed)
         cfg = self.config
+        _warn_weak_drives(cfg, self.model)
         self.mj_model = mujoco.MjModel.from_xml_path(str(self.model.path))
         self.mj_model.opt.timestep = cfg.timestep
         # the coupling of cables and platform assumes MuJoCo's semi-implicit Euler step
