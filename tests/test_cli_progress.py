@@ -43,7 +43,7 @@ def test_bench_diagnose_json_keeps_its_progress_on_stderr(monkeypatch, tmp_path)
     import msarm.diagnose.bench as bench_module
 
     def fake(model, out, settings, progress=None, rescore=False):
-        progress("[1/2] null-0: simulating")
+        progress("[1/2] null-0: simulating (cached runs reused)")
         progress("[1/2] null-0: diagnosing")
         return {"scenarios": [], "summary": {}}
 
@@ -52,7 +52,7 @@ def test_bench_diagnose_json_keeps_its_progress_on_stderr(monkeypatch, tmp_path)
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout) == {"scenarios": [], "summary": {}}
     assert result.stderr.splitlines() == [
-        "bench diagnose [1]: [1/2] null-0: simulating",
+        "bench diagnose [1]: [1/2] null-0: simulating (cached runs reused)",
         "bench diagnose [2]: [1/2] null-0: diagnosing",
     ]
 
@@ -254,6 +254,25 @@ def test_a_cached_result_is_reused_for_the_same_model_only(fake_bench, tmp_path,
     run_diagnosis_benchmark(SimpleNamespace(sha256="1" * 64), tmp_path, BenchSettings())
     assert len(fake_bench) == 4  # another model: scored again
     assert not [w for w in recwarn if "cached results" in str(w.message)]
+    assert not [w for w in recwarn if "other settings" in str(w.message)]
+
+
+def test_results_of_other_settings_are_replaced_with_a_warning(fake_bench, tmp_path):
+    """A subset run (other effects, no pairs) replaced a full run's results.json silently."""
+    from dataclasses import replace
+
+    from msarm.diagnose.bench import BenchCacheWarning, BenchSettings, run_diagnosis_benchmark
+
+    model = SimpleNamespace(sha256="0" * 64)
+    run_diagnosis_benchmark(model, tmp_path, BenchSettings())
+    other = replace(BenchSettings(), n_boot=3)
+    with pytest.warns(
+        BenchCacheWarning,
+        match=r"results\.json: holds the results of other settings \(n_boot differ\); this "
+        "run's results replace them",
+    ):
+        run_diagnosis_benchmark(model, tmp_path, other)
+    assert len(fake_bench) == 4
 
 
 def test_the_cli_says_which_cache_it_ignores_in_one_line(fake_bench, tmp_path, monkeypatch, capsys):

@@ -106,3 +106,15 @@ def test_a_gap_at_numerical_precision_is_called_so(arm, tmp_path):
         warnings.simplefilter("always")
         load_data(arm, rubbing[:1], rubbing[1:], candidates=["coulomb"])
     assert not [w for w in caught if "numerical precision" in str(w.message)]
+
+
+def test_logs_after_holdout_get_a_hint_when_none_is_left(monkeypatch, capsys):
+    """``--holdout H A B`` takes A and B too; click said only "Missing argument 'LOG'"."""
+    from msarm.cli import main
+
+    monkeypatch.setattr("sys.argv", ["msarm", "diagnose", "--holdout", "h", "a", "b"])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "Missing argument 'LOG': --holdout takes every value after it up to the next" in err

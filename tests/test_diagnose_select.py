@@ -342,7 +342,7 @@ def test_a_candidate_the_data_cannot_tell_apart_is_not_selected(arm, friction_lo
     assert other in result.to_markdown()
     payload = json.loads(json.dumps(result.as_dict(), allow_nan=False))  # strict JSON
     assert payload["confounded"] == result.confounded
-    with pytest.raises(InputError, match="names must be unique"):
+    with pytest.raises(InputError, match=r"names must be unique; 'coulomb' given more than once"):
         diagnose(arm, friction_logs[:1], friction_logs[1:2], extra_candidates=[CoulombFriction()])
 
 

@@ -421,6 +421,19 @@ def test_a_user_candidate_with_a_bad_design_is_named(logs, arm):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Flat()])
     with pytest.raises(InputError, match=r"test_nan: design\(\) has a non-finite value"):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Nan()])
+    with pytest.raises(InputError, match=r"checked on the first 8 samples of the logs"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Flat()])
+
+    class Broken(_Offset):  # a bug in the user's own code: was a bare ZeroDivisionError
+        name = "test_broken"
+
+        def design(self, signals):
+            return 1 / 0
+
+    with pytest.raises(
+        InputError, match=r"test_broken: design\(\) raised ZeroDivisionError: division by zero"
+    ):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[Broken()])
 
 
 class _Ordered(_Offset):
@@ -449,6 +462,13 @@ def test_a_user_candidate_with_a_bad_interface_is_refused_before_any_fit(logs, a
     # these logs' cables are rigid: no length residual, so the joint-only form is the one used
     with pytest.raises(InputError, match="test_ordered: a linear term is fitted by least squares"):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[TwoGroups()])
+    assert not fitted
+
+    class NoName(_Offset):  # was taken, and named '' in the answer
+        name = ""
+
+    with pytest.raises(InputError, match="NoName: a candidate needs a non-empty class attribute"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[NoName()])
     assert not fitted
 
 
@@ -835,3 +855,19 @@ def test_notes_say_when_a_nonlinear_fit_did_not_reach_an_optimum():
         assert _notes(stribeck, theta, std, ("joint",), message=fine) == ()
     coulomb = CoulombFriction(n_joints=4)
     assert _notes(coulomb, np.full(4, 0.1), np.full(4, np.nan), ("joint",), message="x") == ()
+
+
+def test_a_log_also_held_out_is_said_in_the_saved_answer(logs, monkeypatch, capsys):
+    """The overlap warning was printed but missing from diagnosis.json's log_warnings (and
+    the report), where the logs' own warnings are kept."""
+    from msarm.cli import main
+
+    argv = ["msarm", "diagnose", *map(str, logs), "--holdout", str(logs[2])]
+    argv += ["--candidates", "coulomb", "--boot", "0", "--json"]
+    monkeypatch.setattr("sys.argv", argv)
+    main()
+    saved = json.loads(capsys.readouterr().out)
+    assert any(
+        "given as a log and in --holdout: held out, not trained on" in text
+        for text in saved["log_warnings"]
+    ), saved["log_warnings"]

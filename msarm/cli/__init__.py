@@ -46,6 +46,20 @@ MULTI_VALUE_OPTIONS = {
 NAME_OPTIONS = ("--candidates", "--effect")
 
 
+def _greedy_option_hint(message: str, args: list[str]) -> str:
+    """A hint when an argument is missing because a multi-value option took the values."""
+    if not message.startswith("Missing argument"):
+        return ""
+    options = {name for names in MULTI_VALUE_OPTIONS.values() for name in names}
+    used = [a.split("=", 1)[0] for a in args if a.split("=", 1)[0] in options]
+    if not used:
+        return ""
+    return (
+        f": {used[-1]} takes every value after it up to the next option, so give the "
+        f"arguments before it (or end its values with --)"
+    )
+
+
 def spread_multi_value_options(args: list[str]) -> list[str]:
     """Rewrite ``--opt A B C`` as ``--opt A --opt B --opt C`` for :data:`MULTI_VALUE_OPTIONS`.
 
@@ -151,7 +165,10 @@ def main() -> None:
         raise SystemExit(exc.exit_code) from None
     except UsageError as exc:
         command = exc.ctx.command_path if exc.ctx is not None else "msarm"
-        print(f"msarm: error: {exc.format_message()} (see '{command} --help')", file=sys.stderr)
+        text = exc.format_message()
+        hint = _greedy_option_hint(text, sys.argv[1:])
+        text = f"{text.rstrip('.')}{hint}" if hint else text
+        print(f"msarm: error: {text} (see '{command} --help')", file=sys.stderr)
         raise SystemExit(exc.exit_code) from None
     except ClickException as exc:
         print(f"msarm: error: {exc.format_message()}", file=sys.stderr)

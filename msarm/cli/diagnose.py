@@ -12,6 +12,7 @@ writes the report (:func:`msarm.diagnose.report.write_report`: ``report.md``, ``
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 from collections.abc import Sequence
@@ -332,7 +333,11 @@ def diagnose_command(
 
     for path in [*logs, *(holdout or [])]:
         check_log_file(path)
-    train, held = split_runs(list(logs), holdout)
+    with warnings.catch_warnings(record=True) as split_caught:
+        warnings.simplefilter("always")
+        train, held = split_runs(list(logs), holdout)
+    for w in split_caught:  # shown now, and kept with the answer below
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if boot < 0:
         raise InputError(f"--boot: expected a number of draws >= 0, got {boot}")
     check_threshold(threshold, "--threshold")  # before the logs are read
@@ -385,6 +390,10 @@ def diagnose_command(
                 "ignore", message="candidates not tried", category=DiagnosisWarning
             )
             result = diagnose(model, train, held, **options)
+        split_said = [str(w.message) for w in split_caught if w.category is DiagnosisWarning]
+        if split_said:  # in diagnosis.json and the report, as the logs' own warnings are
+            said = dict.fromkeys([*split_said, *result.log_warnings])
+            result = dataclasses.replace(result, log_warnings=tuple(said))
         if out is not None:
             from msarm.diagnose.report import write_report
 

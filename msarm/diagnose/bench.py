@@ -298,7 +298,7 @@ def run_diagnosis_benchmark(
             rows.append(done[scenario.name])
             continue
         if progress is not None:
-            progress(f"[{k}/{len(scenarios)}] {scenario.name}: simulating")
+            progress(f"[{k}/{len(scenarios)}] {scenario.name}: simulating (cached runs reused)")
         sim_start = time.perf_counter()
         try:
             train, held = generate_logs(model, scenario, train_tasks, held_tasks, out / "logs")
@@ -412,6 +412,18 @@ def _cached_rows(
         if problem is not None:
             return unusable(problem)
     if previous.get("settings") != settings:
+        old = previous.get("settings")
+        differ = (
+            sorted(k for k in {*old, *settings} if old.get(k) != settings.get(k))
+            if isinstance(old, dict)
+            else ["all"]
+        )
+        warnings.warn(
+            f"{path}: holds the results of other settings ({', '.join(differ)} differ); "
+            "this run's results replace them (each scenario's cached logs are still reused)",
+            BenchCacheWarning,
+            stacklevel=3,
+        )
         return {}
     if previous.get("model_sha256", model_sha256) != model_sha256:
         return {}  # scored against another version of the model

@@ -342,13 +342,19 @@ INDEXED_BY = (None, "joint", "cable")
 def check_interface(effect: CandidateEffect) -> None:
     """Refuse a candidate whose declared interface is malformed (the term named).
 
-    Checks :attr:`~CandidateEffect.indexed_by`, and :meth:`~CandidateEffect.constraints`
-    and :meth:`~CandidateEffect.bounds` of a nonlinear term; a linear term may state no
+    Checks the :attr:`~CandidateEffect.name` (what the answer calls it), the
+    :attr:`~CandidateEffect.indexed_by`, and :meth:`~CandidateEffect.constraints` and
+    :meth:`~CandidateEffect.bounds` of a nonlinear term; a linear term may state no
     constraint, since its least squares cannot keep one.
 
     Raises:
         InputError: What is wrong and what was expected.
     """
+    if not isinstance(effect.name, str) or not effect.name.strip():
+        raise InputError(
+            f"{type(effect).__name__}: a candidate needs a non-empty class attribute 'name' "
+            f"(what the diagnosis calls it), got {effect.name!r}"
+        )
     if effect.indexed_by not in INDEXED_BY:
         raise InputError(
             f"{effect.name}: indexed_by must be 'joint', 'cable' or None (what a bracketed "

@@ -363,7 +363,10 @@ def _resolve(
         out.append(c)
     names = [c.name for c in out]
     if len(set(names)) != len(names):
-        raise InputError(f"candidates: names must be unique, got {names}")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise InputError(
+            f"candidates: names must be unique; {', '.join(map(repr, twice))} given more than once"
+        )
     return out, True
 
 
@@ -525,13 +528,26 @@ def _on_search_edge(term: CandidateEffect, theta: FloatArray, labels: Sequence[s
 
 
 def _check_design(term: CandidateEffect, signals: Signals) -> None:
-    """Refuse a linear term whose design is not ``(T, W, p)`` or not finite (term named)."""
-    design = np.asarray(term.design(signals))
+    """Refuse a linear term whose design is not ``(T, W, p)`` or not finite (term named).
+
+    ``signals`` are a few samples of the logs (the check's, not the fit's): an error in the
+    term's own code is named with the term.
+    """
+    try:
+        design = np.asarray(term.design(signals))
+    except InputError:
+        raise
+    except Exception as exc:  # a user's term: its own error, with the term named
+        raise InputError(
+            f"{term.name}: design() raised {type(exc).__name__}: {exc} (called on the first "
+            f"{signals.n_samples} samples of the logs, to check it)"
+        ) from exc
     expected = (signals.n_samples, term.width(signals), term.n_parameters)
     if design.shape != expected:
         raise InputError(
             f"{term.name}: design() returned shape {design.shape}, expected (T, W, p) = "
-            f"{expected} (samples, the residual columns of its groups, parameters)"
+            f"{expected} (samples, the residual columns of its groups, parameters; checked "
+            f"on the first {signals.n_samples} samples of the logs)"
         )
     if not np.all(np.isfinite(design)):
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(design))[0])
@@ -864,7 +880,11 @@ def load_data(
             raise InputError(f"extra_candidates: expected CandidateEffect instances, got {extra!r}")
     names = [c.name for c in [*pool, *extras]]
     if len(set(names)) != len(names):
-        raise InputError(f"extra_candidates: names must be unique, got {names}")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise InputError(
+            f"extra_candidates: names must be unique; {', '.join(map(repr, twice))} given "
+            "more than once"
+        )
     for candidate in [*pool, *extras]:
         check_interface(candidate)
     train, g_train, train_names = channels_from_logs(model, train_paths, spec)
