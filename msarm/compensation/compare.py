@@ -235,6 +235,11 @@ def compare_feedforward(
     return comparison
 
 
+def _legend_above(ax: plt.Axes, columns: int) -> None:
+    """The legend in one row above the axes, where it hides no bar."""
+    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=columns, frameon=False)
+
+
 def _plot_error_statistics(
     metrics: dict[str, dict[str, TrackingMetrics]],
     tasks: Sequence[str],
@@ -261,7 +266,7 @@ def _plot_error_statistics(
             ax.bar(x + offset, values, width, label=label)
         ax.set_xticks(x, tasks, rotation=30, ha="right")
         ax.set_ylabel(ylabel)
-        ax.legend()
+        _legend_above(ax, len(labels))
     c = np.arange(len(cable_names))
     for offset, label in zip(offsets, labels, strict=True):
         values = np.array([metrics[t][label].cable_length_error_percent for t in tasks])
@@ -270,7 +275,7 @@ def _plot_error_statistics(
         )
     ax_cable.set_xticks(c, cable_names, rotation=30, ha="right")
     ax_cable.set_ylabel("cable length error [% of travel]")
-    ax_cable.set_title("mean ± std over the tasks", fontsize=9)
-    ax_cable.legend()
+    ax_cable.set_xlabel("mean ± std over the tasks", fontsize=9)
+    _legend_above(ax_cable, len(labels))
     fig.suptitle("error statistics without and with feedforward (paper 003 Fig. 9)")
     return plots.save_figure(fig, path)
