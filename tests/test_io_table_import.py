@@ -341,6 +341,14 @@ def test_the_time_unit_and_rate_are_checked_against_the_time_column(arm):
     backwards = {"t": t[::-1] / 1e3, "q.elbow": np.zeros(50)}
     with pytest.raises(LogError, match=r"table: column 't' is not strictly increasing at row 1"):
         log_from_columns(backwards, arm)
+    # named as the file has it: its own time column, in its own unit (was 't' in seconds)
+    in_ms = {"time_ms": t[::-1], "q.elbow": np.zeros(50)}
+    with pytest.raises(
+        LogError,
+        match=r"table: column 'time_ms' is not strictly increasing at row 1 \(time_ms\[0\] = "
+        r"196 ms, time_ms\[1\] = 192 ms",
+    ):
+        log_from_columns(in_ms, arm, time_column="time_ms", time_unit="ms")
 
 
 def test_a_sparse_column_is_skipped_or_left_out_when_empty(arm):

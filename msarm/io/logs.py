@@ -570,13 +570,17 @@ def _checked_columns(
     return out
 
 
-def check_increasing_time(t: FloatArray, source: str, rows: str = "") -> None:
+def check_increasing_time(
+    t: FloatArray, source: str, rows: str = "", name: str = TIME, unit: str = "s"
+) -> None:
     """Refuse sample times that are not strictly increasing, naming the first such row.
 
     Args:
-        t: Sample times [s], shape ``(T,)``.
+        t: Sample times, shape ``(T,)``, in ``unit``.
         source: The log or file, named first in the message.
         rows: How the rows are counted, added to the message (e.g. ``"rows count from 0"``).
+        name: The time column's name in the source (a CSV file's own, say).
+        unit: The times' unit, as the source has them.
 
     Raises:
         LogError: ``t[k] <= t[k - 1]`` for some ``k``; the first such ``k`` and both times
@@ -587,8 +591,9 @@ def check_increasing_time(t: FloatArray, source: str, rows: str = "") -> None:
         row = int(np.argmax(steps <= 0)) + 1
         counted = f"; {rows}" if rows else ""
         raise LogError(
-            f"{source}: column '{TIME}' is not strictly increasing at row {row} "
-            f"(t[{row - 1}] = {float(t[row - 1]):.6g}, t[{row}] = {float(t[row]):.6g}{counted})"
+            f"{source}: column '{name}' is not strictly increasing at row {row} "
+            f"({name}[{row - 1}] = {float(t[row - 1]):.6g} {unit}, {name}[{row}] = "
+            f"{float(t[row]):.6g} {unit}{counted})"
         )
 
 

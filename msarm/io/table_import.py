@@ -195,6 +195,8 @@ def log_from_columns(
             f"the first at row {int(np.argmax(lost))} ({_ROWS}); a sample cannot be placed "
             "without its time (--drop-missing does not leave these out)"
         )
+    # in the file's own column and unit first: the row a user looks for
+    check_increasing_time(raw_time, source, _ROWS, name=time_column, unit=time_unit)
     # from the first sample: an epoch time (1.7e9 s) scaled whole loses its steps' digits
     origin = float(raw_time[0])
     time = (raw_time - origin) * TIME_UNITS[time_unit]
