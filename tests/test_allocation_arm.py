@@ -82,3 +82,21 @@ def test_torques_beyond_the_muscles_are_reported_not_raised(arm, ticks):
     assert np.all(res.f >= f_min) and np.all(res.f <= f_max)
     assert res.residual == pytest.approx(np.linalg.norm(M @ res.f - tau))
     assert res.residual > 1e3
+
+
+def test_the_exact_solvers_break_an_infeasible_problems_ties_alike(arm):
+    """Beyond the muscles, many bounded f are equally close to M f = b; every exact solver
+    gives the one of least objective. The cvxpy reference gave another (its interior point
+    resolved the 1e-8 regularisation only to its tolerance): up to 48 N off, same residual."""
+    weights = 1.0 / np.asarray(arm.muscles.max_isometric_force)
+    allocs = {s: make_allocator(9, 4, s, weights=weights) for s in ("fast", "newton", "cvxpy")}
+    rng = np.random.default_rng(3)
+    for _ in range(13):  # the 13th tied the old reference: 48 N off
+        q = rng.uniform(arm.joint_lower, arm.joint_upper)
+        geometry = arm.geometry(q)
+        f_min, f_max = arm.muscles.force_capacity(geometry.lengths, np.zeros(9))
+        tau = rng.normal(scale=[200.0, 200.0, 100.0, 100.0])
+        answers = {s: a.solve(-geometry.jacobian.T, tau, f_min, f_max) for s, a in allocs.items()}
+        assert not answers["fast"].feasible
+        for name in ("newton", "cvxpy"):
+            np.testing.assert_allclose(answers[name].f, answers["fast"].f, rtol=0, atol=1e-4)
