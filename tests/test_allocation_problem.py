@@ -37,6 +37,7 @@ def allocs():
         ("f_min", "-inf", r"f_min .* must be finite"),
         ("f_min", "above", r"f_min must be <= f_max"),
         ("b", "text", r"b must be an array of real numbers"),
+        ("M", "complex", r"M must be real numbers; got complex values"),
     ],
 )
 def test_bad_input_raises_a_clear_error(allocs, problem, solver, field, value, match):
@@ -47,6 +48,8 @@ def test_bad_input_raises_a_clear_error(allocs, problem, solver, field, value, m
             arr = ["a"] * 6
         elif value == "above":
             arr = problem.f_max + 1.0
+        elif value == "complex":  # the imaginary part was dropped with a mere warning
+            arr = arr * (1.0 + 1.0j)
         else:
             arr[(0,) * arr.ndim] = {"nan": np.nan, "inf": np.inf, "-inf": -np.inf}[value]
     else:

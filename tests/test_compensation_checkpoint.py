@@ -273,3 +273,11 @@ def test_fast_path_refuses_bad_inputs(compensator):
         fast(x, out=np.empty(3))
     with pytest.raises(InputError, match="only supported for one sample"):
         fast(np.zeros((2, D)), out=np.empty(N_OUT))
+    # text, None and complex values: named (a bare numpy error, or the imaginary part dropped)
+    for predict in (fast, fast.predict_batch, compensator.predict):
+        with pytest.raises(InputError, match="x: expected features as real numbers, got 'abc'"):
+            predict("abc")
+        with pytest.raises(InputError, match="x: expected features as real numbers, got None"):
+            predict(None)
+        with pytest.raises(InputError, match="got complex values"):
+            predict(np.zeros((2, D)) + 1j)

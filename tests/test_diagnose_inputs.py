@@ -118,3 +118,25 @@ def test_logs_after_holdout_get_a_hint_when_none_is_left(monkeypatch, capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert "Missing argument 'LOG': --holdout takes every value after it up to the next" in err
+
+
+def test_one_string_for_a_list_and_a_bad_seed_are_refused_up_front(arm, tmp_path):
+    """A single path was iterated letter by letter ("the log(s) ['/', '-', ...] are given
+    more than once"), and a bad seed failed in numpy after the whole selection had run."""
+    from msarm.diagnose.select import diagnose
+
+    log = str(tmp_path / "a.parquet")  # never read: each is refused before
+    held = [str(tmp_path / "b.parquet")]
+    with pytest.raises(InputError, match=r"train_paths \(the training logs\): expected a list"):
+        diagnose(arm, log, held)
+    with pytest.raises(InputError, match=r"holdout_paths .*: expected a list of log files"):
+        diagnose(arm, [log], held[0])
+    with pytest.raises(InputError, match=r"candidates: expected a list of names"):
+        diagnose(arm, [log], held, candidates="elasticity")
+    with pytest.raises(InputError, match=r"groups: expected a list of group names"):
+        diagnose(arm, [log], held, groups="joint")
+    for seed in (-1, 1.5, "abc", True):
+        with pytest.raises(InputError, match=r"seed: expected a whole number >= 0"):
+            diagnose(arm, [log], held, seed=seed)
+    with pytest.raises(InputError, match=r"n_boot: expected a whole number >= 0, got 2\.5"):
+        diagnose(arm, [log], held, n_boot=2.5)

@@ -142,6 +142,10 @@ def test_bad_postures_are_refused(arm):
         arm.geometry(np.zeros(3))
     with pytest.raises(InputError, match="q must be finite"):
         arm.geometry(np.array([0.0, np.nan, 0.0, 0.0]))
+    with pytest.raises(InputError, match=r"q must be an array of real numbers \[rad\], got 'abc'"):
+        arm.geometry("abc")
+    with pytest.raises(InputError, match="q must be real numbers; got complex values"):
+        arm.geometry(np.zeros(4) + 0.1j)
 
 
 def test_positive_spanning_margin_on_known_cases():

@@ -410,3 +410,21 @@ def test_value_differences_name_each_differing_leaf_by_its_path():
     assert value_differences({"k": 1}, {"k": 2}, "spec") == [("spec.k", 1, 2)]
     assert join_differences(["a", "b", "c"], 2) == "a; b; and 1 more"
     assert join_differences(["a", "b"], 2) == "a; b"
+
+
+def test_configs_built_in_python_name_a_word_given_for_a_number():
+    """A bare TypeError or numpy ValueError that did not name the field, before."""
+    from msarm.cdpr import WinchParameters
+    from msarm.compensation.network import NetworkConfig
+    from msarm.control import ArmControllerConfig
+    from msarm.errors import InputError
+
+    cases = (
+        (lambda: ArmControllerConfig(kp="abc"), r"kp must be a list of finite gains >= 0"),
+        (lambda: NetworkConfig(learning_rate="x"), "learning_rate must be a number, got 'x'"),
+        (lambda: WinchParameters(drum_radius="0.02"), "drum_radius must be a number, got '0.02'"),
+        (lambda: WinchParameters(drum_radius=None), "drum_radius must be a number, got None"),
+    )
+    for build, message in cases:
+        with pytest.raises(InputError, match=message):
+            build()

@@ -394,3 +394,14 @@ def test_read_log_never_opens_the_sidecar(tmp_path, monkeypatch):
     assert read_log(log_path) == _log()
     with pytest.raises(LogError, match=r"run\.truth\.parquet: file not found"):
         read_sidecar(log_path)
+
+
+def test_a_channel_name_given_twice_is_refused_not_overwritten():
+    """The second column replaced the first without a word (one channel lost)."""
+    t = np.arange(5) / 100.0
+    values = np.column_stack([np.ones(5), 2.0 * np.ones(5)])
+    with pytest.raises(InputError, match=r"channels\['q'\]: channel names must be unique; 'a'"):
+        logs.columns_from_quantities(t, {"q": (("a", "a"), values)})
+    metadata = LogMetadata(robot_model="arm", model_sha256="0" * 64, sample_rate_hz=100.0)
+    with pytest.raises(InputError, match="'a' given more than once"):
+        RunLog.from_quantities(t, {"q": (("a", "a"), values)}, metadata)

@@ -219,3 +219,11 @@ def test_non_numeric_input_is_rejected():
         active_force_length("long")
     with pytest.raises(ValueError):  # InputError is a ValueError
         force_velocity([0.1, "x"])
+
+
+def test_none_and_complex_are_named_as_such():
+    """None read as NaN ("must be finite; got nan"), complex lost its imaginary part."""
+    with pytest.raises(InputError, match="l_norm must be a real number or array of them; got None"):
+        active_force_length(None)
+    with pytest.raises(InputError, match=r"must be a real number or array of them; got \(1\+1j\)"):
+        active_force_length(1 + 1j)

@@ -264,6 +264,10 @@ def active_set(f: FloatArray, f_min: FloatArray, f_max: FloatArray, tol: float) 
 
 
 def _as_float_array(value: ArrayLike, name: str) -> FloatArray:
+    if np.iscomplexobj(value):  # numpy would drop the imaginary part with a mere warning
+        raise InputError(
+            f"{name} must be real numbers; got complex values, whose imaginary part would be lost"
+        )
     try:
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as err:

@@ -48,6 +48,7 @@ torque's following error away).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +88,10 @@ class WinchParameters:
     following_error: FollowingErrorModel = PAPER_000_FOLLOWING_ERROR
 
     def __post_init__(self) -> None:
+        for name in ("drum_radius", "drum_inertia"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise InputError(f"{name} must be a number, got {value!r}")
         if not (math.isfinite(self.drum_radius) and self.drum_radius > 0.0):
             raise InputError(f"drum_radius must be finite and > 0 m, got {self.drum_radius}")
         if not (math.isfinite(self.drum_inertia) and self.drum_inertia >= 0.0):

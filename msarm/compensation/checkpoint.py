@@ -38,6 +38,7 @@ from msarm.compensation.network import (
     Normalizer,
     _atomic_torch_save,
     _plain_copy,
+    as_feature_array,
     build_mlp,
     check_finite,
 )
@@ -190,7 +191,7 @@ class Compensator:
         Raises:
             InputError: Wrong shape, or a NaN/inf (row and column named).
         """
-        array = np.asarray(x, dtype=np.float64)
+        array = as_feature_array(x)
         if array.ndim not in (1, 2) or array.shape[-1] != self.input_dim:
             raise InputError(
                 f"Compensator.predict expects shape ({self.input_dim},) or (N, "

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.compensation.checkpoint import Compensator
-from msarm.compensation.network import check_finite
+from msarm.compensation.network import as_feature_array, check_finite
 from msarm.errors import InputError
 
 __all__ = ["FastCompensator"]
@@ -140,7 +140,7 @@ class FastCompensator:
             InputError: ``x`` is not of shape ``(N, d)``, or holds a NaN or inf (row and
                 column named).
         """
-        array = np.asarray(x, dtype=np.float64)
+        array = as_feature_array(x)
         if array.ndim != 2 or array.shape[1] != self.input_dim:
             raise InputError(
                 f"FastCompensator.predict_batch expects shape (N, {self.input_dim}), "
@@ -158,7 +158,7 @@ class FastCompensator:
 
     def _general(self, x: ArrayLike, out: FloatArray | None) -> FloatArray:
         """Slow path: convert, check the shape, and evaluate one sample or a batch."""
-        array = np.asarray(x, dtype=np.float64)
+        array = as_feature_array(x)
         if array.ndim == 2:
             if out is not None:
                 raise InputError("FastCompensator: out is only supported for one sample (d,)")

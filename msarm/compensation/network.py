@@ -35,6 +35,7 @@ import copy
 import dataclasses
 import hashlib
 import math
+import numbers
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -115,22 +116,26 @@ class NetworkConfig:
         object.__setattr__(self, "hidden", hidden)
         for i, width in enumerate(hidden):
             if isinstance(width, bool) or not isinstance(width, int) or width < 1:
-                raise ValueError(f"hidden[{i}] must be a positive integer, got {width!r}")
+                raise InputError(f"hidden[{i}] must be a positive integer, got {width!r}")
         if self.activation not in ACTIVATIONS:
-            raise ValueError(
+            raise InputError(
                 f"activation must be one of {', '.join(map(repr, ACTIVATIONS))}, "
                 f"got {self.activation!r}"
             )
+        for name in ("learning_rate", "weight_decay"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise InputError(f"{name} must be a number, got {value!r}")
         if not (math.isfinite(self.learning_rate) and self.learning_rate > 0):
-            raise ValueError(f"learning_rate must be > 0, got {self.learning_rate!r}")
+            raise InputError(f"learning_rate must be > 0, got {self.learning_rate!r}")
         if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0):
-            raise ValueError(f"weight_decay must be >= 0, got {self.weight_decay!r}")
+            raise InputError(f"weight_decay must be >= 0, got {self.weight_decay!r}")
         for name in ("batch_size", "max_epochs", "patience", "threads"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+                raise InputError(f"{name} must be a positive integer, got {value!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+            raise InputError(f"seed must be a non-negative integer, got {self.seed!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -323,6 +328,30 @@ def build_mlp(d: int, n: int, config: NetworkConfig) -> torch.nn.Sequential:
         if i < len(widths) - 2:
             layers.append(ACTIVATIONS[config.activation]())
     return torch.nn.Sequential(*layers)
+
+
+def as_feature_array(x: ArrayLike) -> FloatArray:
+    """Features as float64, or an InputError for values that are not real numbers.
+
+    Args:
+        x: Features, any shape.
+
+    Returns:
+        ``x`` as a float64 array (no copy when it already is one).
+
+    Raises:
+        InputError: ``x`` holds text, None, or complex values (whose imaginary part would be
+            lost).
+    """
+    if x is None:
+        raise InputError("x: expected features as real numbers, got None")
+    complex_values = x.dtype.kind == "c" if isinstance(x, np.ndarray) else np.iscomplexobj(x)
+    if complex_values:
+        raise InputError("x: expected features as real numbers, got complex values")
+    try:
+        return np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"x: expected features as real numbers, got {x!r}") from None
 
 
 def check_finite(

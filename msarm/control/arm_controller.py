@@ -115,9 +115,12 @@ class ArmControllerConfig:
                 f"{self.velocity_cutoff_hz:g}"
             )
         for name in ("kp", "ki", "kd"):
-            gains = np.asarray(getattr(self, name), dtype=float)
+            try:
+                gains = np.asarray(getattr(self, name), dtype=float)
+            except (TypeError, ValueError):
+                gains = np.full(1, np.nan)  # named below, with what was given
             if gains.ndim != 1 or not np.all(np.isfinite(gains) & (gains >= 0)):
-                raise ValueError(
+                raise InputError(
                     f"{name} must be a list of finite gains >= 0 (one per joint), got "
                     f"{getattr(self, name)!r}"
                 )

@@ -336,6 +336,26 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     return out
 
 
+def _not_one_string(value: Any, name: str, what: str) -> None:
+    """Refuse a single string or path where a sequence of them is expected (InputError).
+
+    Iterated, ``"run1.parquet"`` would be its letters, ``"joint"`` the groups j, o, i, n, t.
+    """
+    if isinstance(value, str | Path):
+        raise InputError(f"{name}: expected a list of {what}, got the single {value!r}; give [it]")
+
+
+def check_seed_and_draws(seed: Any, n_boot: Any) -> None:
+    """Refuse a bootstrap seed or draw count that is not a whole number ``>= 0`` (InputError).
+
+    Checked before the logs are read: the bootstrap comes last, after the whole selection.
+    """
+    for name, value in (("seed", seed), ("n_boot", n_boot)):
+        whole = isinstance(value, int | np.integer) and not isinstance(value, bool)
+        if not (whole and value >= 0):
+            raise InputError(f"{name}: expected a whole number >= 0, got {value!r}")
+
+
 def _resolve(
     model: RobotModel,
     candidates: Sequence[CandidateEffect | str] | None,
@@ -344,6 +364,7 @@ def _resolve(
     """The candidates to try, and whether the user named them (else the defaults)."""
     if candidates is None:
         return list(default_candidates(model, spec).values()), False
+    _not_one_string(candidates, "candidates", "names or CandidateEffect instances")
     every = available_candidates(model, spec)
     out: list[CandidateEffect] = []
     for c in candidates:
@@ -751,6 +772,7 @@ def diagnose(
             variance on both training and held-out runs.
         LogError: A log that cannot be diagnosed (file named).
     """
+    check_seed_and_draws(seed, n_boot)
     if progress is not None:
         progress(f"reading {len(train_paths) + len(holdout_paths)} log(s)")
     caught: list[warnings.WarningMessage] = []
@@ -839,6 +861,10 @@ def load_data(
         InputError: See :func:`diagnose`.
         LogError: A log that cannot be diagnosed (file named).
     """
+    _not_one_string(train_paths, "train_paths (the training logs)", "log files")
+    _not_one_string(holdout_paths, "holdout_paths (the held-out logs, --holdout)", "log files")
+    if groups is not None:
+        _not_one_string(groups, "groups", f"group names ({', '.join(GROUPS)})")
     if not train_paths:
         raise InputError(
             "train_paths (the training logs): none given; the terms need runs to be fitted on"
@@ -1006,6 +1032,7 @@ def select_effects(
     if shortlist is not None and (int(shortlist) != shortlist or shortlist < 1):
         raise InputError(f"shortlist: expected None or an integer >= 1, got {shortlist}")
     threshold = check_threshold(threshold)
+    check_seed_and_draws(seed, n_boot)
     hold, layout = data.hold, data.layout
     r_hold = data.r_hold
     sampled = Sampled(data, int(max_samples), max_hold=int(max_score_samples))

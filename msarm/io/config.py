@@ -37,7 +37,7 @@ from typing import Any, TypeVar
 import numpy as np
 import yaml
 
-from msarm.errors import ConfigError
+from msarm.errors import ConfigError, InputError
 from msarm.io.atomic import write_bytes_atomic
 
 __all__ = [
@@ -75,7 +75,7 @@ def check_numbers(
         finite: Fields that must be finite.
 
     Raises:
-        ValueError: The first offending field, named with what was expected (a config file's
+        InputError: The first offending field, named with what was expected (a config file's
             loader adds the file and the key).
     """
     for names, ok, expected in (
@@ -86,9 +86,9 @@ def check_numbers(
         for name in names:
             value = getattr(config, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise ValueError(f"{name} must be a number, got {value!r}")
+                raise InputError(f"{name} must be a number, got {value!r}")
             if not (math.isfinite(value) and ok(value)):
-                raise ValueError(f"{name} must be {expected}, got {value}")
+                raise InputError(f"{name} must be {expected}, got {value}")
 
 
 def folder_instead_of_file(path: str | Path, expected: str) -> str | None:

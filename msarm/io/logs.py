@@ -506,6 +506,9 @@ def columns_from_quantities(
     Returns:
         ``t`` then ``<quantity>.<name>`` for each quantity's channels in the order given, each
         a contiguous float64 array of shape ``(T,)``.
+
+    Raises:
+        InputError: Values of the wrong shape, or a channel name given twice.
     """
     columns: dict[str, FloatArray] = {TIME: np.array(t, dtype=np.float64)}
     for quantity, (names, values) in channels.items():
@@ -514,6 +517,12 @@ def columns_from_quantities(
             raise InputError(
                 f"channels[{quantity!r}]: values must have shape (T, {len(names)}) for the "
                 f"{len(names)} names, got {values.shape}"
+            )
+        twice = sorted({str(n) for n in names if list(names).count(n) > 1})
+        if twice:  # the second column would replace the first
+            raise InputError(
+                f"channels[{quantity!r}]: channel names must be unique; "
+                f"{', '.join(map(repr, twice))} given more than once"
             )
         for j, name in enumerate(names):
             columns[f"{quantity}.{name}"] = np.ascontiguousarray(values[:, j])

@@ -105,6 +105,8 @@ def _checked_array(value: ArrayLike, name: str) -> FloatArray:
     Raises:
         InputError: If ``value`` is not numeric or holds a NaN or an infinity.
     """
+    if value is None or np.iscomplexobj(value):  # None would read as NaN, complex lose a part
+        raise InputError(f"{name} must be a real number or array of them; got {value!r}")
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -82,7 +82,14 @@ class CableGeometry:
 def _checked_vector(value: ArrayLike | None, size: int, name: str) -> NDArray[np.float64]:
     if value is None:
         return np.zeros(size)
-    array = np.asarray(value, dtype=float)
+    if np.iscomplexobj(value):  # numpy would drop the imaginary part with a mere warning
+        raise InputError(
+            f"{name} must be real numbers; got complex values, whose imaginary part would be lost"
+        )
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be an array of real numbers [rad], got {value!r}") from None
     if array.shape != (size,):
         raise InputError(f"{name} must have shape ({size},), got {array.shape}")
     if not np.all(np.isfinite(array)):
