@@ -260,3 +260,31 @@ def test_an_out_folder_made_for_a_refused_command_is_not_left_behind(monkeypatch
     kept.mkdir()
     refused(kept)
     assert kept.is_dir()
+
+
+def test_a_plant_named_like_a_run_folders_suffix_is_refused(monkeypatch, capsys, tmp_path):
+    """A plant file default-s3.yaml wrote into the default plant's seed-3 folder."""
+    plant = tmp_path / "default-s3.yaml"
+    plant.write_text("effects:\n  sheath_friction:\n    enabled: false\n")
+    line = _error(monkeypatch, capsys, "track", "--plant", str(plant))
+    assert "the file's plant is named 'default-s3', which ends like a run folder's suffix" in line
+    named = tmp_path / "mine.yaml"
+    named.write_text("name: mine-ff\n")
+    line = _error(monkeypatch, capsys, "cdpr", "run", "--plant", str(named))
+    assert "named 'mine-ff', which ends like a run folder's suffix (-ff:" in line
+
+
+def test_bench_sim_names_an_odd_plant_step_and_a_diverging_plant(monkeypatch, capsys, tmp_path):
+    """The step was refused without its file; a diverging plant was reported at the end of
+    a 20 s timed call (t = 20 s, a wrong state) instead of where it diverged."""
+    odd = tmp_path / "odd.yaml"
+    odd.write_text("timestep: 0.0003\n")
+    line = _error(monkeypatch, capsys, "bench", "sim", "--plant", str(odd))
+    assert f"{odd}: the plant's timestep 0.0003 s does not divide the control period" in line
+    stiff = tmp_path / "stiff.yaml"
+    stiff.write_text("effects:\n  elasticity:\n    stiffness: 1.0e9\n    damping: 0\n")
+    line = _error(monkeypatch, capsys, "bench", "sim", "--plant", str(stiff), "--best-of", "1")
+    assert (
+        "plant 'stiff': the closed loop diverges on table1-1 (simulation diverged at t = 0.0"
+        in (line)
+    )

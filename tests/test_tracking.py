@@ -74,6 +74,22 @@ def test_a_run_cut_off_in_an_old_run_s_folder_is_not_taken_for_whole(arm, tmp_pa
     assert not reusable_run(tmp_path, settings(seed=4), arm.sha256)
 
 
+def test_a_run_in_an_old_run_s_folder_leaves_none_of_its_plots(arm, tmp_path):
+    """A run too short to plot (diverged at once) left the old run's plots beside its log;
+    and metrics.json, which marks a whole run, is now written after the plots."""
+    from msarm.plant.config import ElasticityConfig
+
+    track(arm, SHORT, settings(seed=3), tmp_path)
+    assert (tmp_path / "joints.png").is_file() and (tmp_path / "tensions.png").is_file()
+    stiff = DEFAULT_PLANT.effects
+    stiff = replace(stiff, elasticity=ElasticityConfig(stiffness=1.0e13, damping=0.0))
+    broken = replace(DEFAULT_PLANT, name="stiff", effects=stiff)
+    result = track(arm, SHORT, settings(broken), tmp_path)
+    assert result.run.error is not None and len(result.run.columns["t"]) <= 1
+    assert not (tmp_path / "joints.png").exists() and not (tmp_path / "tensions.png").exists()
+    assert list(track(arm, SHORT, settings(seed=3), tmp_path).files)[-1] == "metrics"
+
+
 def test_log_round_trips_and_holds_no_ground_truth(arm, tmp_path):
     result = track(arm, SHORT, settings(seed=1), tmp_path, plots_too=False)
     log = read_log(result.files["log"])

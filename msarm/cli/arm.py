@@ -79,7 +79,10 @@ def show_arm(model: RobotModel, out: Path | None, console: Console | None = None
     """
     from msarm import plots
 
-    console = console or Console()
+    if console is None:
+        from msarm.cli.common import console as wide_when_piped
+
+        console = wide_when_piped()  # 80 columns cut the cable names when piped
     console.print(joints_table(model))
     console.print(hill_table(model))
     console.print(geometry_table(model, np.zeros(model.n_joints)))

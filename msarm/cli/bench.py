@@ -114,18 +114,28 @@ def sim(
     from rich.markup import escape
     from rich.table import Table
 
-    from msarm.cli.common import console, resolve_plant
+    from msarm.cli.common import PLANTS, check_control_period, console, resolve_plant
     from msarm.model import load_arm
     from msarm.tasks.bench import TARGET_REAL_TIME_FACTOR, run_sim_benchmark
 
     arm = load_arm()
+    plant_config = resolve_plant(plant)
+    plant_file = None if plant in PLANTS else plant
+    from msarm.control import ArmControllerConfig
+
+    # the plain loop runs the default gains: its control period against the plant's step
+    rate_source = "ArmControllerConfig's default rate_hz"
+    check_control_period(ArmControllerConfig(), plant_config, rate_source, plant_file)
     feedforward = None
     if ff is not None:
         from msarm.compensation.feedforward import load_feedforward, trained_controller
 
         compensation = load_feedforward(ff, arm)
-        feedforward = (compensation, trained_controller(compensation.compensator, str(ff)))
-    result = run_sim_benchmark(arm, resolve_plant(plant), task, repeats, feedforward)
+        gains = trained_controller(compensation.compensator, str(ff))
+        rate_source = f"the gains recorded in {ff}: rate_hz"
+        check_control_period(gains, plant_config, rate_source, plant_file)
+        feedforward = (compensation, gains)
+    result = run_sim_benchmark(arm, plant_config, task, repeats, feedforward)
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))
         return

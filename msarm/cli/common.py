@@ -38,7 +38,9 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
     be given back as it was recorded. A file without a ``name`` key is named after the file
     (its stem), so that its runs are not labelled, nor stored, as a preset's; a file whose
     ``name`` is a preset's is refused for the same reason, unless its config is that preset's
-    exactly (then it is the preset).
+    exactly (then it is the preset), and so is a name that ends like a run folder's suffix
+    (``-s<seed>``, ``-ff``: a plant ``default-s3`` would write into the default plant's
+    seed-3 folder).
 
     Raises:
         InputError: ``spec`` is neither a preset nor an existing file (a folder is said to
@@ -73,6 +75,14 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
                 ) from None
         if config.name in presets and config == presets[config.name]:
             return presets[config.name]  # the preset itself, written out (e.g. by a run)
+        suffix = re.fullmatch(r".+(-s\d+|-ff)", config.name)
+        if suffix:  # the run folder names' own suffixes: default-s3 is default's seed-3 folder
+            raise InputError(
+                f"{spec}: the file's {what} is named {config.name!r}, which ends like a run "
+                f"folder's suffix ({suffix.group(1)}: -s<seed> for a seed, -ff with a "
+                "compensator), so its runs could overwrite another plant's; expected another "
+                "name (give the file a 'name' key or rename the file)"
+            )
         if config.name in presets:
             raise InputError(
                 f"{spec}: the file's {what} is named {config.name!r}, the name of a preset (its "

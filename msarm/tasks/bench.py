@@ -29,6 +29,7 @@ import mujoco
 import numpy as np
 
 from msarm.control import ArmControllerConfig, MuscleSpaceController
+from msarm.errors import InputError
 from msarm.model import RobotModel
 from msarm.plant import ArmPlant, PlantConfig
 from msarm.tasks.compiled_loop import compiled_loop_supported
@@ -123,6 +124,9 @@ def run_sim_benchmark(
 
     Returns:
         The timings.
+
+    Raises:
+        InputError: The plant's closed loop diverges on the task (nothing to time).
     """
     task = get_task(task_name, model)
     steps = int(round(task.duration / plant_config.timestep))
@@ -139,7 +143,13 @@ def run_sim_benchmark(
 
     plant = ArmPlant(model, plant_config, seed=0)
     controller = MuscleSpaceController(model)
-    run_tracking(plant, controller, task)  # warm-up: compiles the kernels
+    warm_up = run_tracking(plant, controller, task)  # compiles the kernels
+    if warm_up.error is not None:  # timed calls would report it at their end, misleadingly
+        raise InputError(
+            f"plant {plant_config.name!r}: the closed loop diverges on {task.name} "
+            f"({warm_up.error}); the benchmark times runs that finish (msarm track --task "
+            f"{task.name} --plant ... shows the run up to there)"
+        )
 
     def plant_only() -> None:
         plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))

@@ -73,6 +73,10 @@ class TrackResult:
     files: dict[str, Path]
 
 
+#: The plots a run writes (and a new run in its folder removes first).
+PLOT_FILES = ("joints.png", "tensions.png")
+
+
 def track(
     model: RobotModel,
     task: Task,
@@ -115,8 +119,10 @@ def track(
     out_dir.mkdir(parents=True, exist_ok=True)
     # metrics.json is written last and marks a whole run (msarm compare and msarm train reuse
     # such runs): an older run's must go before this run's files replace the others, or a run
-    # cut off between them would pair this log with that run's metrics
-    (out_dir / "metrics.json").unlink(missing_ok=True)
+    # cut off between them would pair this log with that run's metrics; so must its plots,
+    # which a run too short to plot would otherwise leave beside this one's log
+    for name in ("metrics.json", *PLOT_FILES):
+        (out_dir / name).unlink(missing_ok=True)
     metadata = LogMetadata.for_model(
         model,
         sample_rate_hz=run.control_rate_hz,
@@ -133,7 +139,6 @@ def track(
     payload["code"] = code_fingerprint("simulation")
     if run.error is not None:
         payload["diverged"] = {"time": run.error.time, "message": str(run.error)}
-    files["metrics"] = write_json_atomic(out_dir / "metrics.json", payload)
     if plots_too and len(run.columns["t"]) > 1:
         title = f"{task.name} on the {settings.plant.name} plant"
         files["joints_plot"] = plots.plot_joint_tracking(
@@ -147,4 +152,5 @@ def track(
             upper=np.asarray(model.muscles.max_isometric_force),
             title=title,
         )
+    files["metrics"] = write_json_atomic(out_dir / "metrics.json", payload)
     return TrackResult(run, metrics, files)
