@@ -158,6 +158,8 @@ def test_unknown_task_lists_the_valid_ones(arm):
         get_task("random-3")
     with pytest.raises(InputError, match="valid tasks"):
         get_task("random-x", arm)
+    with pytest.raises(InputError, match="unknown task 'random-\u0663'"):  # Arabic-Indic 3
+        get_task("random-\u0663", arm)  # int() reads it: the answer was "write random-3"
 
 
 @pytest.mark.parametrize(

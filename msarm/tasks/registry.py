@@ -52,8 +52,8 @@ TABLE1_WAIT = 0.5
 #: Duration of the minimum-jerk move to the target [s].
 TABLE1_MOVE_TIME = 2.0
 
-_RANDOM_RE = re.compile(r"^random-(\d+)$")
-_TABLE1_RE = re.compile(r"^table1-(\d+)$")
+_RANDOM_RE = re.compile(r"^random-([0-9]+)$")  # ASCII digits: int() reads others too
+_TABLE1_RE = re.compile(r"^table1-([0-9]+)$")
 
 
 class _HasJointLimits(Protocol):
