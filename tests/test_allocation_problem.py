@@ -196,3 +196,13 @@ def test_swapped_bounds_are_refused_by_every_solver(solver, zero_b):
 def test_a_tolerance_that_is_not_a_number_is_named():
     with pytest.raises(InputError, match="tol must be a number"):
         make_allocator(9, 4, "newton", tol="x")
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_complex_reference_is_refused(problem, solver):
+    """Per tick and in the spec, f_ref's imaginary part was dropped with a mere warning."""
+    args = (problem.M, problem.b, problem.f_min, problem.f_max)
+    with pytest.raises(InputError, match=r"f_ref must be real forces \[N\]; got complex values"):
+        make_allocator(8, 6, solver).solve(*args, f_ref=np.ones(8) * (1 + 1j))
+    with pytest.raises(InputError, match="f_ref must be real numbers; got complex values"):
+        make_allocator(8, 6, solver, f_ref=np.ones(8) * (1 + 1j))

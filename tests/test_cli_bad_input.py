@@ -272,6 +272,10 @@ def test_a_plant_named_like_a_run_folders_suffix_is_refused(monkeypatch, capsys,
     named.write_text("name: mine-ff\n")
     line = _error(monkeypatch, capsys, "cdpr", "run", "--plant", str(named))
     assert "named 'mine-ff', which ends like a run folder's suffix (-ff:" in line
+    bare = tmp_path / "s3.yaml"  # the cable robot's default plant leaves its name out
+    bare.write_text("drive: {default_mode: p}\n")
+    line = _error(monkeypatch, capsys, "cdpr", "run", "--plant", str(bare))
+    assert "named 's3', which ends like a run folder's suffix (s3:" in line
 
 
 def test_bench_sim_names_an_odd_plant_step_and_a_diverging_plant(monkeypatch, capsys, tmp_path):

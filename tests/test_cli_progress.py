@@ -43,7 +43,7 @@ def test_bench_diagnose_json_keeps_its_progress_on_stderr(monkeypatch, tmp_path)
     import msarm.diagnose.bench as bench_module
 
     def fake(model, out, settings, progress=None, rescore=False):
-        progress("[1/2] null-0: simulating (cached runs reused)")
+        progress("[1/2] null-0: simulating (or reusing cached runs)")
         progress("[1/2] null-0: diagnosing")
         return {"scenarios": [], "summary": {}}
 
@@ -52,7 +52,7 @@ def test_bench_diagnose_json_keeps_its_progress_on_stderr(monkeypatch, tmp_path)
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout) == {"scenarios": [], "summary": {}}
     assert result.stderr.splitlines() == [
-        "bench diagnose [1]: [1/2] null-0: simulating (cached runs reused)",
+        "bench diagnose [1]: [1/2] null-0: simulating (or reusing cached runs)",
         "bench diagnose [2]: [1/2] null-0: diagnosing",
     ]
 

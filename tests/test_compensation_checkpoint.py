@@ -281,3 +281,5 @@ def test_fast_path_refuses_bad_inputs(compensator):
             predict(None)
         with pytest.raises(InputError, match="got complex values"):
             predict(np.zeros((2, D)) + 1j)
+    with pytest.raises(InputError, match="got complex values"):  # one sample: the fast path's
+        fast(np.zeros(D) + 1j)

@@ -118,6 +118,12 @@ def test_logs_after_holdout_get_a_hint_when_none_is_left(monkeypatch, capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert "Missing argument 'LOG': --holdout takes every value after it up to the next" in err
+    # no hint where the option took no log: one value, or a names option (it stops at a path)
+    for args in (["--holdout", "h"], ["--candidates", "coulomb"]):
+        monkeypatch.setattr("sys.argv", ["msarm", "diagnose", *args])
+        with pytest.raises(SystemExit):
+            main()
+        assert "takes every value" not in capsys.readouterr().err, args
 
 
 def test_one_string_for_a_list_and_a_bad_seed_are_refused_up_front(arm, tmp_path):
@@ -140,3 +146,20 @@ def test_one_string_for_a_list_and_a_bad_seed_are_refused_up_front(arm, tmp_path
             diagnose(arm, [log], held, seed=seed)
     with pytest.raises(InputError, match=r"n_boot: expected a whole number >= 0, got 2\.5"):
         diagnose(arm, [log], held, n_boot=2.5)
+    from msarm.diagnose.effects import CoulombFriction
+
+    lone = CoulombFriction(n_joints=4)
+    with pytest.raises(InputError, match=r"extra_candidates: expected a list of CandidateEffect"):
+        diagnose(arm, [log], held, extra_candidates=lone)
+    with pytest.raises(InputError, match=r"candidates: expected a list of names"):
+        diagnose(arm, [log], held, candidates=lone)
+
+    class Nameless(CoulombFriction):
+        name = ""
+
+    class Listed(CoulombFriction):
+        name = ["a"]  # unhashable: a bare TypeError in the uniqueness check before
+
+    for bad in ([Nameless(n_joints=4), Nameless(n_joints=4)], [Listed(n_joints=4)]):
+        with pytest.raises(InputError, match="a candidate needs a non-empty class attribute"):
+            diagnose(arm, [log], held, candidates=["coulomb"], extra_candidates=bad)

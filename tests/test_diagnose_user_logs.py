@@ -436,6 +436,18 @@ def test_a_user_candidate_with_a_bad_design_is_named(logs, arm):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[Broken()])
 
 
+def test_a_bug_in_an_msarm_term_keeps_its_traceback(logs, arm, monkeypatch):
+    """Only a user's term's error is turned into "not tried": msarm's own would otherwise
+    skip the term quietly (the CLI hides that warning behind its table)."""
+
+    def broken(self, signals):
+        raise IndexError("an msarm bug")
+
+    monkeypatch.setattr(CoulombFriction, "design", broken)
+    with pytest.raises(IndexError, match="an msarm bug"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb", "viscous"])
+
+
 class _Ordered(_Offset):
     name = "test_ordered"
 

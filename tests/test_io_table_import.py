@@ -346,9 +346,14 @@ def test_the_time_unit_and_rate_are_checked_against_the_time_column(arm):
     with pytest.raises(
         LogError,
         match=r"table: column 'time_ms' is not strictly increasing at row 1 \(time_ms\[0\] = "
-        r"196 ms, time_ms\[1\] = 192 ms",
+        r"196.0 ms, time_ms\[1\] = 192.0 ms: a step of -4 ms",
     ):
         log_from_columns(in_ms, arm, time_column="time_ms", time_unit="ms")
+    # an epoch time's step is in its last digits: each time is given whole
+    epoch = 1.7e9 + 0.004 * np.arange(50)
+    epoch[[10, 11]] = epoch[[11, 10]]
+    with pytest.raises(LogError, match=r"t\[10\] = 1700000000\.044 s, t\[11\] = 1700000000\.04 s"):
+        log_from_columns({"t": epoch, "q.elbow": np.zeros(50)}, arm)
 
 
 def test_a_sparse_column_is_skipped_or_left_out_when_empty(arm):

@@ -124,7 +124,7 @@ class AllocationSpec:
         if weights is None:
             w = np.ones(m)
         else:
-            w = np.array(weights, dtype=np.float64)
+            w = np.array(_as_float_array(weights, "weights"))
             if w.shape != (m,):
                 raise InputError(f"weights must have shape ({m},) [1/N], got {w.shape}")
             if not np.all(np.isfinite(w)) or np.any(w <= 0.0):
@@ -138,7 +138,7 @@ class AllocationSpec:
                 raise InputError(f"f_ref must be None, 'midpoint' or an array, got {f_ref!r}")
             mode, ref = "midpoint", np.zeros(m)
         else:
-            ref = np.array(f_ref, dtype=np.float64)
+            ref = np.array(_as_float_array(f_ref, "f_ref"))
             if ref.shape != (m,):
                 raise InputError(f"f_ref must have shape ({m},) [N], got {ref.shape}")
             if not np.all(np.isfinite(ref)):

@@ -51,11 +51,21 @@ def _greedy_option_hint(message: str, args: list[str]) -> str:
     if not message.startswith("Missing argument"):
         return ""
     options = {name for names in MULTI_VALUE_OPTIONS.values() for name in names}
-    used = [a.split("=", 1)[0] for a in args if a.split("=", 1)[0] in options]
-    if not used:
+    options -= set(NAME_OPTIONS)  # those stop at the first value that is not a name
+    greedy = ""
+    for k, arg in enumerate(args):
+        if arg in options:
+            taken = 0
+            for value in args[k + 1 :]:
+                if value == "--" or value.startswith("-"):
+                    break
+                taken += 1
+            if taken >= 2:  # it took values that were meant as the arguments
+                greedy = arg
+    if not greedy:
         return ""
     return (
-        f": {used[-1]} takes every value after it up to the next option, so give the "
+        f": {greedy} takes every value after it up to the next option, so give the "
         f"arguments before it (or end its values with --)"
     )
 

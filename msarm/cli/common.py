@@ -75,11 +75,13 @@ def resolve_config(spec: str, presets: dict[str, T], cls: type[T], what: str) ->
                 ) from None
         if config.name in presets and config == presets[config.name]:
             return presets[config.name]  # the preset itself, written out (e.g. by a run)
-        suffix = re.fullmatch(r".+(-s\d+|-ff)", config.name)
+        # a bare s<digits> too: the cable robot's default plant leaves its name out
+        suffix = re.fullmatch(r"(?:.+-)?(s\d+)|.+(-ff)", config.name)
         if suffix:  # the run folder names' own suffixes: default-s3 is default's seed-3 folder
+            ending = suffix.group(1) or suffix.group(2)
             raise InputError(
                 f"{spec}: the file's {what} is named {config.name!r}, which ends like a run "
-                f"folder's suffix ({suffix.group(1)}: -s<seed> for a seed, -ff with a "
+                f"folder's suffix ({ending}: -s<seed> for a seed, -ff with a "
                 "compensator), so its runs could overwrite another plant's; expected another "
                 "name (give the file a 'name' key or rename the file)"
             )

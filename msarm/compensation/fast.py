@@ -103,7 +103,12 @@ class FastCompensator:
         Raises:
             InputError: Wrong shape, or a NaN or inf in ``x`` (column named).
         """
-        if type(x) is not np.ndarray or x.ndim != 1 or x.shape[0] != self.input_dim:
+        if (
+            type(x) is not np.ndarray
+            or x.ndim != 1
+            or x.shape[0] != self.input_dim
+            or x.dtype != np.float64
+        ):
             return self._general(x, out)
         h = x
         for weight, bias, buffer in self._hidden:

@@ -298,7 +298,7 @@ def run_diagnosis_benchmark(
             rows.append(done[scenario.name])
             continue
         if progress is not None:
-            progress(f"[{k}/{len(scenarios)}] {scenario.name}: simulating (cached runs reused)")
+            progress(f"[{k}/{len(scenarios)}] {scenario.name}: simulating (or reusing cached runs)")
         sim_start = time.perf_counter()
         try:
             train, held = generate_logs(model, scenario, train_tasks, held_tasks, out / "logs")

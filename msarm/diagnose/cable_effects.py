@@ -172,6 +172,10 @@ class DriveCogging(CandidateEffect):
         self.channels = tuple(range(self.n_cables))
         self.parameter_names = _names(("cogging_a", "cogging_b"), self.shared, self.n_cables)
 
+    def parameter_groups(self) -> tuple[tuple[int, ...], ...]:
+        """None: the sine and cosine parts make one amplitude and phase together."""
+        return ()
+
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_cables(signals, self.n_cables)
         # the motor speed is there exactly when every log has its motor angles (else they
@@ -236,6 +240,10 @@ class CommandDelay(CandidateEffect):
                 past = np.concatenate([np.repeat(run[:1], min(j, len(run)), axis=0), run[:-j]])
                 out[index, :, j - 1] = past[: len(run)] - run
         return out
+
+    def parameter_groups(self) -> tuple[tuple[int, ...], ...]:
+        """Each tap alone, the last first: a delay the logs do not need is left out tap by tap."""
+        return tuple((j,) for j in reversed(range(self.taps)))
 
     def delay(self, theta: Sequence[float], dt: float) -> float:
         """The delay ``d = dt sum_j j w_j`` [s] of fitted weights (sample period ``dt`` [s])."""

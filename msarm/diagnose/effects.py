@@ -418,6 +418,27 @@ class CandidateEffect(ABC):
         """
         return None
 
+    def parameter_groups(self) -> tuple[tuple[int, ...], ...]:
+        """Sets of a linear term's parameters the diagnosis may leave out, each as a whole.
+
+        After the selection, the diagnosis fixes a set at zero when the held-out runs do not
+        need it (see ``msarm.diagnose.select.PRUNE_TOLERANCE``): a load cell's scale error
+        beside its bias, a delay kernel's later taps. Default: one set per parameter kind
+        (:func:`parameter_kind`; every joint's or cable's together) when the term has two
+        kinds or more, else none (the term is all or nothing). A term whose parameters only
+        mean something together (a cogging's sine and cosine) returns ``()``.
+
+        Returns:
+            Index tuples into :attr:`parameter_names`, tried in this order.
+        """
+        kinds = list(dict.fromkeys(parameter_kind(p) for p in self.parameter_names))
+        if not self.linear or len(kinds) < 2:
+            return ()
+        return tuple(
+            tuple(k for k, p in enumerate(self.parameter_names) if parameter_kind(p) == kind)
+            for kind in kinds
+        )
+
     def restricted(self, groups: Sequence[str]) -> CandidateEffect | None:
         """The same effect predicting only ``groups`` (a subset of its own), if it can.
 
@@ -457,6 +478,77 @@ class CandidateEffect(ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(p={self.n_parameters}, channels={self.channels})"
+
+
+class ParameterSubset(CandidateEffect):
+    """A linear term with some of its parameters fixed at zero (its design's other columns).
+
+    What the diagnosis fits when the held-out runs do not need a set of a term's parameters
+    (:meth:`CandidateEffect.parameter_groups`). It keeps the term's name, groups, channels
+    and units; :meth:`full` puts fitted values back in the term's own parameter order.
+
+    Args:
+        term: The linear term.
+        keep: Indices of the parameters still fitted, a non-empty increasing subset of
+            ``range(term.n_parameters)``.
+
+    Raises:
+        InputError: A nonlinear term, or ``keep`` empty, unordered or out of range.
+    """
+
+    linear = True
+
+    def __init__(self, term: CandidateEffect, keep: Sequence[int]) -> None:
+        keep = tuple(int(k) for k in keep)
+        if not term.linear:
+            raise InputError(f"{term.name}: only a linear term's parameters can be left out")
+        if (
+            not keep
+            or list(keep) != sorted(set(keep))
+            or not 0 <= keep[0] <= keep[-1] < len(term.parameter_names)
+        ):
+            raise InputError(
+                f"{term.name}: keep must be increasing indices of its "
+                f"{term.n_parameters} parameters, at least one, got {keep}"
+            )
+        self.term, self.keep = term, keep
+        self.name = term.name  # type: ignore[misc]
+        self.description = term.description  # type: ignore[misc]
+        self.memoryless = term.memoryless  # type: ignore[misc]
+        self.indexed_by = term.indexed_by  # type: ignore[misc]
+        self.parameter_units = term.parameter_units  # type: ignore[misc]
+        self.nonnegative = term.nonnegative  # type: ignore[misc]
+        self.groups = term.groups
+        self.channels = term.channels
+        self.parameter_names = tuple(term.parameter_names[k] for k in keep)
+
+    @property
+    def left_out(self) -> tuple[str, ...]:
+        """Names of the term's parameters fixed at zero."""
+        return tuple(p for k, p in enumerate(self.term.parameter_names) if k not in self.keep)
+
+    def full(self, theta: ArrayLike, fill: float = 0.0) -> FloatArray:
+        """``theta`` of the kept parameters, ``(len(keep),)``, as the term's ``(p,)``.
+
+        Args:
+            theta: Values of the kept parameters.
+            fill: The value of the parameters left out (0 for values; a spread's 0 too).
+
+        Returns:
+            Shape ``(term.n_parameters,)``.
+        """
+        out = np.full(self.term.n_parameters, float(fill))
+        out[list(self.keep)] = self._check_theta(theta)
+        return out
+
+    def width(self, signals: Signals) -> int:  # noqa: D102
+        return self.term.width(signals)
+
+    def check(self, signals: Signals) -> None:  # noqa: D102
+        self.term.check(signals)
+
+    def design(self, signals: Signals) -> FloatArray:  # noqa: D102
+        return np.asarray(self.term.design(signals))[..., list(self.keep)]
 
 
 def parameter_kind(parameter: str) -> str:
@@ -1118,6 +1210,10 @@ class MotorCogging(CandidateEffect):
         self.channels = tuple(range(self.n_joints))
         cables = ("all",) if shared else tuple(str(c) for c in range(self.n_cables))
         self.parameter_names = tuple(f"cogging_{p}[{c}]" for c in cables for p in ("a", "b"))
+
+    def parameter_groups(self) -> tuple[tuple[int, ...], ...]:
+        """None: the sine and cosine parts make one amplitude and phase together."""
+        return ()
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)

@@ -339,6 +339,15 @@ def bounds_of(effect: CandidateEffect) -> tuple[FloatArray, FloatArray]:
 INDEXED_BY = (None, "joint", "cable")
 
 
+def check_name(effect: CandidateEffect) -> None:
+    """Refuse a candidate whose ``name`` is not a non-empty string (InputError, class named)."""
+    if not isinstance(effect.name, str) or not effect.name.strip():
+        raise InputError(
+            f"{type(effect).__name__}: a candidate needs a non-empty class attribute 'name' "
+            f"(what the diagnosis calls it), got {effect.name!r}"
+        )
+
+
 def check_interface(effect: CandidateEffect) -> None:
     """Refuse a candidate whose declared interface is malformed (the term named).
 
@@ -350,11 +359,7 @@ def check_interface(effect: CandidateEffect) -> None:
     Raises:
         InputError: What is wrong and what was expected.
     """
-    if not isinstance(effect.name, str) or not effect.name.strip():
-        raise InputError(
-            f"{type(effect).__name__}: a candidate needs a non-empty class attribute 'name' "
-            f"(what the diagnosis calls it), got {effect.name!r}"
-        )
+    check_name(effect)
     if effect.indexed_by not in INDEXED_BY:
         raise InputError(
             f"{effect.name}: indexed_by must be 'joint', 'cable' or None (what a bracketed "

@@ -86,13 +86,14 @@ from msarm.diagnose.effects import (
     DahlFriction,
     InertiaError,
     MotorCogging,
+    ParameterSubset,
     SensorBiasScale,
     StribeckFriction,
     TensionDelay,
     ViscousFriction,
     parameter_kind,
 )
-from msarm.diagnose.fitting import check_interface, one_blas_thread
+from msarm.diagnose.fitting import check_interface, check_name, one_blas_thread
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.result import Diagnosis, SelectedEffect, label_parameters
 from msarm.diagnose.signals import Signals
@@ -137,6 +138,11 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
+#: After the selection, a set of a linear term's parameters (a load cell's scale beside its
+#: bias, a delay kernel's later taps: :meth:`CandidateEffect.parameter_groups`) is fixed at zero
+#: when the held-out explained share on the term's groups drops by less than this without it
+#: [-]: a twentieth of :data:`DEFAULT_THRESHOLD`, which a whole effect must gain.
+PRUNE_TOLERANCE = 0.001
 #: Candidates of each selection step fitted jointly with the terms already selected, on all
 #: the fitting samples: those with the largest screening gains (see :func:`select_effects`).
 DEFAULT_SHORTLIST = 3
@@ -265,6 +271,99 @@ class _Base:
         return model, prediction
 
 
+def _prune(final: FittedModel, sampled: Sampled, layout: Layout, tolerance: float) -> FittedModel:
+    """Fix at zero the parameter sets of the chosen linear terms that held-out runs do not need.
+
+    Each set of :meth:`CandidateEffect.parameter_groups` is tried in turn: the term refitted
+    without it (least squares, the other terms' predictions held fixed) and scored on the
+    held-out samples. The set is left out when the explained share on the term's groups drops
+    by less than ``tolerance``; a term keeps at least one parameter. If any set was left out,
+    the terms are fitted jointly again (from where they are).
+
+    Returns:
+        The fitted model, with each pruned term a
+        :class:`~msarm.diagnose.effects.ParameterSubset` embedded in the stack (``final``
+        itself when nothing was left out).
+    """
+    terms, thetas = list(final.terms), list(final.parameters)
+    r_hold = sampled.residual["hold"]
+    train = [sampled.predict(t, th, "train") for t, th in zip(terms, thetas, strict=True)]
+    hold = [sampled.predict(t, th, "hold") for t, th in zip(terms, thetas, strict=True)]
+    changed = False
+    for k, term in enumerate(terms):
+        raw = term.term
+        if not raw.linear:
+            continue
+        left = sampled.residual["train"] - (np.sum(train, axis=0) - train[k])
+        others = np.sum(hold, axis=0) - hold[k]
+        keep = list(range(raw.n_parameters))
+        for group in raw.parameter_groups():
+            fewer = [i for i in keep if i not in group]
+            if not fewer or len(fewer) == len(keep):
+                continue
+            trial = Embedded(ParameterSubset(raw, fewer), layout)
+            theta = sampled.solver([trial]).solve(left)
+            predicted = sampled.predict(trial, theta, "hold")
+            with_set = group_scores(layout, r_hold, others + hold[k])
+            without = group_scores(layout, r_hold, others + predicted)
+            if own_gain(raw.groups, without, with_set) < tolerance:
+                keep, terms[k], thetas[k], hold[k] = fewer, trial, theta, predicted
+                train[k] = sampled.predict(trial, theta, "train")
+                changed = True
+    if not changed:
+        return final
+    return fit_together(terms, sampled, initial=thetas)
+
+
+def _selected_effect(
+    term: CandidateEffect,
+    theta: FloatArray,
+    std: FloatArray,
+    message: str,
+    explained: float,
+    gain: float,
+    confidence: float,
+    data: DiagnosisData,
+    named: Sequence[str],
+) -> SelectedEffect:
+    """One named effect of the answer, with every parameter of its term.
+
+    A :class:`ParameterSubset` is reported as its whole term: the parameters left out at
+    zero (bootstrap std 0), with a note saying which and why.
+    """
+    left_out: tuple[str, ...] = ()
+    if isinstance(term, ParameterSubset):
+        left_out = term.left_out
+        theta, std, term = term.full(theta), term.full(std), term.term
+    labels = _labels(term, data.model)
+    notes = _notes(
+        term, theta, std, data.layout.groups, data.train.dt, named, confidence, labels, message
+    )
+    if left_out:
+        by_label = dict(zip(term.parameter_names, labels, strict=True))
+        notes = (
+            *notes,
+            f"{', '.join(by_label[p] for p in left_out)} left out (fixed at 0): without "
+            f"{'it' if len(left_out) == 1 else 'them'} the held-out explained share on its "
+            f"groups drops by less than {PRUNE_TOLERANCE:g}",
+        )
+    return SelectedEffect(
+        name=term.name,
+        description=term.description,
+        groups=term.groups,
+        parameter_names=term.parameter_names,
+        parameters=theta,
+        std=std,
+        explained_variance=explained,
+        gain=gain,
+        confidence=confidence,
+        message=message,
+        parameter_units=tuple(term.unit_of(p) for p in term.parameter_names),
+        notes=notes,
+        parameter_labels=labels,
+    )
+
+
 def _held_out_gain(
     layout: Layout,
     candidate: CandidateEffect,
@@ -341,7 +440,7 @@ def _not_one_string(value: Any, name: str, what: str) -> None:
 
     Iterated, ``"run1.parquet"`` would be its letters, ``"joint"`` the groups j, o, i, n, t.
     """
-    if isinstance(value, str | Path):
+    if isinstance(value, str | Path | CandidateEffect):
         raise InputError(f"{name}: expected a list of {what}, got the single {value!r}; give [it]")
 
 
@@ -381,6 +480,7 @@ def _resolve(
                 c = every[c]
         if not isinstance(c, CandidateEffect):
             raise InputError(f"candidates: expected a name or a CandidateEffect, got {c!r}")
+        check_name(c)  # before the names are compared
         out.append(c)
     names = [c.name for c in out]
     if len(set(names)) != len(names):
@@ -558,8 +658,10 @@ def _check_design(term: CandidateEffect, signals: Signals) -> None:
         design = np.asarray(term.design(signals))
     except InputError:
         raise
-    except Exception as exc:  # a user's term: its own error, with the term named
-        raise InputError(
+    except Exception as exc:
+        if type(term).__module__.split(".")[0] == "msarm":
+            raise  # a bug of msarm's own: its traceback, not a term skipped
+        raise InputError(  # a user's term: its own error, with the term named
             f"{term.name}: design() raised {type(exc).__name__}: {exc} (called on the first "
             f"{signals.n_samples} samples of the logs, to check it)"
         ) from exc
@@ -900,10 +1002,12 @@ def load_data(
         raise InputError(f"groups: expected some of {', '.join(GROUPS)}, got {list(wanted)}")
     pool, named = _resolve(model, candidates, spec)
     # the candidates are checked before the logs are read
+    _not_one_string(extra_candidates, "extra_candidates", "CandidateEffect instances")
     extras = list(extra_candidates)
     for extra in extras:
         if not isinstance(extra, CandidateEffect):
             raise InputError(f"extra_candidates: expected CandidateEffect instances, got {extra!r}")
+        check_name(extra)  # before the names are compared
     names = [c.name for c in [*pool, *extras]]
     if len(set(names)) != len(names):
         twice = sorted({n for n in names if names.count(n) > 1})
@@ -1110,6 +1214,7 @@ def select_effects(
     # the chosen terms' joint optimum, from where their last step's fit by blocks ended
     start = None if chosen_fit is None else list(chosen_fit.parameters)
     final = fit_together(chosen, sampled, initial=start)
+    final = _prune(final, sampled, layout, PRUNE_TOLERANCE)
     if chosen and int(n_boot) >= 2:
         say(f"bootstrap: {int(n_boot)} refits of {', '.join(t.name for t in chosen)}")
     stds, confidence = _bootstrap(final, sampled, layout, int(n_boot), threshold, seed)
@@ -1126,40 +1231,19 @@ def select_effects(
     motion = _replay_gap(data, layout.unstack(cumulative)) if replay else None
     final_names = tuple(t.name for t in final.terms)
     selected = tuple(
-        SelectedEffect(
-            name=term.name,
-            description=term.description,
-            groups=term.term.groups,
-            parameter_names=term.parameter_names,
-            parameters=theta,
-            std=std,
-            explained_variance=explained[k + 1],
-            gain=gains[k],
-            confidence=confidence[k],
-            message=message,
-            parameter_units=tuple(term.term.unit_of(p) for p in term.parameter_names),
-            notes=_notes(
-                term.term,
-                theta,
-                std,
-                layout.groups,
-                data.train.dt,
-                final_names,
-                confidence[k],
-                labels,
-                message,
-            ),
-            parameter_labels=labels,
+        _selected_effect(
+            term.term,
+            theta,
+            std,
+            message,
+            explained[k + 1],
+            gains[k],
+            confidence[k],
+            data,
+            final_names,
         )
-        for k, (term, theta, std, message, labels) in enumerate(
-            zip(
-                final.terms,
-                final.parameters,
-                stds,
-                final.messages,
-                [_labels(t.term, data.model) for t in final.terms],
-                strict=True,
-            )
+        for k, (term, theta, std, message) in enumerate(
+            zip(final.terms, final.parameters, stds, final.messages, strict=True)
         )
     )
     return Diagnosis(

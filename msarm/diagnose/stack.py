@@ -284,12 +284,20 @@ class Sampled:
             "train": data.r_train[self.rows["train"]],
             "hold": data.r_hold[self.rows["hold"]],
         }
+        # the caches are keyed by the terms' ids: each term is held here, so that its id
+        # stays its own (a term freed could pass its id, and its cached design, to another)
+        self._terms: dict[int, CandidateEffect] = {}
         self._designs: dict[tuple[int, str], FloatArray] = {}
         self._problems: dict[int, _NonlinearProblem] = {}
         self._solutions: dict[tuple[int, bytes], tuple[FloatArray, str]] = {}
         self._joint_design: tuple[tuple[int, ...], FloatArray] | None = None
         self._solvers: dict[tuple[int, ...], LinearSolver] = {}
         self._projections: dict[tuple[tuple[int, ...], tuple[int, ...]], ProjectedProblem] = {}
+
+    def _key(self, term: CandidateEffect) -> int:
+        """The term's id as a cache key, the term held for as long as this object lives."""
+        self._terms[id(term)] = term
+        return id(term)
 
     def fit_nonlinear(
         self,
@@ -305,7 +313,7 @@ class Sampled:
         the bootstrap do, a fifth of the time) returns the answer of the first: the solver is
         deterministic, so it is the same answer.
         """
-        if id(term) not in self._problems:
+        if self._key(term) not in self._problems:
             own = OwnColumns(term)
             self._problems[id(term)] = _NonlinearProblem(
                 own, self.signals["train"], self.residual["train"][:, own.columns]
@@ -325,7 +333,7 @@ class Sampled:
 
     def design(self, term: CandidateEffect, split: str) -> FloatArray:
         """A linear term's design on the ``"train"`` or ``"hold"`` samples (computed once)."""
-        key = (id(term), split)
+        key = (self._key(term), split)
         if key not in self._designs:
             if self.parent is not None:
                 self._designs[key] = self.parent.design(term, split)[self.within[split]]
@@ -348,7 +356,7 @@ class Sampled:
 
         The last set asked for is kept: a bootstrap refits the same set at every draw.
         """
-        key = tuple(map(id, terms))
+        key = tuple(self._key(t) for t in terms)
         if self._joint_design is None or self._joint_design[0] != key:
             design = np.concatenate([self.design(t, "train") for t in terms], axis=2)
             self._joint_design = (key, design)
@@ -360,7 +368,7 @@ class Sampled:
         Kept for each single term (the screening refits each candidate at every step) and for
         the last set of several terms (a joint fit refits the set at every round).
         """
-        key = tuple(map(id, terms))
+        key = tuple(self._key(t) for t in terms)
         if key not in self._solvers:
             if len(key) == 1:  # its own design: no copy, the joint set's cache kept
                 self._solvers[key] = LinearSolver(self.design(terms[0], "train"))
@@ -394,7 +402,7 @@ class Sampled:
         Built once per set (IPOPT's problem, the design on the set's columns) and kept for
         the last few sets: a bootstrap refits the chosen set at every draw.
         """
-        key = (tuple(map(id, linear)), tuple(map(id, nonlinear)))
+        key = (tuple(self._key(t) for t in linear), tuple(self._key(t) for t in nonlinear))
         if key not in self._projections:
             own = [OwnColumns(t) for t in nonlinear]
             columns = np.array(

@@ -599,10 +599,11 @@ def check_increasing_time(
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
         counted = f"; {rows}" if rows else ""
+        # every digit (an epoch time's step is in its last ones) and the step itself
         raise LogError(
             f"{source}: column '{name}' is not strictly increasing at row {row} "
-            f"({name}[{row - 1}] = {float(t[row - 1]):.6g} {unit}, {name}[{row}] = "
-            f"{float(t[row]):.6g} {unit}{counted})"
+            f"({name}[{row - 1}] = {float(t[row - 1])!r} {unit}, {name}[{row}] = "
+            f"{float(t[row])!r} {unit}: a step of {float(steps[row - 1]):.6g} {unit}{counted})"
         )
 
 

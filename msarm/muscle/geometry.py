@@ -76,10 +76,12 @@ class CableGeometry:
         Raises:
             InputError: ``forces`` is not a finite ``(m,)`` array.
         """
-        return -self.jacobian.T @ _checked_vector(forces, self.jacobian.shape[0], "forces")
+        return -self.jacobian.T @ _checked_vector(forces, self.jacobian.shape[0], "forces", "N")
 
 
-def _checked_vector(value: ArrayLike | None, size: int, name: str) -> NDArray[np.float64]:
+def _checked_vector(
+    value: ArrayLike | None, size: int, name: str, unit: str
+) -> NDArray[np.float64]:
     if value is None:
         return np.zeros(size)
     if np.iscomplexobj(value):  # numpy would drop the imaginary part with a mere warning
@@ -89,7 +91,9 @@ def _checked_vector(value: ArrayLike | None, size: int, name: str) -> NDArray[np
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise InputError(f"{name} must be an array of real numbers [rad], got {value!r}") from None
+        raise InputError(
+            f"{name} must be an array of real numbers [{unit}], got {value!r}"
+        ) from None
     if array.shape != (size,):
         raise InputError(f"{name} must have shape ({size},), got {array.shape}")
     if not np.all(np.isfinite(array)):
@@ -124,8 +128,8 @@ def cable_geometry(
     n = model.n_joints
     if q is None:
         raise InputError(f"q must be joint coordinates of shape ({n},), got None")
-    q = _checked_vector(q, n, "q")
-    qdot = _checked_vector(qdot, n, "qdot")
+    q = _checked_vector(q, n, "q", "rad")
+    qdot = _checked_vector(qdot, n, "qdot", "rad/s")
     m_model, m_data = model.mj_model, data.mj
     m_data.qvel[:] = qdot
     jacobian = np.zeros((m_model.ntendon, m_model.nv))

@@ -114,6 +114,8 @@ class Allocator(ABC):
                     f"f_ref must be None, 'midpoint' or an array of forces [N], got {f_ref!r}"
                 )
             return 0.5 * (f_min + f_max)
+        if np.iscomplexobj(f_ref):
+            raise InputError("f_ref must be real forces [N]; got complex values")
         try:
             ref = np.asarray(f_ref, dtype=np.float64)
         except (TypeError, ValueError) as exc:
