@@ -24,6 +24,12 @@ step by step, tries each remaining candidate together with the terms already sel
   projection, :mod:`msarm.diagnose.projection`, from where their last fit by blocks ended):
   correlated blocks (a Dahl or viscous term beside a Stribeck term) stop short of it, by up
   to 5 bootstrap standard deviations of a parameter on the withheld-effect benchmark.
+- **Pruning.** A named linear term's parameters that the held-out runs do not need are fixed
+  at zero: each set of :meth:`~msarm.diagnose.effects.CandidateEffect.parameter_groups` (a
+  load cell's scale beside its bias, a delay tap) is left out when the held-out explained
+  share on the term's groups drops by less than :data:`PRUNE_TOLERANCE` without it, the
+  other terms held; then the terms are fitted jointly again (a least-squares fit otherwise
+  leaves the parameters a robot lacks small, not zero).
 - **Score.** The held-out explained share of the residual: per group, ``1 - sum (r -
   pred)^2 / sum r^2`` over the held-out samples and the group's columns (energy about zero,
   so that a constant offset such as a load-cell bias counts as gap), then the mean over the
