@@ -118,6 +118,10 @@ def test_logs_after_holdout_get_a_hint_when_none_is_left(monkeypatch, capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert "Missing argument 'LOG': --holdout takes every value after it up to the next" in err
+    monkeypatch.setattr("sys.argv", ["msarm", "diagnose", "--holdout=h", "a"])
+    with pytest.raises(SystemExit):
+        main()
+    assert "--holdout takes every value" in capsys.readouterr().err  # its value given inline
     # no hint where the option took no log: one value, or a names option (it stops at a path)
     for args in (["--holdout", "h"], ["--candidates", "coulomb"]):
         monkeypatch.setattr("sys.argv", ["msarm", "diagnose", *args])

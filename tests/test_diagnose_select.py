@@ -623,6 +623,7 @@ def test_parameters_the_held_out_runs_do_not_need_are_left_out(arm, tmp_path):
     effect = by_name["sensor"]
     sensor = dict(zip(effect.parameter_names, effect.parameters, strict=True))
     assert sensor["scale_minus_1[all]"] == 0.0
+    assert np.isnan(effect.std).all()  # no bootstrap: no spread, not "0 +- 0" for those left out
     assert sensor["bias[all]"] == pytest.approx(-2.0, rel=0.01)
     assert any("scale_minus_1[all] left out (fixed at 0)" in n for n in by_name["sensor"].notes)
     delay = by_name["command_delay"]
@@ -647,6 +648,12 @@ def test_a_parameter_subset_is_its_terms_columns():
     assert CoulombFriction(n_joints=4).parameter_groups() == ()  # one kind: all or nothing
     subset = ParameterSubset(sensor, [0])
     assert subset.parameter_names == ("bias[all]",) and subset.left_out == ("scale_minus_1[all]",)
+    from test_diagnose_effects import _make_signals
+
+    from msarm.model import load_arm
+
+    signals = _make_signals(load_arm(), seed=2)
+    np.testing.assert_array_equal(subset.design(signals), sensor.design(signals)[..., [0]])
     assert subset.name == "sensor" and subset.groups == sensor.groups
     np.testing.assert_array_equal(subset.full([1.5]), [1.5, 0.0])
     for bad in ([], [1, 0], [2]):
@@ -654,3 +661,64 @@ def test_a_parameter_subset_is_its_terms_columns():
             ParameterSubset(sensor, bad)
     with pytest.raises(InputError, match="only a linear term"):
         ParameterSubset(StribeckFriction(joints=[0]), [0])
+
+
+def _waves_term():
+    """A linear term of five kinds: one strong, four weak, each weak one a sine of its own."""
+    from msarm.diagnose.effects import CandidateEffect
+
+    class Waves(CandidateEffect):
+        name = "test_waves"
+        memoryless = True
+        kinds = ("a", "b", "c", "d", "e")
+
+        def __init__(self, n_joints=4):
+            self.channels = tuple(range(n_joints))
+            self.parameter_names = tuple(f"{k}[{j}]" for k in self.kinds for j in self.channels)
+
+        def design(self, signals):
+            T, n = signals.q.shape
+            time = signals.t[:, None] + np.zeros((1, n))
+            features = [signals.qd / 0.3] + [
+                np.sqrt(2.0) * np.sin(2.0 * np.pi * f * time + j)
+                for j, f in enumerate((0.37, 0.53, 0.71, 0.89))
+            ]
+            out = np.zeros((T, n, len(features) * n))
+            for k, feature in enumerate(features):
+                for j in range(n):
+                    out[:, j, k * n + j] = feature[:, j]
+            return out
+
+    return Waves()
+
+
+def test_sets_left_out_together_stay_within_the_tolerance(arm, monkeypatch):
+    """Four weak sets, each below the tolerance alone. Tried one by one against the last
+    pruned state, sets could add up beyond it (a review measured a fall of 0.0025 on a
+    benchmark's logs while the note said under 0.001). The budget is now the whole term's,
+    against the unpruned model: here three of the four weak sets go, and the held-out share
+    stays within 0.001 of the unpruned model's (0.00097 below it)."""
+    from test_diagnose_effects import _make_signals
+    from test_diagnose_stack import diagnosis_data
+
+    import msarm.diagnose.select as select
+
+    term = _waves_term()
+    signals = _make_signals(arm, seed=7)
+    theta = np.concatenate([np.ones(4)] + [np.full(4, 0.04)] * 4)
+    pure = np.asarray(term.torque(signals, theta))
+    rng = np.random.default_rng(7)
+    torque = pure + 0.6 * pure.std() * rng.standard_normal(pure.shape)
+    data = diagnosis_data(arm, signals, torque, [term])
+
+    def share(result):
+        before, after = result.waterfall[0]["joint"], result.waterfall[-1]["joint"]
+        return 1.0 - (after / before) ** 2
+
+    pruned = select.select_effects(data, n_boot=0, replay=False)
+    monkeypatch.setattr(select, "PRUNE_TOLERANCE", -np.inf)  # never prune
+    whole = select.select_effects(data, n_boot=0, replay=False)
+    assert pruned.names == whole.names == ("test_waves",)
+    assert share(whole) - share(pruned) < select.DEFAULT_THRESHOLD / 20  # 0.001
+    left_out = [n for n in pruned.selected[0].notes if "left out" in n]
+    assert int(np.sum(pruned.selected[0].parameters == 0.0)) == 12 and left_out

@@ -476,6 +476,16 @@ def test_a_user_candidate_with_a_bad_interface_is_refused_before_any_fit(logs, a
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[TwoGroups()])
     assert not fitted
 
+    class BadGroups(_Offset):  # a flat list: a bare TypeError after the whole selection
+        name = "test_bad_groups"
+
+        def parameter_groups(self):
+            return [0, 1]
+
+    with pytest.raises(InputError, match="test_bad_groups: parameter_groups\\(\\) must give sets"):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[BadGroups()])
+    assert not fitted
+
     class NoName(_Offset):  # was taken, and named '' in the answer
         name = ""
 

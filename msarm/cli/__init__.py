@@ -54,14 +54,15 @@ def _greedy_option_hint(message: str, args: list[str]) -> str:
     options -= set(NAME_OPTIONS)  # those stop at the first value that is not a name
     greedy = ""
     for k, arg in enumerate(args):
-        if arg in options:
-            taken = 0
+        name, inline = arg.split("=", 1)[0], "=" in arg
+        if name in options:
+            taken = int(inline)  # --holdout=h1 h2: h1 is its first value
             for value in args[k + 1 :]:
                 if value == "--" or value.startswith("-"):
                     break
                 taken += 1
             if taken >= 2:  # it took values that were meant as the arguments
-                greedy = arg
+                greedy = name
     if not greedy:
         return ""
     return (

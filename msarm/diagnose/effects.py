@@ -423,7 +423,7 @@ class CandidateEffect(ABC):
 
         After the selection, the diagnosis fixes a set at zero when the held-out runs do not
         need it (see ``msarm.diagnose.select.PRUNE_TOLERANCE``): a load cell's scale error
-        beside its bias, a delay kernel's later taps. Default: one set per parameter kind
+        beside its bias, any of a delay kernel's taps. Default: one set per parameter kind
         (:func:`parameter_kind`; every joint's or cable's together) when the term has two
         kinds or more, else none (the term is all or nothing). A term whose parameters only
         mean something together (a cogging's sine and cosine) returns ``()``.

@@ -353,8 +353,9 @@ def check_interface(effect: CandidateEffect) -> None:
 
     Checks the :attr:`~CandidateEffect.name` (what the answer calls it), the
     :attr:`~CandidateEffect.indexed_by`, and :meth:`~CandidateEffect.constraints` and
-    :meth:`~CandidateEffect.bounds` of a nonlinear term; a linear term may state no
-    constraint, since its least squares cannot keep one.
+    :meth:`~CandidateEffect.bounds` of a nonlinear term (a linear term may state no
+    constraint, since its least squares cannot keep one), and
+    :meth:`~CandidateEffect.parameter_groups`.
 
     Raises:
         InputError: What is wrong and what was expected.
@@ -374,6 +375,33 @@ def check_interface(effect: CandidateEffect) -> None:
         )
     if not effect.linear:
         bounds_of(effect)
+    check_parameter_groups(effect)
+
+
+def check_parameter_groups(effect: CandidateEffect) -> None:
+    """Refuse a malformed :meth:`~CandidateEffect.parameter_groups` (the term named).
+
+    Raises:
+        InputError: Not a sequence of non-empty sequences of parameter indices in
+            ``range(p)``.
+    """
+    p = effect.n_parameters
+    given = effect.parameter_groups()
+    try:
+        groups = [list(group) for group in given]
+    except TypeError:
+        groups = None
+    if groups is None or any(
+        not group
+        or any(isinstance(i, bool) or not isinstance(i, int | np.integer) for i in group)
+        or any(not 0 <= i < p for i in group)
+        for group in groups
+    ):
+        raise InputError(
+            f"{effect.name}: parameter_groups() must give sets of parameter indices, each a "
+            f"non-empty tuple of whole numbers in 0..{p - 1} (e.g. ((0,), (1, 2))), got "
+            f"{given!r}"
+        )
 
 
 def stacked_constraints(effects: Sequence[CandidateEffect]) -> FloatArray:

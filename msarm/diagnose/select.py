@@ -26,10 +26,11 @@ step by step, tries each remaining candidate together with the terms already sel
   to 5 bootstrap standard deviations of a parameter on the withheld-effect benchmark.
 - **Pruning.** A named linear term's parameters that the held-out runs do not need are fixed
   at zero: each set of :meth:`~msarm.diagnose.effects.CandidateEffect.parameter_groups` (a
-  load cell's scale beside its bias, a delay tap) is left out when the held-out explained
-  share on the term's groups drops by less than :data:`PRUNE_TOLERANCE` without it, the
-  other terms held; then the terms are fitted jointly again (a least-squares fit otherwise
-  leaves the parameters a robot lacks small, not zero).
+  load cell's scale beside its bias, a delay tap) is left out while the sets left out
+  together keep the held-out explained share on the term's groups within
+  :data:`PRUNE_TOLERANCE` of the unpruned model's, the other terms held; then the terms are
+  fitted jointly again, and the pruning undone if that refit falls further behind (a
+  least-squares fit otherwise leaves the parameters a robot lacks small, not zero).
 - **Score.** The held-out explained share of the residual: per group, ``1 - sum (r -
   pred)^2 / sum r^2`` over the held-out samples and the group's columns (energy about zero,
   so that a constant offset such as a load-cell bias counts as gap), then the mean over the
@@ -145,7 +146,7 @@ FloatArray = NDArray[np.float64]
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
 #: After the selection, a set of a linear term's parameters (a load cell's scale beside its
-#: bias, a delay kernel's later taps: :meth:`CandidateEffect.parameter_groups`) is fixed at zero
+#: bias, any of a delay kernel's taps: :meth:`CandidateEffect.parameter_groups`) is fixed at zero
 #: when the held-out explained share on the term's groups drops by less than this without it
 #: [-]: a twentieth of :data:`DEFAULT_THRESHOLD`, which a whole effect must gain.
 PRUNE_TOLERANCE = 0.001
@@ -281,10 +282,13 @@ def _prune(final: FittedModel, sampled: Sampled, layout: Layout, tolerance: floa
     """Fix at zero the parameter sets of the chosen linear terms that held-out runs do not need.
 
     Each set of :meth:`CandidateEffect.parameter_groups` is tried in turn: the term refitted
-    without it (least squares, the other terms' predictions held fixed) and scored on the
-    held-out samples. The set is left out when the explained share on the term's groups drops
-    by less than ``tolerance``; a term keeps at least one parameter. If any set was left out,
-    the terms are fitted jointly again (from where they are).
+    without it and the sets already left out (least squares, the other terms' predictions
+    held fixed) and scored on the held-out samples. The set is left out when the explained
+    share on the term's groups stays within ``tolerance`` of the unpruned model's: the budget
+    is the whole term's, not each set's, so sets left out one by one cannot add up beyond it.
+    A term keeps at least one parameter. If any set was left out, the terms are fitted jointly
+    again (from where they are), and the pruning is kept only if every term's groups still
+    score within ``tolerance`` of the unpruned model's.
 
     Returns:
         The fitted model, with each pruned term a
@@ -292,9 +296,12 @@ def _prune(final: FittedModel, sampled: Sampled, layout: Layout, tolerance: floa
         itself when nothing was left out).
     """
     terms, thetas = list(final.terms), list(final.parameters)
+    if not any(t.term.linear and t.term.parameter_groups() for t in terms):
+        return final  # nothing that could be left out (no term named, say)
     r_hold = sampled.residual["hold"]
     train = [sampled.predict(t, th, "train") for t, th in zip(terms, thetas, strict=True)]
     hold = [sampled.predict(t, th, "hold") for t, th in zip(terms, thetas, strict=True)]
+    unpruned = group_scores(layout, r_hold, np.sum(hold, axis=0))
     changed = False
     for k, term in enumerate(terms):
         raw = term.term
@@ -310,15 +317,18 @@ def _prune(final: FittedModel, sampled: Sampled, layout: Layout, tolerance: floa
             trial = Embedded(ParameterSubset(raw, fewer), layout)
             theta = sampled.solver([trial]).solve(left)
             predicted = sampled.predict(trial, theta, "hold")
-            with_set = group_scores(layout, r_hold, others + hold[k])
             without = group_scores(layout, r_hold, others + predicted)
-            if own_gain(raw.groups, without, with_set) < tolerance:
+            if own_gain(raw.groups, without, unpruned) < tolerance:
                 keep, terms[k], thetas[k], hold[k] = fewer, trial, theta, predicted
                 train[k] = sampled.predict(trial, theta, "train")
                 changed = True
     if not changed:
         return final
-    return fit_together(terms, sampled, initial=thetas)
+    pruned = fit_together(terms, sampled, initial=thetas)
+    after = group_scores(layout, r_hold, pruned.predict(sampled, "hold"))
+    if any(own_gain(t.term.groups, after, unpruned) >= tolerance for t in final.terms):
+        return final  # the joint refit lost more than the sets' budget: keep every parameter
+    return pruned
 
 
 def _selected_effect(
@@ -340,7 +350,8 @@ def _selected_effect(
     left_out: tuple[str, ...] = ()
     if isinstance(term, ParameterSubset):
         left_out = term.left_out
-        theta, std, term = term.full(theta), term.full(std), term.term
+        spread = 0.0 if np.all(np.isfinite(std)) else np.nan  # no bootstrap: no spread
+        theta, std, term = term.full(theta), term.full(std, fill=spread), term.term
     labels = _labels(term, data.model)
     notes = _notes(
         term, theta, std, data.layout.groups, data.train.dt, named, confidence, labels, message
@@ -351,7 +362,7 @@ def _selected_effect(
             *notes,
             f"{', '.join(by_label[p] for p in left_out)} left out (fixed at 0): without "
             f"{'it' if len(left_out) == 1 else 'them'} the held-out explained share on its "
-            f"groups drops by less than {PRUNE_TOLERANCE:g}",
+            f"groups is within {PRUNE_TOLERANCE:g} of the unpruned model's",
         )
     return SelectedEffect(
         name=term.name,
@@ -1277,5 +1288,6 @@ def select_effects(
             "n_boot": int(n_boot),
             "seed": int(seed),
             "final_fit": "projection",
+            "prune_tolerance": PRUNE_TOLERANCE,
         },
     )
