@@ -532,7 +532,8 @@ class ParameterSubset(CandidateEffect):
 
         Args:
             theta: Values of the kept parameters.
-            fill: The value of the parameters left out (0 for values; a spread's 0 too).
+            fill: The value of the parameters left out (0 for values; for a bootstrap
+                spread 0, or NaN when there was none).
 
         Returns:
             Shape ``(term.n_parameters,)``.

@@ -145,10 +145,11 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
-#: After the selection, a set of a linear term's parameters (a load cell's scale beside its
-#: bias, any of a delay kernel's taps: :meth:`CandidateEffect.parameter_groups`) is fixed at zero
-#: when the held-out explained share on the term's groups drops by less than this without it
-#: [-]: a twentieth of :data:`DEFAULT_THRESHOLD`, which a whole effect must gain.
+#: After the selection, sets of a linear term's parameters (a load cell's scale beside its
+#: bias, any of a delay kernel's taps: :meth:`CandidateEffect.parameter_groups`) are fixed at
+#: zero while, left out together, they lower the held-out explained share on the term's groups
+#: by less than this [-]: a twentieth of :data:`DEFAULT_THRESHOLD`, which a whole effect must
+#: gain.
 PRUNE_TOLERANCE = 0.001
 #: Candidates of each selection step fitted jointly with the terms already selected, on all
 #: the fitting samples: those with the largest screening gains (see :func:`select_effects`).
@@ -345,7 +346,7 @@ def _selected_effect(
     """One named effect of the answer, with every parameter of its term.
 
     A :class:`ParameterSubset` is reported as its whole term: the parameters left out at
-    zero (bootstrap std 0), with a note saying which and why.
+    zero (bootstrap std 0, NaN without a bootstrap), with a note saying which and why.
     """
     left_out: tuple[str, ...] = ()
     if isinstance(term, ParameterSubset):
@@ -461,6 +462,15 @@ def _not_one_string(value: Any, name: str, what: str) -> None:
         raise InputError(f"{name}: expected a list of {what}, got the single {value!r}; give [it]")
 
 
+def _refuse_repeated_names(label: str, names: Sequence[str]) -> None:
+    """Refuse candidates that share a name (InputError naming the names given twice)."""
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(
+            f"{label}: names must be unique; {', '.join(map(repr, twice))} given more than once"
+        )
+
+
 def check_seed_and_draws(seed: Any, n_boot: Any) -> None:
     """Refuse a bootstrap seed or draw count that is not a whole number ``>= 0`` (InputError).
 
@@ -499,12 +509,7 @@ def _resolve(
             raise InputError(f"candidates: expected a name or a CandidateEffect, got {c!r}")
         check_name(c)  # before the names are compared
         out.append(c)
-    names = [c.name for c in out]
-    if len(set(names)) != len(names):
-        twice = sorted({n for n in names if names.count(n) > 1})
-        raise InputError(
-            f"candidates: names must be unique; {', '.join(map(repr, twice))} given more than once"
-        )
+    _refuse_repeated_names("candidates", [c.name for c in out])
     return out, True
 
 
@@ -1025,13 +1030,7 @@ def load_data(
         if not isinstance(extra, CandidateEffect):
             raise InputError(f"extra_candidates: expected CandidateEffect instances, got {extra!r}")
         check_name(extra)  # before the names are compared
-    names = [c.name for c in [*pool, *extras]]
-    if len(set(names)) != len(names):
-        twice = sorted({n for n in names if names.count(n) > 1})
-        raise InputError(
-            f"extra_candidates: names must be unique; {', '.join(map(repr, twice))} given "
-            "more than once"
-        )
+    _refuse_repeated_names("extra_candidates", [c.name for c in [*pool, *extras]])
     for candidate in [*pool, *extras]:
         check_interface(candidate)
     train, g_train, train_names = channels_from_logs(model, train_paths, spec)
