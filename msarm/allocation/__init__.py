@@ -5,7 +5,8 @@ One problem serves the arm and the cable robots (see ``msarm.allocation.problem`
     find f   minimising 1/2 ||W (f - f_ref)||^2   subject to   M f = b,  f_min <= f <= f_max
 
 - arm (paper 003): ``M = -J_c^T`` (4 x 9), ``b = tau`` [N m], ``weights = 1/F_max`` and
-  ``f_ref = None``: the sum of squared activations, bounds from the muscles' force capacity;
+  ``f_ref = None``: a stand-in for the sum of squared activations (see
+  ``msarm.allocation.problem``), bounds from the muscles' force capacity;
 - cable robot (papers 000, 001): ``M = A^T`` (6 x 8, ``msarm.cdpr``), ``b = -w``;
   ``f_ref = None`` is the minimum 2-norm distribution, ``f_ref="midpoint"`` Pott's.
 

@@ -224,8 +224,8 @@ def force_from_motor_torque(
         v: Cable velocity [m/s] (> 0: paid out), broadcastable to ``motor_torque``'s shape;
             within the friction model's ``+-v_H`` (0.1 m/s) unless it extrapolates.
         a: Cable acceleration [m/s^2] (> 0: pay-out accelerating), broadcastable; 0 (default)
-            leaves out the inertial torque (about ``J_D a / r_D^2`` = 0.075 kg times ``a``
-            for the defaults).
+            leaves out the inertial torque ``-J_D a / r_D`` (1.5e-3 kg m times ``a`` for the
+            defaults: an error of ``J_D a / r_D^2`` = 0.075 kg times ``a`` in the force).
         winch: r_D, J_D and the friction model; :class:`WinchParameters` defaults if None.
         friction_model: False sets tau_F = 0 (``f = (tau - tau_In) / r_D``), the baseline
             the paper shows to be much worse.

@@ -1,12 +1,13 @@
 """Training data of the compensator: seeded random runs on a plant, split by runs.
 
-Paper 003 recorded 14 runs of 20 s at 250 Hz and split them 70 / 15 / 15 % into training,
-validation and test. :func:`collect_runs` does the same on a simulated plant: each run is the
-task ``random-<seed>`` written as a log (with its sidecar and config) into
-``<folder>/run-<seed>/``; a run whose log already exists with the same settings is reused, so
-an interrupted collection resumes. :func:`split_runs` splits runs (never samples), and
-:func:`build_arrays` turns logs into feature and target arrays, naming the run file and the
-column of any NaN.
+Paper 003 recorded 14 runs of 20 s at 250 Hz and split its data into training, validation and test
+(its text reads "70% ... 70% for validation, and 15% for testing", a typo we read as 70 / 15 / 15 %;
+msarm splits runs, not samples). :func:`collect_runs` records such runs on a simulated plant: each
+run is the task ``random-<seed>`` written as a log (with its sidecar and config) into
+``<folder>/run-<seed>/``; a run whose log already exists with the same settings is reused, so an
+interrupted collection resumes. :func:`split_runs` splits runs (never samples), and
+:func:`build_arrays` turns logs into feature and target arrays, naming the run file and the column
+of any NaN.
 """
 
 from __future__ import annotations
@@ -45,7 +46,8 @@ class DataConfig:
         plant: Plant preset (``default``, ``ideal``) or a plant YAML file.
         n_runs: Number of runs (paper 003: 14).
         first_seed: Seed of the first run's task and noise; run i uses ``first_seed + i``.
-        split: Shares of runs for training, validation and test (paper 003: 0.7/0.15/0.15).
+        split: Shares of runs for training, validation and test (paper 003's typo read as
+            0.7/0.15/0.15).
         folder: Where the runs' logs are written.
         rounds: Rounds of iterative training after the first: each collects the training
             and validation runs again with the current feedforward on and trains on all runs

@@ -12,10 +12,11 @@ targets' units (N·m for torque errors). The loss is the mean squared error in n
 units, averaged over samples and target columns (an untrained network that predicts the mean
 scores about 1).
 
-Precision: float64 throughout (weights, data, optimiser). The network is tiny (about 7,000
-weights), so training time is spent on per-step overhead rather than arithmetic and float32
-would gain little; float64 keeps the 250 Hz fast path (:mod:`msarm.compensation.fast`, numpy
-float64) equal to torch to round-off, and matches the rest of msarm.
+Precision: float64 throughout (weights, data, optimiser). The network is tiny (about 4,500 weights
+with the 25 default inputs, 7,000 with paper 003's 42), so training time is spent on per-step
+overhead rather than arithmetic and float32 would gain little; float64 keeps the 250 Hz fast path
+(:mod:`msarm.compensation.fast`, numpy float64) equal to torch to round-off, and matches the rest of
+msarm.
 
 Reproducibility: :func:`train_network` seeds the initial weights from ``config.seed`` (inside a
 forked RNG, so the caller's global torch RNG is left as it was), shuffles mini-batches with its

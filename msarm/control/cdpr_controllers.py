@@ -76,7 +76,8 @@ anchors lie at y > 0 and y < 0 (``models/ipanema_mini.xml``). The default pair c
 region (:class:`RegionPairSelector`: ``(0, 1)`` where ``y > 0``, ``(2, 3)`` where
 ``y <= 0``), which matches Fig. 7 for msarm's robot: with ``msarm.cdpr.sensitivity``,
 sigma_01 < 1.5 N for y >= -0.05 m and sigma_23 < 1.5 N for y <= 0.10 m at the workspace's mid
-height. :class:`SensitivityPairSelector` picks the candidate with the smaller sigma instead.
+height over |x| <~ 0.25 m (sigma_01 reaches 1.5-1.7 N at |x| = 0.35-0.40 m).
+:class:`SensitivityPairSelector` picks the candidate with the smaller sigma instead.
 
 Winch parameters: the drum radius ``r_D`` and the inertia ``J_D`` of the winch's moving parts
 are not given in paper 000; :class:`WinchParameters` defaults to ``r_D = 0.02 m`` (35 N then

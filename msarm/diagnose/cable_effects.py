@@ -74,7 +74,9 @@ def _names(kinds: Sequence[str], shared: bool, n_cables: int) -> tuple[str, ...]
 
 @register
 class WinchFriction(CandidateEffect):
-    """Coulomb + viscous friction of winch and motor (paper 000 eq. 5 shape), on the drive.
+    """Coulomb + viscous friction of winch and motor, on the drive.
+
+    Paper 000 eq. 4-5 without its load term and its ``v^2`` term.
 
     ``tau_f = -tau_c tanh(omega / omega_s) - b omega`` on each winch (motor speed ``omega``);
     through a settled drive ``e = tau_f / (rho (1 + K))``. Linear in ``tau_c`` [N m] and ``b``

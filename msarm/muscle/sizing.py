@@ -4,7 +4,7 @@ A cable muscle's Hill model needs an optimal fibre length ``l_M0`` and a tendon 
 ``l_Ts`` (see :mod:`msarm.muscle.hill`). For a robot these are design choices: msarm sizes
 them so that, over the robot's joint range, every fibre works between two normalised lengths
 (by default 0.8 and 1.2 optimal lengths, where the active force-length curve stays above
-about 0.6 of its peak). With a rigid tendon and constant-thickness pennation
+about 0.79 of its peak). With a rigid tendon and constant-thickness pennation
 
 ``l_M(l) = sqrt((l - l_Ts)^2 + (l_M0 sin a0)^2)``,
 

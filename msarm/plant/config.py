@@ -22,7 +22,7 @@ Sources of the default values (plausible values for a robot of this size, not me
   49-81 % transmitted, the low end from the elbow cables (up to 4.7 and 5.9 rad) at the
   range's edges;
 - winch friction: Coulomb 0.02 N m and viscous 2e-4 N m s/rad, about 1-2 % of the peak torque,
-  the shape of paper 000 eq. 5 (Coulomb + viscous);
+  a simplification of paper 000 eq. 4-5 (Coulomb + viscous, without its load and v^2 terms);
 - joint friction: 0.15 N m Coulomb and 0.05 N m s/rad viscous at every joint (plain bearings);
 - sensor noise: encoder 1e-4 rad (14-bit), load cell 0.3 N, motor torque (current) 0.005 N m.
 """
@@ -122,7 +122,7 @@ class SheathFrictionConfig:
 
 @dataclass(frozen=True)
 class WinchFrictionConfig:
-    """Coulomb + viscous friction of winch and motor (paper 000 eq. 5 shape).
+    """Coulomb + viscous friction of winch and motor (paper 000 eq. 4-5 without load and v^2 terms).
 
     Attributes:
         enabled: Switch.

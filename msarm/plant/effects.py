@@ -233,9 +233,10 @@ class SheathFriction(Effect):
 
 
 class WinchFriction(Effect):
-    """Coulomb + viscous friction in winch and motor (the shape of paper 000 eq. 5).
+    """Coulomb + viscous friction in winch and motor (a simplification of paper 000 eq. 4-5).
 
-    ``tau_f = -tau_c * tanh(omega / omega_s) - b * omega`` on the winch speed ``omega``.
+    ``tau_f = -tau_c * tanh(omega / omega_s) - b * omega`` on the winch speed ``omega``:
+    paper 000's model without its load term ``c3 f`` and its ``v^2`` term.
     Runs in :mod:`msarm.plant.cable_kernel`.
     """
 
