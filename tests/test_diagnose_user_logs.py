@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from conftest import short_move_logs
 
+from msarm.diagnose.builder import channels_from_logs
 from msarm.diagnose.cable_effects import CableElasticity, WinchFriction
 from msarm.diagnose.effects import (
     CANDIDATES,
@@ -893,3 +894,32 @@ def test_a_log_also_held_out_is_said_in_the_saved_answer(logs, monkeypatch, caps
         "given as a log and in --holdout: held out, not trained on" in text
         for text in saved["log_warnings"]
     ), saved["log_warnings"]
+
+
+def test_delay_terms_and_rates_restart_after_a_time_gap(logs, arm, tmp_path):
+    """A log with dropped rows is one run of two segments: the delay taps and tension rates
+    restart at the gap, as on the two stretches given as runs of their own; the direction and
+    stick-slip states, and the per-run offsets, carry across it."""
+    cut = _without_rows(logs[0], tmp_path / "cut.parquet", range(500, 521))
+    with pytest.warns(DiagnosisWarning, match="gap"):
+        signals, _, _ = channels_from_logs(arm, [cut, logs[1]])
+    assert np.unique(signals.run).tolist() == [0, 1]
+    assert np.unique(signals.segment[signals.run == 0]).tolist() == [0, 1]
+    assert np.all(signals.segment[signals.run == 1] == 2)
+    after = int(np.flatnonzero(np.diff(signals.segment[signals.run == 0]))[0]) + 1
+    assert signals.t[after] - signals.t[after - 1] == pytest.approx(22 * signals.dt)
+    apart = replace(signals, run=signals.segment)  # each stretch a run of its own
+    every = available_candidates(arm)
+    for name in ("command_delay", "delay"):
+        np.testing.assert_array_equal(
+            every[name].design(signals), every[name].design(apart), err_msg=name
+        )
+    # the delay taps at the first sample after the gap repeat it, as at a run's start
+    assert np.all(every["command_delay"].design(signals)[after] == 0.0)
+    # states carried over the gap, not restarted
+    assert not np.allclose(every["dahl"].design(signals)[after], every["dahl"].design(apart)[after])
+    hysteresis = every["capstan_hysteresis"]
+    theta = np.full(hysteresis.n_parameters, 0.5)
+    carried, restarted = hysteresis.torque(signals, theta), hysteresis.torque(apart, theta)
+    np.testing.assert_array_equal(carried[:after], restarted[:after])
+    assert not np.allclose(carried[after], restarted[after])

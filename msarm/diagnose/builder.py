@@ -23,7 +23,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.missing_values import read_log_for_diagnosis
-from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, residuals_from_log
+from msarm.diagnose.residuals import (
+    DiagnosisWarning,
+    ResidualSpec,
+    gap_starts,
+    residuals_from_log,
+)
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError, LogError
 from msarm.model import RobotModel
@@ -94,6 +99,13 @@ def little_motion(q: FloatArray, source: str) -> tuple[float, str | None]:
     )
 
 
+def _segment_labels(t: FloatArray, sample_rate_hz: float) -> NDArray[np.int64]:
+    """Label of each row's stretch between time gaps (0 for the first), shape ``(T,)``."""
+    starts = np.zeros(len(t), dtype=np.int64)
+    starts[gap_starts(t, sample_rate_hz)] = 1
+    return np.cumsum(starts)
+
+
 def _one_run(
     model: RobotModel, path: Path, spec: ResidualSpec
 ) -> tuple[dict[str, FloatArray], dict[str, FloatArray], float]:
@@ -126,6 +138,8 @@ def _one_run(
         "jacobian": residuals.jacobian[valid],
         "wrap": residuals.wrap[valid],
         "motor_angle": motor[valid],
+        # the stretches between time gaps, as the residuals were computed (0, 1, ...)
+        "segment": _segment_labels(residuals.t, residuals.sample_rate_hz)[valid],
     }
     if residuals.tension_cmd is not None:
         arrays["tension_cmd"] = residuals.tension_cmd[valid]
@@ -196,6 +210,7 @@ def channels_from_logs(
         base = replace(base, replay=False)
     parts, residuals, names = [], [], []
     dt = None
+    segments = 0  # segment labels used so far: each log's follow the last log's
     for label, path in enumerate(paths):
         path = Path(path)
         arrays, residual, period = _one_run(model, path, base)
@@ -207,6 +222,8 @@ def channels_from_logs(
                 "diagnose logs of one sample rate together"
             )
         arrays["run"] = np.full(arrays["t"].shape[0], label, dtype=np.int64)
+        arrays["segment"] = arrays["segment"] + segments
+        segments = int(arrays["segment"].max()) + 1
         parts.append(arrays)
         residuals.append(residual)
         names.append(str(path))

@@ -206,7 +206,8 @@ class CommandDelay(CandidateEffect):
     Linear in the weights ``w_j`` [-]; a pure delay of ``s`` samples is ``w_s = 1`` (exact, as
     commands change from sample to sample with the controller's noise, which a first-order
     ``-d dF/dt`` term would miss), a fractional one splits between two taps. The delay is
-    ``d = dt sum_j j w_j`` [s] (:meth:`delay`). Samples before a run's start repeat its first.
+    ``d = dt sum_j j w_j`` [s] (:meth:`delay`). Samples before a segment's start (a run's, or
+    the end of a time gap's) repeat its first.
     """
 
     name = "command_delay"
@@ -235,8 +236,8 @@ class CommandDelay(CandidateEffect):
         self._check_cables(signals, self.n_cables)
         command = signals.require("tension_cmd", self.name)
         out = np.zeros(command.shape + (self.taps,))
-        for label in np.unique(signals.run):
-            index = np.flatnonzero(signals.run == label)
+        for label in np.unique(signals.segment):
+            index = np.flatnonzero(signals.segment == label)
             run = command[index]
             for j in range(1, self.taps + 1):
                 past = np.concatenate([np.repeat(run[:1], min(j, len(run)), axis=0), run[:-j]])

@@ -806,7 +806,8 @@ def replay_runs(
         q: Logged joint angles [rad], ``(T, n)``.
         qd: Filtered joint velocities [rad/s], ``(T, n)`` (the windows' start states).
         tension: Load-cell tensions [N], ``(T, m)``.
-        run: Run label of each sample, ``(T,)``; each run contiguous.
+        run: Label of each sample's stretch without a time gap (:attr:`Signals.segment`),
+            ``(T,)``; each contiguous.
         dt: Sample period [s].
         lost: Torque lost between the cables and the joints [N m], ``(T, n)`` (the fitted
             joint-torque residual), or None for the nominal model.

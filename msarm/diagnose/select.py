@@ -430,8 +430,8 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     hold, model = data.hold, data.model
     per_window = max(1, round(spec.replay_window / hold.dt))
     ends = np.zeros(hold.n_samples, dtype=bool)
-    for label in np.unique(hold.run):
-        index = np.flatnonzero(hold.run == label)
+    for label in np.unique(hold.segment):  # the replay restarts after each time gap
+        index = np.flatnonzero(hold.segment == label)
         ends[index[per_window - 1 :: per_window]] = True
     p_log = hand_position(model, hold.q[ends])
     use_command = spec.replay_source == "command" and hold.tension_cmd is not None
@@ -446,7 +446,7 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     error = None
     for key, tension, extra in (("before", drive, None), ("after", delivered, lost)):
         if error is None or not nothing:
-            error = replay_runs(model, hold.q, hold.qd, tension, hold.run, hold.dt, extra, spec)
+            error = replay_runs(model, hold.q, hold.qd, tension, hold.segment, hold.dt, extra, spec)
         p_replay = hand_position(model, hold.q[ends] + error[ends])
         out[f"joint_rmse_{key}"] = pooled_rmse(error)
         out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))

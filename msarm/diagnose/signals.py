@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import numba
 import numpy as np
@@ -63,7 +64,7 @@ class Signals:
         motor_angle: Motor (drum) angles [rad], shape ``(T, m)``.
         dt: Sample period [s], > 0.
         run: Integer label of the run each sample comes from, shape ``(T,)``; all zero when
-            omitted. Samples of one run are contiguous in time.
+            omitted. Samples of one run are contiguous in the arrays.
         tension_cmd: Tension commands sent to the drives, aligned with the tension they
             produce (the command of the previous sample) [N], shape ``(T, m)``; optional.
         motor_speed: Motor (drum) speeds, filtered derivative of ``motor_angle`` [rad/s],
@@ -73,6 +74,13 @@ class Signals:
             joint-torque residual too (through the inverse dynamics), so a term whose
             regressor holds ``qdd`` can "predict" that noise on held-out runs; the
             reference's accelerations carry none.
+        segment: Integer label of the stretch of a run without a time gap that each sample
+            belongs to, shape ``(T,)``; ``run`` when omitted (no gaps). A log with gaps in
+            time (dropped samples) is one run of several segments: its per-run quantities
+            (the cable lengths' offset, the bootstrap's unit, the direction and stick-slip
+            states, which carry across a gap as their own equations say) stay per run, while
+            what needs the samples just before (delay taps, tension rates) and the replay
+            restart at each segment, as the residuals do.
 
     Raises:
         InputError: A field has the wrong shape or type, a non-finite value, or ``dt <= 0``;
@@ -94,6 +102,7 @@ class Signals:
     tension_cmd: FloatArray | None = None
     motor_speed: FloatArray | None = None
     qdd_ref: FloatArray | None = None
+    segment: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         sizes: dict[str, int] = {}
@@ -135,21 +144,11 @@ class Signals:
         if not np.isfinite(dt) or dt <= 0.0:
             raise InputError(f"Signals.dt: expected a finite sample period > 0 s, got {self.dt}")
         object.__setattr__(self, "dt", dt)
-        run = np.zeros(sizes["T"], dtype=np.int64) if self.run is None else self.run
-        run_array = np.asarray(run)
-        if run_array.shape != (sizes["T"],):
-            raise InputError(
-                f"Signals.run: expected shape (T,) with T={sizes['T']}, got {run_array.shape}"
-            )
-        if run_array.dtype.kind not in "iu":
-            if run_array.dtype.kind == "f" and np.all(np.isfinite(run_array)):
-                if not np.all(run_array == np.round(run_array)):
-                    raise InputError("Signals.run: expected integer run labels")
-            else:
-                raise InputError(f"Signals.run: expected integer run labels, got {run_array.dtype}")
-        run_array = run_array.astype(np.int64)
-        run_array.setflags(write=False)
-        object.__setattr__(self, "run", run_array)
+        T = sizes["T"]
+        run = _labels("run", np.zeros(T, dtype=np.int64) if self.run is None else self.run, T)
+        object.__setattr__(self, "run", run)
+        segment = run if self.segment is None else _labels("segment", self.segment, T)
+        object.__setattr__(self, "segment", segment)
 
     @property
     def n_samples(self) -> int:
@@ -230,15 +229,35 @@ class Signals:
     def tension_rate(self) -> FloatArray:
         """Time derivative of the tensions [N/s], shape ``(T, m)``.
 
-        Central differences within each run (one-sided at a run's ends; zero for a run of one
-        sample).
+        Central differences within each segment (one-sided at a segment's ends; zero for a
+        segment of one sample).
         """
         out = np.zeros_like(self.tension)
-        for label in np.unique(self.run):
-            index = np.flatnonzero(self.run == label)
+        for label in np.unique(self.segment):
+            index = np.flatnonzero(self.segment == label)
             if index.size >= 2:
                 out[index] = np.gradient(self.tension[index], self.t[index], axis=0)
         return out
+
+
+def _labels(name: str, value: Any, T: int) -> NDArray[np.int64]:
+    """Checked integer labels ``(T,)`` of a :class:`Signals` field (read-only copy).
+
+    Raises:
+        InputError: Wrong shape, or values that are not whole numbers (the field named).
+    """
+    array = np.asarray(value)
+    if array.shape != (T,):
+        raise InputError(f"Signals.{name}: expected shape (T,) with T={T}, got {array.shape}")
+    if array.dtype.kind not in "iu":
+        if array.dtype.kind == "f" and np.all(np.isfinite(array)):
+            if not np.all(array == np.round(array)):
+                raise InputError(f"Signals.{name}: expected integer {name} labels")
+        else:
+            raise InputError(f"Signals.{name}: expected integer {name} labels, got {array.dtype}")
+    labels = array.astype(np.int64)
+    labels.setflags(write=False)
+    return labels
 
 
 def direction_memory(
@@ -248,7 +267,9 @@ def direction_memory(
 
     ``dz/dt = rate (v - |v| z)``: ``z`` tends to ``sgn(v)`` over a travel of about
     ``1 / rate`` and holds its value while ``v = 0``. Integrated by implicit Euler (stable for
-    any step) within each run, from ``z = 0`` at the run's first sample.
+    any step) within each run, from ``z = 0`` at the run's first sample; across a time gap
+    inside a run (:attr:`Signals.segment`) one step spans the gap's elapsed time, so a state
+    that the motion during the gap would have turned ends near the new direction.
 
     Args:
         speed: Velocities ``v``, shape ``(T, k)`` [unit/s].
@@ -289,7 +310,9 @@ def stick_slip_tension(
     A cable in a sheath with static friction ``mu`` over a wrap angle ``Theta`` slips once
     the tensions at its two ends differ by the capstan factor ``exp(mu Theta)`` and sticks
     in between: the far end keeps its tension while the near end's tension ``F`` stays within
-    the band. Per cable, within each run (starting balanced, ``T_out = F``):
+    the band. Per cable, within each run (starting balanced, ``T_out = F``; across a time
+    gap inside a run the band clamps the held level, exact for a tension that moved one way
+    during the gap):
 
     ``log T_out,k = min(max(log T_out,k-1, log F_k - mu Theta_k), log F_k + mu Theta_k)``
 
