@@ -451,8 +451,8 @@ class CableSlack(CandidateEffect):
     parameter_units: ClassVar[Mapping[str, str]] = {"slack": "m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"slack"})
     description = (
-        "e_l = s (g - mean_run g), g = exp(-F/F_0): slack s [m] paid out beyond the path while "
-        "the cable is slack, taken up over a tension scale F_0 (a dead zone)"
+        "e_l = s (g - mean_run g), g = exp(-max(F, 0)/F_0): slack s [m] paid out beyond the "
+        "path while the cable is slack, taken up over a tension scale F_0 (a dead zone)"
     )
     linear = True
     groups = ("length",)

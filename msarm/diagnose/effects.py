@@ -803,7 +803,8 @@ class StribeckFriction(CandidateEffect):
             joints: Joints with friction (all when ``None``).
             eps: Velocity scale of the smoothed sign [rad/s].
             viscous: Add a viscous coefficient per joint.
-            max_stribeck_velocity: Upper bound of ``v_j`` [rad/s].
+            max_stribeck_velocity: Upper bound of ``v_j`` [rad/s]; the lower bound is a
+                thousandth of it.
         """
         self.n_joints = int(n_joints)
         self.channels = _joint_channels(self.n_joints, joints)

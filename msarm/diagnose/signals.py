@@ -324,7 +324,7 @@ def stick_slip_tension(
         tension: Near-end (motor-side) tensions ``F`` [N], shape ``(T, m)``.
         wrap: Wrap angles ``Theta`` [rad], shape ``(T, m)``.
         run: Run labels, shape ``(T,)``; each run contiguous.
-        mu: Friction coefficient [-], >= 0.
+        mu: Friction coefficient [1/rad], >= 0.
         floor: Least tension taken for the logarithm [N], > 0.
 
     Returns:
