@@ -16,6 +16,7 @@ numbers come from here.
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -48,10 +49,10 @@ def main() -> None:
             f"--controller: unknown controller {args.controller!r}; expected one of "
             f"{', '.join(CDPR_CONTROLLERS)}"
         )
-    if args.seconds is not None and not args.seconds > 2 * START_UP:
+    if args.seconds is not None and not 2 * START_UP < args.seconds < math.inf:
         parser.error(
-            f"--seconds: expected more than {2 * START_UP:g} s (the first {START_UP:g} s are "
-            f"left out of the errors), got {args.seconds:g}"
+            f"--seconds: expected a finite time of more than {2 * START_UP:g} s (the first "
+            f"{START_UP:g} s are left out of the errors), got {args.seconds:g}"
         )
 
     robot = load_cable_robot()

@@ -6,7 +6,8 @@ docstring of ``msarm.plant.effects``). This one scales what reaches the insertio
     T_insertion = (1 - loss) * T_motor        (hook: transmission)
 
 and reports its parameter for the ground-truth sidecar (hook: parameters). The example runs
-the Table I task 1 on the ideal plant with and without it and prints the final errors.
+the Table I task 1 on the ideal plant with and without it and prints the joint RMSE and
+final error of each.
 
     python examples/custom_effect.py [--loss 0.2]
 """
@@ -46,6 +47,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--loss", type=float, default=0.2, help="share of tension lost")
     args = parser.parse_args()
+    if not 0 <= args.loss < 1:
+        parser.error(f"--loss: expected a share of the tension in [0, 1), got {args.loss:g}")
     arm = load_arm()
     task = get_task("table1-1", arm)
     gains = ArmControllerConfig()
@@ -62,8 +65,8 @@ def main() -> None:
         )
         rmse = 1000 * np.array(metrics.joint_rmse)
         print(
-            f"{label:16s} final error {metrics.final_error_mm:6.2f} mm, "
-            f"joint RMSE {np.round(rmse, 1)} mrad, effects {run.effects}"
+            f"{label:16s} joint RMSE {np.round(rmse, 1)} mrad, "
+            f"final error {1000 * metrics.final_error_mm:7.1f} um, effects {run.effects}"
         )
 
 

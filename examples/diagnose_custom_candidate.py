@@ -187,6 +187,8 @@ def main() -> None:
     args = parser.parse_args()
     if not 0 <= args.loss < 1:
         parser.error(f"--loss: expected a share of the tension in [0, 1), got {args.loss:g}")
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out: {args.out} is a file; expected a folder (created if missing)")
     started = time.perf_counter()
     result, files = run_example(args.loss, args.out)
     print(f"named effects, in order: {', '.join(result.names) or 'none'}")

@@ -212,9 +212,12 @@ def read_run(path: Path, pitch_deg: float) -> Run:
         pitch_deg: The folder's wrist pitch [deg].
 
     Raises:
-        ValueError: The sample period is not 1 ms.
+        ValueError: The sample period is not 1 ms, or the header lacks a key.
     """
     header = read_header(path)
+    lacking = [k for k in ("Yaw_rad", "Freq_Hz", "Torque_Pct") if k not in header]
+    if lacking:
+        raise ValueError(f"{path}: the header has no %{', %'.join(k + '=' for k in lacking)}")
     si = to_si(read_raw(path))
     period = float(np.median(np.diff(si["t"])))
     if abs(period - RAW_PERIOD) > 1e-6:
@@ -261,8 +264,24 @@ def data_files(root: Path) -> list[tuple[Path, float]]:
 
 
 def load_runs(root: Path) -> list[Run]:
-    """Read every file of the three pitch folders (48 runs)."""
-    return [read_run(path, pitch) for path, pitch in data_files(root)]
+    """Read every file of the three pitch folders (48 runs).
+
+    Raises:
+        ValueError: A file that cannot be read as a data file (named, with the reason).
+    """
+    runs = []
+    for path, pitch in data_files(root):
+        try:
+            runs.append(read_run(path, pitch))
+        except (OSError, ValueError, EOFError) as exc:
+            text = str(exc)
+            raise ValueError(text if str(path) in text else f"{path}: {text}") from exc
+    return runs
+
+
+def missing_pitches(root: Path) -> list[str]:
+    """The pitch folders under ``root`` that hold no data file (each pitch is held out once)."""
+    return [f for f in PITCH_DEG if not any((root / f).glob("*.TXT.gz"))]
 
 
 # --------------------------------------------------------------------------- nominal model
@@ -829,7 +848,7 @@ def print_report(results: dict[str, Any]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command line entry point; returns the exit status (0 also when the data are absent)."""
+    """Command line entry point; returns the exit status (2 when the data are absent)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--data", default=None, help=f"data folder (default: ${DATA_ENV} or {DEFAULT_DATA})"
@@ -838,16 +857,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap over files")
     parser.add_argument("--n-boot", type=int, default=30, help="bootstrap refits (default 30)")
     args = parser.parse_args(argv)
+    if args.n_boot < 2:
+        parser.error(f"--n-boot: expected at least 2 refits, got {args.n_boot}")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        parser.error(f"--out: {args.out} exists and is not a folder")
     root = data_folder(args.data)
+    layout = f"{', '.join(PITCH_DEG)} with *.TXT.gz files"
     if not data_files(root):
         print(
-            f"no data under {root}: expected the mis-tool CSV files there (set --data or "
-            f"${DATA_ENV}); nothing done",
+            f"no data under {root}: expected the mis-tool folders {layout} there (set --data "
+            f"or ${DATA_ENV}); nothing done",
+            file=sys.stderr,
+        )
+        return 2
+    missing = missing_pitches(root)
+    if missing:
+        print(
+            f"no data in {', '.join(str(root / f) for f in missing)}: every pitch is held out "
+            f"once, so all three folders ({layout}) are needed; nothing done",
             file=sys.stderr,
         )
         return 2
     start = time.perf_counter()
-    runs = load_runs(root)
+    try:
+        runs = load_runs(root)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     results = analyse(runs, n_boot=args.n_boot, seed=args.seed)
     results["data"] = str(root)
     results["seconds"] = round(time.perf_counter() - start, 1)

@@ -40,19 +40,19 @@ def _run_example(name: str, *args: str) -> str:
 def test_custom_effect_example_shows_the_pulley_loss():
     """Table I task 1 on the ideal plant without and with a 20 % pulley loss.
 
-    Printed: ideal final error 0.00 mm, joint RMSE [0.0 0.1 0.1 0.1] mrad; with the loss
-    0.00 mm (the feedback still reaches the target) and [0.8 3.6 0.7 3.5] mrad.
+    Printed: ideal joint RMSE [0.0 0.1 0.1 0.1] mrad, final error 0.0 um; with the loss
+    [0.8 3.6 0.7 3.5] mrad and 0.2 um (the feedback still reaches the target).
     """
     out = _run_example("custom_effect.py")
     pattern = re.compile(
-        r"^(ideal plant|with PulleyLoss)\s+final error\s+(\S+) mm, "
-        r"joint RMSE \[([^\]]*)\] mrad, effects (.*)$"
+        r"^(ideal plant|with PulleyLoss)\s+joint RMSE \[([^\]]*)\] mrad, "
+        r"final error\s+(\S+) um, effects (.*)$"
     )
     rows = {}
     for line in out.splitlines():
         match = pattern.match(line)
         if match:
-            label, final, rmse, effects = match.groups()
+            label, rmse, final, effects = match.groups()
             rows[label] = (float(final), np.array(rmse.split(), dtype=float), effects)
     assert set(rows) == {"ideal plant", "with PulleyLoss"}, out
     ideal, lossy = rows["ideal plant"], rows["with PulleyLoss"]
@@ -61,7 +61,7 @@ def test_custom_effect_example_shows_the_pulley_loss():
     assert lossy[2] == "{'pulley_loss': {'loss': 0.2}}"
     # both reach the target; the loss shows while tracking: every joint's RMSE grows, and
     # the largest several-fold (a fifth of every insertion tension missing)
-    assert 0.0 <= ideal[0] < 0.5 and 0.0 <= lossy[0] < 0.5
+    assert 0.0 <= ideal[0] < 500.0 and 0.0 <= lossy[0] < 500.0  # [um]
     assert ideal[1].shape == lossy[1].shape == (4,)
     assert ideal[1].max() < 0.5
     assert np.all(lossy[1] > ideal[1])
