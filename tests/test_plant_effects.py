@@ -50,6 +50,25 @@ def test_ideal_plant_renders_the_command_exactly(arm):
     np.testing.assert_array_equal(readings.tension_motor, truth["tension_motor"])
 
 
+def test_a_saturated_drive_holds_what_its_torque_limit_balances(arm):
+    """Rigid or elastic cables, a command above F_max gives F_max (r T = torque limit), and
+    the logged motor torque and the tension agree (rigid: the tension was the command)."""
+    biceps = list(arm.cable_names).index("biceps")  # F_max 400 N, 1.2 N m on a 3 mm drum
+    for config in (IDEAL_PLANT, only(elasticity=ElasticityConfig(enabled=True))):
+        plant = ArmPlant(arm, replace(config, name="saturated"), seed=0)
+        plant.reset(POSTURE, tensions=np.full(plant.n_cables, 100.0))
+        command = np.full(plant.n_cables, 100.0)
+        command[biceps] = 700.0
+        plant.command(command)
+        plant.step(20 if config is IDEAL_PLANT else 400)
+        readings = plant.sense()  # no sensor noise on these plants: the true values
+        limit = plant.torque_limit[biceps]
+        radius = config.winch.drum_radius
+        assert readings.motor_torque[biceps] == pytest.approx(limit)
+        assert readings.tension_motor[biceps] <= limit / radius + 1e-9
+        assert readings.tension_motor[biceps] > 0.9 * limit / radius
+
+
 # the default sheath (its tanh saturated at these cable speeds), and one whose wider smoothing
 # keeps tanh(v / v_s) well inside (-1, 1), so that v_s and the velocity used both count
 @pytest.mark.parametrize(

@@ -482,6 +482,9 @@ class ArmPlant:
     def step(self, n_steps: int = 1) -> None:
         """Advance the plant by ``n_steps`` time steps with the current command.
 
+        The sheath friction's wrap angles stay as they are: call :meth:`update_wrap_angles`
+        as the posture changes (the tracking runner does every 10 control periods).
+
         Args:
             n_steps: Number of plant time steps, an integer >= 0 (0: nothing happens).
 

@@ -202,10 +202,10 @@ def step_cables(
             if t_m < 0.0:
                 t_m = 0.0
             tau_m = r * t_m - tau_w
-            if tau_m > torque_limit[i]:
-                tau_m = torque_limit[i]
-            elif tau_m < -torque_limit[i]:
-                tau_m = -torque_limit[i]
+            if tau_m > torque_limit[i] or tau_m < -torque_limit[i]:
+                # a saturated motor holds what its torque limit balances (r T = tau_m + tau_w)
+                tau_m = torque_limit[i] if tau_m > 0.0 else -torque_limit[i]
+                t_m = max((tau_m + tau_w) / r, 0.0)
             sign = math.tanh(-velocities[i] / v_s)
             tension_motor[i] = t_m
             tension_insertion[i] = t_m * math.exp(-mu * wrap[i] * sign) * user_factor[i]
