@@ -204,6 +204,12 @@ def test_noisy_recovery_within_bootstrap_std(signals, effect, truth):
     # Same seed, same spread; different seed, different draws.
     again = bootstrap(effect, signals, residual, n_boot=30, seed=3)
     np.testing.assert_array_equal(again.samples, spread.samples)
+    other = bootstrap(effect, signals, residual, n_boot=30, seed=4)
+    assert not np.array_equal(other.samples, spread.samples)
+    # the training error's reduction, 1 - (rms_after / rms_before)^2, by hand
+    error = residual - result.predict(signals)
+    assert result.reduction == pytest.approx(1.0 - np.sum(error**2) / np.sum(residual**2))
+    assert 0.5 < result.reduction < 0.99  # noise of 0.3 std left: not all explained
 
 
 def test_explained_variance_held_out(arm, signals):
@@ -217,6 +223,16 @@ def test_explained_variance_held_out(arm, signals):
     assert right.explained_variance(signals, residual, test) > 0.99
     per_joint = right.explained_variance(signals, residual, test, per_joint=True)
     assert per_joint.shape == (arm.n_joints,)
+    # by hand: 1 - var(r - pred) / var(r) per joint, variances about each joint's mean
+    r = residual[test]
+    e = r - right.predict(signals)[test]
+    var_r, var_e = np.var(r, axis=0), np.var(e, axis=0)
+    moving = var_r > 0
+    np.testing.assert_allclose(per_joint[moving], 1.0 - var_e[moving] / var_r[moving], rtol=1e-12)
+    assert np.all(per_joint[moving] > 0.95)
+    assert right.explained_variance(signals, residual, test) == pytest.approx(
+        1.0 - var_e.sum() / var_r.sum(), rel=1e-12
+    )
     wrong = fit(MotorCogging(n_periods=6, drum_radius=DRUM, shared=True), signals, residual, train)
     assert wrong.explained_variance(signals, residual, test) < 0.1
     unrelated = fit(InertiaError(arm), signals, residual, train)

@@ -101,6 +101,7 @@ def test_each_single_effect_scenario_switches_on_only_its_effect_within_range():
             assert fx.cogging.amplitude == values["amplitude"]
             assert fx.cogging.periods_per_revolution == 24
             assert _in_range(values["amplitude"], effect, "amplitude")
+            assert fx.cogging.phase == values["phase"]
             assert 0.0 <= values["phase"] < 2 * math.pi
         elif effect == "delay":
             sensing, actuation = fx.delay.sensing_periods, fx.delay.actuation_periods
