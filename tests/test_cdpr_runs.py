@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -518,3 +519,37 @@ def test_the_time_in_bounds_is_not_rounded_up_to_100():
     assert _share_inside(100.0) == "100"
     assert _share_inside(98.94) == "98.9"
     assert _share_inside(float("nan")) == "-"
+
+
+def test_every_run_metric_of_a_hand_made_run_is_its_hand_value(robot, triangle):
+    """msarm.tasks.cdpr_runner._metrics on four samples whose metrics are worked out by hand
+    (the definitions of CdprMetrics and the module docstring, paper 000 section 4): the
+    marker's errors, the share of samples with every force within the model's bounds (both
+    ends inside), the force extremes and the RMS error of the force-controlled entries only."""
+    from msarm.tasks.cdpr_runner import _metrics
+
+    lower, upper = float(robot.f_min[0]), float(robot.f_max[0])
+    assert np.all(robot.f_min == lower) and np.all(robot.f_max == upper)
+    reference = triangle.position[:4]  # the run stopped after 4 samples (a shorter marker)
+    offsets_mm = np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0], [0.0, 0.0, -2.0], [1.0, 0.0, 0.0]])
+    marker = reference + offsets_mm / 1000.0  # errors 0, 5, 2 and 1 mm
+    force = np.full((4, 8), 20.0)
+    force[1, 2] = lower - 0.5  # below: sample 1 is outside the bounds
+    force[2, 0] = lower  # on the bounds: inside
+    force[3, 5] = upper  # on the bounds: inside
+    controlled = np.zeros((4, 8), dtype=bool)
+    controlled[0, :2] = controlled[2, 6:] = True
+    desired = force + 50.0  # far off where the cable is not force-controlled
+    desired[0, 0], desired[0, 1] = force[0, 0] - 3.0, force[0, 1] + 4.0  # errors 3 and -4 N
+    desired[2, 6:] = force[2, 6:]  # errors 0 and 0 N
+    metrics = _metrics(robot, triangle, marker, force, desired, controlled, True)
+    assert metrics.max_position_error_mm == pytest.approx(5.0, rel=1e-9)
+    assert metrics.mean_position_error_mm == pytest.approx((0 + 5 + 2 + 1) / 4, rel=1e-9)
+    assert metrics.time_in_bounds_percent == 75.0  # 3 of 4 samples
+    assert metrics.min_force == lower - 0.5
+    assert metrics.max_force == upper
+    assert metrics.force_rms_error == pytest.approx(np.sqrt((9 + 16 + 0 + 0) / 4))  # 2.5 N
+    assert metrics.completed is True
+    # no force-controlled cable (IKC, NC): no force error; a run that stopped is not completed
+    idle = _metrics(robot, triangle, marker, force, desired, controlled & False, False)
+    assert math.isnan(idle.force_rms_error) and idle.completed is False

@@ -33,15 +33,21 @@ def _stage(arm, **spec) -> SheathInverse:
     )
 
 
-def test_the_memory_is_a_stop_operator_of_the_tension_and_the_command_its_capstan_factor(arm):
-    stage = _stage(arm, width=1e-4, compliance_share=0.5)  # c_s = 1e-5 m/N: 10 N turns it fully
+@pytest.mark.parametrize("gain", [1.0, 0.5])
+def test_the_memory_is_a_stop_operator_of_the_tension_and_the_command_its_capstan_factor(arm, gain):
+    """s follows the tension as a stop operator and the command is ``F exp(g mu Theta s)``
+    (the law of msarm.compensation.sheath's module docstring): a gain g < 1 scales the
+    identified mu (0.1) in the exponent, not the memory."""
+    # c_s = 1e-5 m/N: 10 N turns the memory fully
+    stage = _stage(arm, width=1e-4, compliance_share=0.5, gain=gain)
     wrap = arm.geometry(POSTURE).wrap_angles
     tensions = [20.0, 24.0, 40.0, 37.0, 25.0, 26.0]
     expected_side = [0.0, 0.4, 1.0, 0.7, -0.5, -0.4]  # clip(s + 1e-5 dF / 1e-4, -1, 1)
     for force, side in zip(tensions, expected_side, strict=True):
         command = stage(np.full(9, force), POSTURE)
         np.testing.assert_allclose(stage.side, side, atol=1e-12)
-        np.testing.assert_allclose(command, force * np.exp(0.1 * wrap * side), rtol=1e-12)
+        expected = force * np.exp(gain * 0.1 * wrap * side)
+        np.testing.assert_allclose(command, expected, rtol=1e-12)
     stage.reset()
     np.testing.assert_array_equal(stage(np.full(9, 30.0), POSTURE), np.full(9, 30.0))
 

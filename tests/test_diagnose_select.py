@@ -605,6 +605,74 @@ def test_the_bootstrap_fits_each_distinct_draw_of_runs_once(arm, monkeypatch):
         np.testing.assert_allclose(effect.std, spread, rtol=1e-9, atol=1e-15)
 
 
+def _held_out_gains(sampled, layout, terms, thetas):
+    """Each term's rise of the explained share on each held-out run, by hand.
+
+    Per group the explained share is ``1 - sum (r - pred)^2 / sum r^2`` over the run's
+    samples (the module docstring's score); a term's gain is the share with all terms less
+    the share without it, averaged over the groups it acts on. Shape ``(n_runs, n_terms)``.
+    """
+    r_hold = sampled.residual["hold"]
+    pairs = zip(terms, thetas, strict=True)
+    parts = [sampled.predict(term, theta, "hold") for term, theta in pairs]
+    full = np.sum(parts, axis=0)
+    runs = sampled.signals["hold"].run
+    gains = []
+    for label in np.unique(runs):
+        rows = runs == label
+
+        def share(prediction, g, rows=rows):
+            r = r_hold[rows][:, layout.slices[g]]
+            return 1.0 - np.sum((r - prediction[rows][:, layout.slices[g]]) ** 2) / np.sum(r**2)
+
+        gains.append(
+            [
+                np.mean([share(full, g) - share(full - part, g) for g in term.term.groups])
+                for term, part in zip(terms, parts, strict=True)
+            ]
+        )
+    return np.array(gains)
+
+
+def test_the_confidence_is_the_share_of_draws_and_held_out_runs_that_need_the_term(arm):
+    """Confidence = the share of (bootstrap draw, held-out run) pairs in which leaving the
+    term out of the refitted model lowers the run's explained share by more than the threshold
+    (the module docstring of msarm.diagnose.select), recomputed by hand from every draw's refit.
+    A term fitted to the noise (inertia, absent from the Coulomb + viscous residual) gets 0; the
+    threshold is set between two of viscous's distinct gains so that its confidence is a
+    fraction."""
+    import msarm.diagnose.select as select
+    from msarm.diagnose.stack import Sampled, fit_together
+
+    data = _synthetic_data(arm)  # two training runs, six held-out runs
+    sampled = Sampled(data, 5000, max_hold=data.hold.n_samples)
+    by_name = {c.name: c for c in data.candidates}
+    terms = [by_name["coulomb"], by_name["viscous"], by_name["inertia"]]
+    final = fit_together(terms, sampled)
+    n_boot, seed = 8, 1
+    rng = np.random.default_rng(seed)
+    runs = sampled.signals["train"].run
+    labels = np.unique(runs)
+    gains = []  # (draw, held-out run, term)
+    for _ in range(n_boot):
+        weights = np.zeros(runs.size)
+        for k in rng.integers(0, labels.size, size=labels.size):
+            weights[runs == labels[k]] += 1.0
+        thetas = fit_together(terms, sampled, weights, final.parameters).parameters
+        gains.append(_held_out_gains(sampled, data.layout, terms, thetas))
+    gains = np.array(gains)
+    viscous = np.unique(gains[:, :, 1])  # sorted; repeated draws give the same gains
+    middle = viscous.size // 2
+    threshold = 0.5 * (viscous[middle - 1] + viscous[middle])
+    assert viscous[middle - 1] < threshold < viscous[middle]
+    _, confidence = select._bootstrap(final, sampled, data.layout, n_boot, threshold, seed)
+    expected = (gains > threshold).mean(axis=(0, 1))
+    assert confidence == pytest.approx(list(expected), abs=1e-12)
+    assert confidence[0] == 1.0  # Coulomb friction: every draw and run needs it
+    assert 0.0 < confidence[1] < 1.0  # viscous, at a threshold amid its gains
+    assert confidence[2] < 0.5  # the inertia term only fits the noise
+
+
 def test_parameters_the_held_out_runs_do_not_need_are_left_out(arm, tmp_path):
     """A load cell with a bias and no scale error, commands a control period late: the
     sensor term's scale and the delay kernel's later taps are fixed at zero (said in a note),
