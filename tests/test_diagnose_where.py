@@ -209,6 +209,29 @@ def test_cable_residual_is_the_motor_length_minus_the_path_length(arm, logs):
     np.testing.assert_array_equal(after.cable_length[:, 1:], before.cable_length[:, 1:])
 
 
+def test_the_cable_length_breakdown_is_about_each_logs_mean(residuals):
+    """The encoders give lengths up to an offset (their zero at the log's start): the length
+    breakdown is the same whatever offset each log's estimate starts from, and its energy is
+    that of each log's residual about its mean, as the diagnosis's length group scores it."""
+    runs = [r for r in residuals.values() if r.cable_length is not None]
+    assert runs
+    base = break_down(runs, "cable_length")
+    expected = 0.0
+    for run in runs:
+        values = run.cable_length[run.valid]
+        expected += float(np.sum((values - values.mean(axis=0)) ** 2))
+    assert base.total_energy == pytest.approx(expected, rel=1e-12)
+    rng = np.random.default_rng(0)
+    shifted = [
+        replace(run, cable_length=run.cable_length + rng.normal(0, 1e-3, run.cable_length.shape[1]))
+        for run in runs
+    ]
+    moved = break_down(shifted, "cable_length")
+    assert moved.total_energy == pytest.approx(base.total_energy, rel=1e-9)
+    shares = {(r.group, r.where): r.share for r in base.rows}
+    assert {(r.group, r.where): r.share for r in moved.rows} == pytest.approx(shares, abs=1e-9)
+
+
 def test_a_log_of_another_model_is_refused(arm, logs, tmp_path):
     log = read_log(logs["ideal"])
     other = "0" * 64

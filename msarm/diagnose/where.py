@@ -1,13 +1,16 @@
 """Where the sim-to-real gap lies: the residual energy broken down by channel, phase, posture.
 
 The residual energy of a set of samples is the sum of squares of one residual kind
-(:mod:`msarm.diagnose.residuals`: ``joint_torque`` [N m], ``cable_length`` [m] or ``replay``
-[rad]) over those samples and the kind's channels. Several logs combine by summing over all
-their valid samples. The breakdown has four groups of rows; each group partitions the energy,
-so that its shares sum to 100 %:
+(:mod:`msarm.diagnose.residuals`: ``joint_torque`` [N m], ``drive`` [N], ``cable_length`` [m] or
+``replay`` [rad]) over those samples and the kind's channels; ``cable_length`` about each log's
+mean, as the diagnosis scores it (the encoders give lengths up to an offset: measured from the log's
+first sample, the breakdown would depend on where the log starts). Several logs combine by summing
+over all their valid samples. The breakdown has four groups of rows; each group partitions the
+energy, so that its shares sum to 100 %:
 
 ``channel``
-    Each joint (or each cable, for ``cable_length``): the channel's own sum of squares. Its
+    Each joint (or each cable, for ``drive`` and ``cable_length``): the channel's own sum of
+    squares. Its
     "time share" is an even split between the channels (100 % / number of channels).
 ``motion``
     Each sample is counted in exactly one motion phase, the first that matches in this
@@ -144,7 +147,7 @@ class GapBreakdown:
     """Where the residual energy of one residual kind lies, over one or more logs.
 
     Attributes:
-        kind: The residual kind (``joint_torque``, ``cable_length``, ``replay``).
+        kind: The residual kind (``joint_torque``, ``drive``, ``cable_length``, ``replay``).
         unit: Its unit.
         sources: The logs.
         samples: Number of valid samples, all logs together.
@@ -351,9 +354,14 @@ def break_down(
     parts = []
     for run in runs:
         keep = run.valid
+        values = run.get(kind)[keep]
+        if kind == "cable_length":
+            # the motor encoders give lengths up to each log's offset (their zero at the
+            # log's start): about its mean, as the diagnosis's length group takes it
+            values = values - values.mean(axis=0)
         parts.append(
             (
-                run.get(kind)[keep],
+                values,
                 run.q[keep],
                 run.tension[keep],
                 motion_phases(run, settings)[keep],
