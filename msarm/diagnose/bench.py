@@ -17,7 +17,9 @@ Scores (each for both methods):
   pooled held-out residual on the groups the effect shows in (:data:`EFFECT_GROUPS`, mean over
   them). Sensor noise bounds it below 1, so the *excess* shrink is also given: the same with
   the noise floor removed, ``1 - sqrt((after^2 - floor^2) / (before^2 - floor^2))``, the floor
-  of each group being the mean held-out RMSE of the null scenarios (same tasks, same noise).
+  of each group being the mean held-out RMSE of the null scenarios (same tasks, same noise;
+  a group without a floor counted noise-free, as in the ceiling: until 2026-11-29 such
+  scenarios, the elasticity draws, were left out of the mean).
   The *ceiling* is the raw shrink of a perfect diagnosis, one that leaves only the noise:
   ``1 - floor / RMSE_before`` (a group without a floor, such as the cable lengths that rigid
   null plants lack, counted noise-free). It is an estimate (the floor is the null plants'
@@ -195,12 +197,13 @@ def _excess_shrink(
 ) -> float:
     values = []
     for g in groups:
-        if g not in before or g not in floor:
+        if g not in before:
             continue
-        gap = before[g] ** 2 - floor[g] ** 2
+        level = floor.get(g, 0.0)  # no floor: noise-free, as in the ceiling
+        gap = before[g] ** 2 - level**2
         if gap <= 0:
             continue
-        values.append(1.0 - np.sqrt(max(after[g] ** 2 - floor[g] ** 2, 0.0) / gap))
+        values.append(1.0 - np.sqrt(max(after[g] ** 2 - level**2, 0.0) / gap))
     return float(np.mean(values)) if values else float("nan")
 
 
@@ -476,7 +479,10 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             groups = EFFECT_GROUPS[r["effects"][0]]
             answer = r[method]
             shrinks.append(_shrink(answer["gap_before"], answer["gap_after"], groups))
-            excess.append(_excess_shrink(answer["gap_before"], answer["gap_after"], groups, floor))
+            if null:  # no null plants, no noise floor: no excess shrink
+                excess.append(
+                    _excess_shrink(answer["gap_before"], answer["gap_after"], groups, floor)
+                )
             shrink_by_effect.setdefault(r["effects"][0], []).append(shrinks[-1])
         extra = []
         for r in [*single, *pairs]:
