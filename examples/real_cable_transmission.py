@@ -35,6 +35,7 @@ import gzip
 import os
 import sys
 import time
+import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -273,7 +274,7 @@ def load_runs(root: Path) -> list[Run]:
     for path, pitch in data_files(root):
         try:
             runs.append(read_run(path, pitch))
-        except (OSError, ValueError, EOFError) as exc:
+        except (OSError, ValueError, EOFError, zlib.error) as exc:
             text = str(exc)
             raise ValueError(text if str(path) in text else f"{path}: {text}") from exc
     return runs

@@ -387,6 +387,39 @@ def test_signals_other_bad_input(signals):
     assert not signals.q.flags.writeable
 
 
+def test_segments_refine_runs_whatever_labels_are_given():
+    """Segments (stretches without a time gap) never join two runs: labels restarting in each
+    run, or a replace(run=...) that keeps the old segments, give the delay taps a run start."""
+    from dataclasses import replace
+
+    from msarm.diagnose.cable_effects import CommandDelay
+
+    T = 8
+    base = dict(
+        t=np.arange(T) * 0.004,
+        q=np.zeros((T, 1)),
+        qd=np.zeros((T, 1)),
+        qdd=np.zeros((T, 1)),
+        tension=np.ones((T, 1)),
+        lengths=np.ones((T, 1)),
+        cable_velocity=np.zeros((T, 1)),
+        jacobian=np.zeros((T, 1, 1)),
+        wrap=np.ones((T, 1)),
+        motor_angle=np.zeros((T, 1)),
+        dt=0.004,
+        tension_cmd=10.0 * np.arange(T, dtype=float)[:, None],
+    )
+    run = np.repeat([0, 1], 4)
+    delay = CommandDelay(n_cables=1, taps=1)
+    per_run = Signals(**base, run=run, segment=np.tile([0, 0, 1, 1], 2))
+    assert per_run.segment.tolist() == [0, 0, 1, 1, 2, 2, 3, 3]
+    assert delay.design(per_run)[[0, 2, 4, 6], 0, 0].tolist() == [0.0] * 4  # each a start
+    later = replace(Signals(**base), run=run)  # segments of the one-run signals kept
+    assert later.segment.tolist() == [0] * 4 + [1] * 4
+    assert delay.design(later)[4, 0, 0] == 0.0
+    assert Signals(**base, run=run).segment.tolist() == [0] * 4 + [1] * 4
+
+
 def test_fit_bad_input(signals):
     effect = CoulombFriction()
     good = effect.torque(signals, np.ones(4))

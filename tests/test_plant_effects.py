@@ -282,6 +282,12 @@ def test_bad_reset_is_refused(arm):
         plant.reset(np.zeros(3))
     with pytest.raises(InputError, match="tensions must be >= 0"):
         plant.reset(POSTURE, tensions=-np.ones(arm.n_cables))
+    # more than a drive holds (biceps: 1.2 N m on a 3 mm drum, 400 N): a state it cannot keep
+    too_much = np.full(arm.n_cables, 100.0)
+    too_much[list(arm.cable_names).index("biceps")] = 700.0
+    with pytest.raises(InputError, match=r"700.0 N on cable 7 \('biceps'\) is more than its drive"):
+        plant.reset(POSTURE, tensions=too_much)
+    plant.reset(POSTURE, tensions=plant.torque_limit / plant.drum_radius)  # at the limit: held
 
 
 class _Loss(Effect):

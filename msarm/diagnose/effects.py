@@ -1333,8 +1333,8 @@ class TensionDelay(CandidateEffect):
 
     The load cells are logged ``d`` [s] late: the tension delivered at ``t`` is ``F(t + d)``,
     so ``r = -J_c^T (F(t) - F(t + d)) ~= d J_c^T dF/dt`` (``dF/dt`` by central differences within
-    each run). Linear in ``d``; valid while ``d`` is small against the tensions' time scale
-    (a negative ``d``: the tensions lead).
+    each segment: a run, restarted after a time gap). Linear in ``d``; valid while ``d`` is
+    small against the tensions' time scale (a negative ``d``: the tensions lead).
     """
 
     name = "delay"

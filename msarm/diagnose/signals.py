@@ -75,7 +75,9 @@ class Signals:
             regressor holds ``qdd`` can "predict" that noise on held-out runs; the
             reference's accelerations carry none.
         segment: Integer label of the stretch of a run without a time gap that each sample
-            belongs to, shape ``(T,)``; ``run`` when omitted (no gaps). A log with gaps in
+            belongs to, shape ``(T,)``; ``run`` when omitted (no gaps). Segments refine runs:
+            stored relabelled 0, 1, ... with a new segment wherever the run or the given
+            label changes. A log with gaps in
             time (dropped samples) is one run of several segments: its per-run quantities
             (the cable lengths' offset, the bootstrap's unit, the direction and stick-slip
             states, which carry across a gap as their own equations say) stay per run, while
@@ -147,7 +149,13 @@ class Signals:
         T = sizes["T"]
         run = _labels("run", np.zeros(T, dtype=np.int64) if self.run is None else self.run, T)
         object.__setattr__(self, "run", run)
-        segment = run if self.segment is None else _labels("segment", self.segment, T)
+        given = run if self.segment is None else _labels("segment", self.segment, T)
+        # segments refine runs: a new one wherever the run or the given label changes (so a
+        # replace(run=...) or labels restarting in each run cannot join two runs)
+        changes = np.ones(T, dtype=np.int64)
+        changes[1:] = (run[1:] != run[:-1]) | (given[1:] != given[:-1])
+        segment = np.cumsum(changes) - 1
+        segment.setflags(write=False)
         object.__setattr__(self, "segment", segment)
 
     @property

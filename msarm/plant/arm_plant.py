@@ -301,7 +301,8 @@ class ArmPlant:
 
         Raises:
             InputError: A wrong shape, a non-finite value, a joint of ``q`` outside its range
-                (joint, value and range named), or a negative tension (cable named).
+                (joint, value and range named), or a tension that is negative or more than the
+                cable's drive holds (torque limit / drum radius; cable named).
         """
         n, m = self.model.n_joints, self.n_cables
         q = self._vector(q, n, "q")
@@ -316,6 +317,15 @@ class ArmPlant:
             )
         tensions = self._vector(np.zeros(m) if tensions is None else tensions, m, "tensions")
         self._check_tensions(tensions, "tensions")
+        held = self.torque_limit / self.drum_radius
+        beyond = tensions > held * (1.0 + 1e-12)
+        if beyond.any():
+            i = int(np.argmax(beyond))
+            raise InputError(
+                f"tensions: {float(tensions[i])} N on cable {i} ({self.model.cable_names[i]!r}) "
+                f"is more than its drive holds at rest ({float(held[i]):g} N: the torque limit "
+                f"{float(self.torque_limit[i]):g} N m on a {self.drum_radius:g} m drum)"
+            )
         mujoco.mj_resetData(self.mj_model, self.mj_data)
         self.mj_data.qpos[:] = q
         self.mj_data.qvel[:] = 0.0 if qdot is None else self._vector(qdot, n, "qdot")
