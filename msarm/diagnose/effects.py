@@ -21,6 +21,7 @@ builds the casadi expression that IPOPT fits.
 
 Adding a candidate::
 
+    import numpy as np
     from msarm.diagnose.effects import CandidateEffect, register
 
     @register
