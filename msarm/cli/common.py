@@ -440,13 +440,16 @@ def console() -> Console:
 class RepeatedWarnings:
     """Tells the first of a warning about several log files from its repeats.
 
-    A warning ``"<file>.parquet: <what>"`` is shown for its first file; the same ``<what>``
+    A warning ``"<file>: <what>"`` about a log (``.parquet``) or a CSV file being imported
+    (``.csv``, ``.csv.gz``, ``.csv.bz2``) is shown for its first file; the same ``<what>``
     for further files is only counted, and :meth:`summary` names those files once. Any other
     warning is shown once: the same words again (a check made before a run and again by
     the run) add nothing.
     """
 
-    _ABOUT_A_FILE = re.compile(r"^(?P<source>\S+\.parquet): (?P<what>.*)$", re.DOTALL)
+    _ABOUT_A_FILE = re.compile(
+        r"^(?P<source>\S+\.(?:parquet|csv(?:\.gz|\.bz2)?)): (?P<what>.*)$", re.DOTALL
+    )
 
     def __init__(self) -> None:
         self.sources: dict[str, list[str]] = {}
