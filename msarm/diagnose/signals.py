@@ -76,13 +76,12 @@ class Signals:
             reference's accelerations carry none.
         segment: Integer label of the stretch of a run without a time gap that each sample
             belongs to, shape ``(T,)``; ``run`` when omitted (no gaps). Segments refine runs:
-            stored relabelled 0, 1, ... with a new segment wherever the run or the given
-            label changes. A log with gaps in
-            time (dropped samples) is one run of several segments: its per-run quantities
-            (the cable lengths' offset, the bootstrap's unit, the direction and stick-slip
-            states, which carry across a gap as their own equations say) stay per run, while
-            what needs the samples just before (delay taps, tension rates) and the replay
-            restart at each segment, as the residuals do.
+            stored relabelled 0, 1, ... with a new segment wherever the run or the given label
+            changes. A log with gaps in time (dropped samples) is one run of several segments:
+            its per-run quantities (the cable lengths' offset, the bootstrap's unit, the
+            direction and stick-slip states, which carry across a gap as their own equations
+            say) stay per run, while what needs the samples just before (delay taps, tension
+            rates) and the replay restart at each segment, as the residuals do.
 
     Raises:
         InputError: A field has the wrong shape or type, a non-finite value, or ``dt <= 0``;
