@@ -382,6 +382,9 @@ def test_signals_other_bad_input(signals):
         Signals(**{**kwargs, "dt": 0.0})
     with pytest.raises(InputError, match=r"Signals\.run"):
         Signals(**{**kwargs, "run": kwargs["run"][:-1]})
+    # whole floats past 2**53 would all cast to one int64: refused, not merged
+    with pytest.raises(InputError, match=r"Signals\.run: expected integer run labels"):
+        Signals(**{**kwargs, "run": np.where(kwargs["run"] < 3, 1e19, 2e19)})
     with pytest.raises(InputError, match=r"Signals\.q"):
         Signals(**{**kwargs, "q": kwargs["q"][:, :3]})
     assert not signals.q.flags.writeable

@@ -538,9 +538,11 @@ def test_a_warning_about_many_logs_is_shown_once_then_summarised():
     # the CSV files log import reads are files too
     assert repeats.first("a/r1.csv: 1 row(s) with a missing value left out")
     assert not repeats.first("b/r2.csv.gz: 1 row(s) with a missing value left out")
+    assert not repeats.first("c/R3.CSV: 1 row(s) with a missing value left out")
     assert repeats.summary() == [
         "the same (column 'q_ref.x' is missing: y) for 1 more log(s): b/run2.parquet",
-        "the same (1 row(s) with a missing value left out) for 1 more log(s): b/r2.csv.gz",
+        "the same (1 row(s) with a missing value left out) for 2 more log(s): b/r2.csv.gz, "
+        "c/R3.CSV",
     ]
 
 

@@ -46,6 +46,23 @@ def test_default_plant_shows_a_gap_to_the_ideal_plant(arm):
     assert max(default.cable_length_error_percent) > 10 * max(ideal.cable_length_error_percent)
 
 
+def test_a_weak_drive_starts_at_the_tension_it_holds(arm):
+    """The controller may want more at home than a weak drive holds (torque limit / drum
+    radius): the run starts with the drive at its limit (the plant refuses more at rest)."""
+    weak = replace(
+        IDEAL_PLANT, name="weak", winch=replace(IDEAL_PLANT.winch, torque_limit_factor=0.04)
+    )
+    plant = ArmPlant(arm, weak, seed=0)
+    hold = plant.holding_tension
+    controller = MuscleSpaceController(arm, ArmControllerConfig())
+    wanted = controller.update(plant.sense(), HOME, np.zeros(4), np.zeros(4)).tension_command
+    assert np.any(wanted > hold)  # the case: more than the weakest drive holds
+    run = run_tracking(plant, MuscleSpaceController(arm, ArmControllerConfig()), SHORT)
+    assert run.error is None
+    tensions = np.column_stack([run.columns[f"tension_motor.{c}"] for c in arm.cable_names])
+    assert np.all(tensions[0] <= hold + 1e-9)
+
+
 def test_same_seed_same_log_bit_for_bit(arm, tmp_path):
     first = track(arm, SHORT, settings(seed=3), tmp_path / "a", plots_too=False)
     second = track(arm, SHORT, settings(seed=3), tmp_path / "b", plots_too=False)

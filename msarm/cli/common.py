@@ -440,15 +440,17 @@ def console() -> Console:
 class RepeatedWarnings:
     """Tells the first of a warning about several log files from its repeats.
 
-    A warning ``"<file>: <what>"`` about a log (``.parquet``) or a CSV file being imported
-    (``.csv``, ``.csv.gz``, ``.csv.bz2``) is shown for its first file; the same ``<what>``
+    A warning ``"<file>: <what>"`` about a log (``.parquet``) or a table being imported
+    (``.csv``, ``.tsv``, ``.txt``, compressed or not; any case) is shown for its first file;
+    the same ``<what>``
     for further files is only counted, and :meth:`summary` names those files once. Any other
     warning is shown once: the same words again (a check made before a run and again by
     the run) add nothing.
     """
 
     _ABOUT_A_FILE = re.compile(
-        r"^(?P<source>\S+\.(?:parquet|csv(?:\.gz|\.bz2)?)): (?P<what>.*)$", re.DOTALL
+        r"^(?P<source>\S+\.(?:parquet|(?:csv|tsv|txt)(?:\.(?:gz|bz2|xz|zst))?)): (?P<what>.*)$",
+        re.DOTALL | re.IGNORECASE,
     )
 
     def __init__(self) -> None:

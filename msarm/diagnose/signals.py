@@ -258,8 +258,11 @@ def _labels(name: str, value: Any, T: int) -> NDArray[np.int64]:
         raise InputError(f"Signals.{name}: expected shape (T,) with T={T}, got {array.shape}")
     if array.dtype.kind not in "iu":
         if array.dtype.kind == "f" and np.all(np.isfinite(array)):
-            if not np.all(array == np.round(array)):
-                raise InputError(f"Signals.{name}: expected integer {name} labels")
+            if not np.all(array == np.round(array)) or np.any(np.abs(array) > 2.0**53):
+                raise InputError(
+                    f"Signals.{name}: expected integer {name} labels (whole numbers within "
+                    "+-2**53 as floats)"
+                )
         else:
             raise InputError(f"Signals.{name}: expected integer {name} labels, got {array.dtype}")
     labels = array.astype(np.int64)

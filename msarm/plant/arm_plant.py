@@ -287,6 +287,11 @@ class ArmPlant:
         """Number of cables ``m``."""
         return self.model.n_cables
 
+    @property
+    def holding_tension(self) -> FloatArray:
+        """The most tension each drive holds [N], shape ``(m,)``: torque limit / drum radius."""
+        return self.torque_limit / self.drum_radius
+
     def reset(
         self, q: ArrayLike, tensions: ArrayLike | None = None, qdot: ArrayLike | None = None
     ) -> None:
@@ -317,7 +322,7 @@ class ArmPlant:
             )
         tensions = self._vector(np.zeros(m) if tensions is None else tensions, m, "tensions")
         self._check_tensions(tensions, "tensions")
-        held = self.torque_limit / self.drum_radius
+        held = self.holding_tension
         beyond = tensions > held * (1.0 + 1e-12)
         if beyond.any():
             i = int(np.argmax(beyond))

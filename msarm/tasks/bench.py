@@ -151,11 +151,13 @@ def run_sim_benchmark(
             f"{task.name} --plant ... shows the run up to there)"
         )
 
+    pretension = np.minimum(np.full(model.n_cables, 20.0), plant.holding_tension)
+
     def plant_only() -> None:
-        plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))
+        plant.reset(task.home, tensions=pretension)
         plant.step(steps)
 
-    plant.reset(task.home, tensions=np.full(model.n_cables, 20.0))
+    plant.reset(task.home, tensions=pretension)
     readings = plant.sense()
     zeros = np.zeros(model.n_joints)
     controller.reset(readings.q)  # at rest there: no velocity estimate left from the warm-up

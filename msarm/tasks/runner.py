@@ -210,7 +210,9 @@ def run_tracking(
     plant.reset(home)
     controller.reset(home)
     start = controller.update(plant.sense(), home, zeros, zeros)
-    plant.reset(home, tensions=start.tension_command)
+    # the drives start where they can: a weak drive holds at most its torque limit's tension
+    # (the plant refuses more at rest); its first step would saturate there anyway
+    plant.reset(home, tensions=np.minimum(start.tension_command, plant.holding_tension))
     controller.reset(home)
     if feedforward is not None:
         feedforward.reset()
