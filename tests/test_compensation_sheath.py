@@ -16,10 +16,12 @@ from msarm.compensation.target import TargetSpec, delivered_torque, torque_error
 from msarm.control import ArmControllerConfig, MuscleSpaceController
 from msarm.errors import InputError, MsarmWarning
 from msarm.io.logs import RunLog, read_log
-from msarm.plant import DEFAULT_PLANT
+from msarm.plant import DEFAULT_PLANT, IDEAL_PLANT, ArmPlant
 from msarm.plant.effects import SensorReadings
 from msarm.tasks.registry import get_task
+from msarm.tasks.runner import run_tracking
 from msarm.tasks.track import TrackSettings, track
+from msarm.tasks.trajectories import hold_then_move
 
 POSTURE = np.array([0.1, 0.3, -0.2, -0.8])
 PERIOD = 0.004
@@ -73,6 +75,27 @@ def test_the_wanted_tension_reaches_the_memory_through_a_low_pass(arm):
     np.testing.assert_allclose(stage.side, 4e-5, atol=1e-15)
     stage(np.full(9, 18.0), POSTURE)  # filtered 13.5
     np.testing.assert_allclose(stage.side, 2e-5 * 3.5, atol=1e-15)
+
+
+def test_the_low_pass_steps_with_the_controller_that_runs_the_stage(arm):
+    """A stage trained at 250 Hz run by a 500 Hz controller (msarm track --controller): its
+    filter's step is the running period, so filter_time stays a time constant in seconds."""
+    stage = _stage(arm, width=1.0, compliance_share=1.0, filter_time=0.012)
+    stage.run_at(0.002)  # alpha = 0.002 / 0.014 = 1/7
+    stage(np.full(9, 10.0), POSTURE)
+    stage(np.full(9, 17.0), POSTURE)  # filtered 11: s = 2e-5 (11 - 10) / 1
+    np.testing.assert_allclose(stage.side, 2e-5, atol=1e-15)
+    with pytest.raises(InputError, match="period must be > 0"):
+        stage.run_at(0.0)
+    # the runner tells a feedforward its period before the run
+    built = _stage(arm)
+    assert built.period == PERIOD
+    task = hold_then_move("short", POSTURE, POSTURE + 0.05, wait=0.05, move_time=0.1, duration=0.2)
+    controller = MuscleSpaceController(arm, ArmControllerConfig(rate_hz=500.0))
+    run = run_tracking(
+        ArmPlant(arm, IDEAL_PLANT), controller, task, LearnedFeedforward(arm, None, built)
+    )
+    assert run.error is None and built.period == 0.002
 
 
 def test_a_cable_the_reference_shortens_turns_its_memory_towards_the_motor(arm):

@@ -160,6 +160,15 @@ class LearnedFeedforward:
         if self.sheath is not None:
             self.sheath.reset()
 
+    def run_at(self, period: float) -> None:
+        """Run at the controller's ``period`` [s]: the sheath stage's filter steps with it.
+
+        The stage is built at the trained controller's period; ``msarm track --controller``
+        may run another rate.
+        """
+        if self.sheath is not None:
+            self.sheath.run_at(period)
+
     def __call__(
         self, readings, qdot_estimate: FloatArray, q_ref: FloatArray, qd_ref: FloatArray
     ) -> FloatArray:

@@ -20,7 +20,11 @@ the recipe's target settings).
 
 The score of each is its held-out explained share on the validation runs, the diagnosis's
 score (:func:`msarm.diagnose.stack.group_scores`, ``1 - sum (r - pred)^2 / sum r^2``), so a
-recipe can see whether the logs support it.
+recipe can see how much of the residual each explains. Fitted alone, the ``capstan`` term
+also takes part of the joints' Coulomb friction: on the default plant's runs ``mu`` comes out
+about 0.01 high (0.1256 for 0.12; 0.1202 with the joint friction off), and on a plant without
+sheath friction it still explains about half of the joint residual (``mu`` 0.0115, share
+0.51), so its share does not tell whether a sheath is there (README, "The sheath stage").
 
 :func:`reuse_or_identify_sheath` keeps the answer in a small JSON record next to the runs and
 reuses it when the same logs (by their bytes' SHA-256), model and code (the ``"diagnosis"``

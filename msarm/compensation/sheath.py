@@ -161,17 +161,25 @@ class SheathInverse:
         parameters: SheathParameters,
         period: float,
     ) -> None:
-        if not (np.isfinite(period) and period > 0):
-            raise InputError(f"period must be > 0 [s], got {period}")
         self.model, self.spec, self.parameters = model, spec, parameters
-        self.period = float(period)
+        self.run_at(period)
         self._data = model.create_data()
         self._jacobian = np.zeros((model.n_cables, model.n_joints))
-        self._alpha = period / (spec.filter_time + period)
         self._stretch = spec.compliance_share * parameters.compliance
         self._friction = spec.gain * parameters.mu
         # F_bar, u of the last tick, s, and "started" (row 3, column 0): sheath_tick's state
         self._state = np.zeros((4, model.n_cables))
+
+    def run_at(self, period: float) -> None:
+        """Tick at ``period`` [s], the running controller's (the low-pass's step follows it).
+
+        Raises:
+            InputError: ``period`` not a finite time > 0.
+        """
+        if not (np.isfinite(period) and period > 0):
+            raise InputError(f"period must be > 0 [s], got {period}")
+        self.period = float(period)
+        self._alpha = self.period / (self.spec.filter_time + self.period)
 
     @property
     def side(self) -> FloatArray:

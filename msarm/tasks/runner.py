@@ -77,7 +77,9 @@ class Feedforward(Protocol):
     e.g. the ``sheath_stiction`` features). One with a ``precompute(q_ref, qd_ref)`` method
     may run in the compiled loop: it returns ``(dtau, stage)`` for the whole run, ``dtau``
     ``(T, n)`` [N m] and a sheath stage or None, or None when it cannot (see
-    :meth:`msarm.compensation.feedforward.LearnedFeedforward.precompute`).
+    :meth:`msarm.compensation.feedforward.LearnedFeedforward.precompute`). One with a
+    ``run_at(period)`` method is told the control period [s] before the run (a feedforward
+    with its own clock, e.g. the sheath stage's low-pass).
     """
 
     def reset(self) -> None:
@@ -215,6 +217,9 @@ def run_tracking(
     plant.reset(home, tensions=np.minimum(start.tension_command, plant.holding_tension))
     controller.reset(home)
     if feedforward is not None:
+        run_at = getattr(feedforward, "run_at", None)
+        if callable(run_at):  # a feedforward with its own clock ticks at this period
+            run_at(period)
         feedforward.reset()
 
     times = np.arange(n_ticks) * period
