@@ -442,10 +442,9 @@ class RepeatedWarnings:
 
     A warning ``"<file>: <what>"`` about a log (``.parquet``) or a table being imported
     (``.csv``, ``.tsv``, ``.txt``, compressed or not; any case) is shown for its first file;
-    the same ``<what>``
-    for further files is only counted, and :meth:`summary` names those files once. Any other
-    warning is shown once: the same words again (a check made before a run and again by
-    the run) add nothing.
+    the same ``<what>`` for further files is only counted, and :meth:`summary` names those
+    files once. Any other warning is shown once: the same words again (a check made before a
+    run and again by the run) add nothing.
     """
 
     _ABOUT_A_FILE = re.compile(
