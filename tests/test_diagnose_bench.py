@@ -107,7 +107,7 @@ def test_the_timings_are_taken_at_the_marks_they_are_named_for(monkeypatch):
         advance(5.0)
         return SimpleNamespace(names=(), selected=(), waterfall=[{}], groups=())
 
-    def baseline(data, threshold):
+    def baseline(data, threshold, alpha):
         advance(7.0)
         return SimpleNamespace(
             names=(), contributions={}, gap_before={}, gap_after={}, parameters={}
@@ -217,6 +217,8 @@ def test_bad_settings_are_refused(arm, tmp_path):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(draws=0))
     with pytest.raises(InputError, match="sindy_threshold"):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(sindy_threshold=float("nan")))
+    with pytest.raises(InputError, match="sindy_alpha"):
+        run_diagnosis_benchmark(arm, tmp_path, BenchSettings(sindy_alpha=-1.0))
     with pytest.raises(InputError, match=r"threshold: expected a value in \[0, 1\)"):
         run_diagnosis_benchmark(arm, tmp_path, BenchSettings(threshold=1.0))
     assert not any(tmp_path.iterdir())  # refused before anything was simulated
@@ -227,13 +229,14 @@ def test_the_baseline_s_threshold_reaches_it(arm, report, monkeypatch, tmp_path)
     shutil.copytree(out / "logs", tmp_path / "logs")  # the same logs, scored anew
     seen = []
 
-    def spy(data, threshold):
-        seen.append(threshold)
-        return sindy_baseline(data, threshold=threshold)
+    def spy(data, threshold, alpha):
+        seen.append((threshold, alpha))
+        return sindy_baseline(data, threshold=threshold, alpha=alpha)
 
     monkeypatch.setattr(bench_module, "sindy_baseline", spy)
-    strict = run_diagnosis_benchmark(arm, tmp_path, replace(TINY, sindy_threshold=1e6))
-    assert len(seen) == len(strict["scenarios"]) and set(seen) == {1e6}
+    settings = replace(TINY, sindy_threshold=1e6, sindy_alpha=0.2)
+    strict = run_diagnosis_benchmark(arm, tmp_path, settings)
+    assert len(seen) == len(strict["scenarios"]) and set(seen) == {(1e6, 0.2)}
     # a threshold no coefficient passes: the baseline names nothing, the diagnosis is as before
     assert all(not row["sindy"]["names"] for row in strict["scenarios"])
     assert strict["summary"]["msarm"]["top1_accuracy"] == first["summary"]["msarm"]["top1_accuracy"]

@@ -204,6 +204,13 @@ def diagnose_bench(
         help="The PySINDy baseline's STLSQ threshold on unit-norm columns (a change re-scores "
         "the baseline and the diagnosis from the cached logs).",
     ),
+    sindy_alpha: float = typer.Option(
+        0.05,
+        "--sindy-alpha",
+        min=0.0,
+        help="The PySINDy baseline's STLSQ ridge weight on unit-norm columns (PySINDy's "
+        "default; a change re-scores as --sindy-threshold does).",
+    ),
     rescore: bool = typer.Option(
         False, "--rescore", help="Diagnose again every scenario (cached logs are reused)."
     ),
@@ -231,6 +238,7 @@ def diagnose_bench(
         effects=tuple(effects),
         pairs=pairs,
         sindy_threshold=sindy_threshold,
+        sindy_alpha=sindy_alpha,
     )
     # progress on stderr with --json too: a spinner on a terminal, else a line a step
     err = Console(stderr=True)

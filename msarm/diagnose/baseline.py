@@ -27,14 +27,22 @@ from msarm.diagnose.fitting import one_blas_thread
 from msarm.diagnose.stack import DiagnosisData, Embedded, pooled_rmse
 from msarm.errors import InputError
 
-__all__ = ["DEFAULT_SINDY_THRESHOLD", "BaselineResult", "check_setting", "sindy_baseline"]
+__all__ = [
+    "DEFAULT_SINDY_ALPHA",
+    "DEFAULT_SINDY_THRESHOLD",
+    "BaselineResult",
+    "check_setting",
+    "sindy_baseline",
+]
 
 FloatArray = NDArray[np.float64]
 
 #: STLSQ threshold on the coefficients of unit-norm library columns for a unit-norm target.
 DEFAULT_SINDY_THRESHOLD = 0.05
-#: Ridge weight of STLSQ (on unit-norm columns).
-DEFAULT_SINDY_ALPHA = 1e-3
+#: Ridge weight of STLSQ (on unit-norm columns): PySINDy's own default. Until 2026-11-29 it
+#: was 1e-3, which let two nearly collinear mass-error columns (correlation 0.998) take large
+#: opposite coefficients past the threshold: a mass error named on every null plant.
+DEFAULT_SINDY_ALPHA = 0.05
 
 
 @dataclass(frozen=True)

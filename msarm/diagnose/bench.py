@@ -50,7 +50,12 @@ from typing import Any
 
 import numpy as np
 
-from msarm.diagnose.baseline import DEFAULT_SINDY_THRESHOLD, check_setting, sindy_baseline
+from msarm.diagnose.baseline import (
+    DEFAULT_SINDY_ALPHA,
+    DEFAULT_SINDY_THRESHOLD,
+    check_setting,
+    sindy_baseline,
+)
 from msarm.diagnose.bench_parameters import summarise_parameter_errors
 from msarm.diagnose.residuals import DiagnosisWarning
 from msarm.diagnose.scenarios import (
@@ -123,6 +128,7 @@ class BenchSettings:
         effects: Effect classes to cover (all of :data:`EFFECT_CANDIDATES` when empty).
         pairs: Include the two-effect scenarios.
         sindy_threshold: The PySINDy baseline's STLSQ threshold (on unit-norm columns).
+        sindy_alpha: The PySINDy baseline's STLSQ ridge weight (PySINDy's default).
     """
 
     seed: int = 0
@@ -136,6 +142,7 @@ class BenchSettings:
     effects: tuple[str, ...] = ()
     pairs: bool = True
     sindy_threshold: float = DEFAULT_SINDY_THRESHOLD
+    sindy_alpha: float = DEFAULT_SINDY_ALPHA
 
 
 def _check(settings: BenchSettings) -> None:
@@ -153,6 +160,7 @@ def _check(settings: BenchSettings) -> None:
         raise InputError(f"duration: expected > 0 s, got {settings.duration}")
     check_threshold(settings.threshold)  # select_effects' own check, before any simulation
     check_setting("sindy_threshold", settings.sindy_threshold)  # before any simulation
+    check_setting("sindy_alpha", settings.sindy_alpha)
 
 
 def _scenarios(settings: BenchSettings) -> list[Scenario]:
@@ -228,7 +236,7 @@ def _diagnose_scenario(
     chosen_at = next(
         (t for t, text in marks if text.startswith(("bootstrap", "replaying"))), selected
     )
-    baseline = sindy_baseline(data, threshold=settings.sindy_threshold)
+    baseline = sindy_baseline(data, threshold=settings.sindy_threshold, alpha=settings.sindy_alpha)
     done = time.perf_counter()
     return {
         "msarm": {
