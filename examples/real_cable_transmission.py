@@ -280,9 +280,10 @@ def load_runs(root: Path) -> list[Run]:
     return runs
 
 
-def missing_pitches(root: Path) -> list[str]:
-    """The pitch folders under ``root`` that hold no data file (each pitch is held out once)."""
-    return [f for f in PITCH_DEG if not any((root / f).glob("*.TXT.gz"))]
+def missing_pitches(files: Sequence[tuple[Path, float]]) -> list[str]:
+    """The pitch folders without a file among ``files`` (each pitch is held out once)."""
+    present = {path.parent.name for path, _ in files}
+    return [f for f in PITCH_DEG if f not in present]
 
 
 # --------------------------------------------------------------------------- nominal model
@@ -864,14 +865,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--out: {args.out} exists and is not a folder")
     root = data_folder(args.data)
     layout = f"{', '.join(PITCH_DEG)} with *.TXT.gz files"
-    if not data_files(root):
+    files = data_files(root)
+    if not files:
         print(
             f"no data under {root}: expected the mis-tool folders {layout} there (set --data "
             f"or ${DATA_ENV}); nothing done",
             file=sys.stderr,
         )
         return 2
-    missing = missing_pitches(root)
+    missing = missing_pitches(files)
     if missing:
         print(
             f"no data in {', '.join(str(root / f) for f in missing)}: every pitch is held out "

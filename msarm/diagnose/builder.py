@@ -138,7 +138,8 @@ def _one_run(
         "jacobian": residuals.jacobian[valid],
         "wrap": residuals.wrap[valid],
         "motor_angle": motor[valid],
-        # the stretches between time gaps, as the residuals were computed (0, 1, ...)
+        # the stretches between time gaps, as the residuals were computed (0, 1, ... in each
+        # log: Signals relabels them to refine the runs)
         "segment": _segment_labels(residuals.t, residuals.sample_rate_hz)[valid],
     }
     if residuals.tension_cmd is not None:
@@ -151,12 +152,11 @@ def _one_run(
         if not np.all(np.isfinite(value)):
             row = int(np.argwhere(~np.isfinite(value))[0][0])
             raise LogError(f"{source}: non-finite {name} at valid sample {row}")
-    groups = {"joint": residuals.joint_torque[valid]}
+    groups = {"joint": residuals.scored("joint_torque")}
     if residuals.drive is not None:
-        groups["drive"] = residuals.drive[valid]
+        groups["drive"] = residuals.scored("drive")
     if residuals.cable_length is not None:
-        length = residuals.cable_length[valid]
-        groups["length"] = length - length.mean(axis=0)
+        groups["length"] = residuals.scored("cable_length")
     for group, residual in groups.items():
         if not np.all(np.isfinite(residual)):
             row = int(np.argwhere(~np.isfinite(residual))[0][0])
@@ -210,7 +210,6 @@ def channels_from_logs(
         base = replace(base, replay=False)
     parts, residuals, names = [], [], []
     dt = None
-    segments = 0  # segment labels used so far: each log's follow the last log's
     for label, path in enumerate(paths):
         path = Path(path)
         arrays, residual, period = _one_run(model, path, base)
@@ -222,8 +221,6 @@ def channels_from_logs(
                 "diagnose logs of one sample rate together"
             )
         arrays["run"] = np.full(arrays["t"].shape[0], label, dtype=np.int64)
-        arrays["segment"] = arrays["segment"] + segments
-        segments = int(arrays["segment"].max()) + 1
         parts.append(arrays)
         residuals.append(residual)
         names.append(str(path))

@@ -242,6 +242,18 @@ class Residuals:
             )
         return value
 
+    def scored(self, kind: str) -> FloatArray:
+        """One residual on the valid samples as the diagnosis scores it, ``(T_valid, k)``.
+
+        ``cable_length`` is taken about its mean over them: the motor encoders give lengths up
+        to the log's offset (their zero at its start), so the level carries no gap.
+
+        Raises:
+            ValueError: As :meth:`get`.
+        """
+        values = self.get(kind)[self.valid]
+        return values - values.mean(axis=0) if kind == "cable_length" else values
+
     def channel_names(self, kind: str) -> tuple[str, ...]:
         """Channel names of a residual kind: the joints or the cables."""
         return self.cable_names if kind in ("cable_length", "drive") else self.joint_names

@@ -354,14 +354,9 @@ def break_down(
     parts = []
     for run in runs:
         keep = run.valid
-        values = run.get(kind)[keep]
-        if kind == "cable_length":
-            # the motor encoders give lengths up to each log's offset (their zero at the
-            # log's start): about its mean, as the diagnosis's length group takes it
-            values = values - values.mean(axis=0)
         parts.append(
             (
-                values,
+                run.scored(kind),  # cable lengths about each log's mean, as the diagnosis
                 run.q[keep],
                 run.tension[keep],
                 motion_phases(run, settings)[keep],
