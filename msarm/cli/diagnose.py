@@ -259,7 +259,8 @@ def diagnose_command(
         float,
         typer.Option(
             help="Least rise of the held-out explained share (on the groups it acts on) for an "
-            "effect to be named [-]."
+            "effect to be named [-]; a quarter of it is enough for one that explains at least "
+            "half of what its groups leave unexplained."
         ),
     ] = 0.02,
     boot: Annotated[

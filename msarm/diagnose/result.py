@@ -353,14 +353,17 @@ class Diagnosis:
             channel and step by step, the replay (if computed) and the candidates tried,
             confounded and skipped; ends with a newline.
         """
+        from msarm.diagnose.select import RELATIVE_GAIN, RELATIVE_GAIN_FLOOR
+
         lines = ["# Sim-to-real gap diagnosis", ""]
         lines.append(
             f"Training runs: {len(self.train_runs)} ({self.n_train} samples); held-out runs: "
             f"{len(self.holdout_runs)} ({self.n_holdout} samples); channel groups: "
             f"{', '.join(self.groups)}. A term is added when it raises the held-out explained "
             "share of the groups it acts on (its gain, the mean over those groups) by more than "
-            f"{self.threshold:.3g}; the held-out score is the explained share averaged over all "
-            "the groups."
+            f"{self.threshold:.3g}, or by more than {RELATIVE_GAIN_FLOOR * self.threshold:.3g} "
+            f"and by at least {RELATIVE_GAIN:.3g} of the share those groups leave unexplained; "
+            "the held-out score is the explained share averaged over all the groups."
         )
         if self.search:
             short = self.search.get("shortlist")

@@ -38,14 +38,20 @@ step by step, tries each remaining candidate together with the terms already sel
 - **Rule.** A candidate's gain is the rise of the explained share averaged over the groups
   it acts on (so that a term is not diluted by groups it cannot touch). The candidate with the
   largest gain is added when that gain exceeds ``threshold`` (:data:`DEFAULT_THRESHOLD` =
-  0.02); otherwise the selection stops. A null plant (only
-  sensor noise) leaves nothing a term can predict on held-out runs, so nothing is selected.
+  0.02), or when it exceeds a quarter of it and explains at least half of the share its
+  groups still leave unexplained (:func:`earns_place`: after an elasticity term has
+  explained 98.6 % of a length residual, a term can gain at most 1.4 %, and one that takes
+  most of that is as plainly there as one that takes 2 % of a raw residual); otherwise the
+  selection stops. A null plant (only sensor noise) leaves nothing a term can predict on
+  held-out runs, so nothing is selected (the second way needs a gain of half the whole
+  residual on a first step, where nothing is explained yet).
 
 **Confidence.** The final model is refitted (to its joint optimum, from the final fit) on
 ``n_boot`` bootstrap draws of the training runs (the parameters' standard deviation comes from
 the same draws). An effect's confidence is the
 share of (draw, held-out run) pairs in which leaving that effect out of the refitted model
-lowers the run's explained share on the effect's groups by more than the threshold: 1 when
+lowers the run's explained share on the effect's groups by a gain that would earn it its
+place by the rule above (:func:`earns_place`): 1 when
 every resample of the training runs and every held-out run needs it, near 0 for a term that
 only helps by chance.
 
@@ -135,6 +141,7 @@ __all__ = [
     "SelectedEffect",
     "available_candidates",
     "check_threshold",
+    "earns_place",
     "default_candidates",
     "diagnose",
     "load_data",
@@ -145,6 +152,11 @@ FloatArray = NDArray[np.float64]
 
 #: A candidate is added when it raises the held-out explained variance by more than this [-].
 DEFAULT_THRESHOLD = 0.02
+#: A candidate whose gain falls short of the threshold is still added when the gain is at
+#: least this share of what its groups leave unexplained [-] (see :func:`earns_place`) ...
+RELATIVE_GAIN = 0.5
+#: ... and more than this fraction of the threshold [-].
+RELATIVE_GAIN_FLOOR = 0.25
 #: After the selection, sets of a linear term's parameters (a load cell's scale beside its
 #: bias, any of a delay kernel's taps: :meth:`CandidateEffect.parameter_groups`) are fixed at
 #: zero while, left out together, they lower the held-out explained share on the term's groups
@@ -380,6 +392,33 @@ def _selected_effect(
         notes=notes,
         parameter_labels=labels,
     )
+
+
+def earns_place(gain: float, unexplained: float, threshold: float) -> bool:
+    """Whether a held-out gain earns a term its place in the model (the selection's rule).
+
+    Args:
+        gain: The rise of the held-out explained share the term brings, averaged over the
+            groups it acts on [-].
+        unexplained: The share those groups leave unexplained without the term (1 minus
+            their mean explained share) [-].
+        threshold: The selection threshold [-].
+
+    Returns:
+        True when ``gain > threshold``, or when ``gain > RELATIVE_GAIN_FLOOR * threshold``
+        and ``gain >= RELATIVE_GAIN * unexplained`` (the term takes at least half of what is
+        left on its groups); False for a gain that is not finite.
+    """
+    if not np.isfinite(gain):
+        return False
+    if gain > threshold:
+        return True
+    return bool(gain > RELATIVE_GAIN_FLOOR * threshold and gain >= RELATIVE_GAIN * unexplained)
+
+
+def _unexplained(groups: Sequence[str], scores: dict[str, float]) -> float:
+    """1 minus the mean explained share over ``groups`` [-]."""
+    return 1.0 - float(np.mean([scores[g] for g in groups]))
 
 
 def _held_out_gain(
@@ -796,7 +835,7 @@ def _needed(
     hold_runs: Sequence[NDArray[np.bool_]],
     threshold: float,
 ) -> FloatArray:
-    """For each term, the held-out runs whose explained share drops by > threshold without it."""
+    """For each term, the held-out runs that need it: its gain there would earn its place."""
     r_hold = sampled.residual["hold"]
     pairs = zip(terms, thetas, strict=True)
     parts = [sampled.predict(term, theta, "hold") for term, theta in pairs]
@@ -806,7 +845,9 @@ def _needed(
         with_all = group_scores(layout, r_hold[mask], full[mask])
         for k, term in enumerate(terms):
             without = group_scores(layout, r_hold[mask], (full - parts[k])[mask])
-            count[k] += own_gain(term.term.groups, without, with_all) > threshold
+            groups = term.term.groups
+            gain = own_gain(groups, without, with_all)
+            count[k] += earns_place(gain, _unexplained(groups, without), threshold)
     return count
 
 
@@ -875,7 +916,8 @@ def diagnose(
         candidates: Candidate effects (instances, or names of :func:`available_candidates`);
             :data:`DEFAULT_CANDIDATES` when ``None`` (those the logs cannot support are
             skipped with a warning; a named one that cannot be fitted is an error).
-        threshold: Least gain of the held-out score for a term to be added [-].
+        threshold: Least gain of the held-out score for a term to be added [-] (a quarter of
+            it for a term that takes half of what its groups leave: :func:`earns_place`).
         spec: Residual settings (filter, drum radius, drive gain).
         n_boot: Bootstrap refits over training runs for the std and confidence (< 2: none).
         seed: Seed of the bootstrap draws.
@@ -1116,7 +1158,8 @@ def select_effects(
 
     Args:
         data: From :func:`load_data`.
-        threshold: Least gain for a term to be added [-].
+        threshold: Least gain for a term to be added [-] (a quarter of it for a term that
+            takes half of what its groups leave: :func:`earns_place`).
         n_boot: Bootstrap draws over training runs (< 2: none).
         seed: Seed of the bootstrap.
         replay: Also replay the held-out runs without and with the effects (the gap as motion).
@@ -1218,7 +1261,7 @@ def select_effects(
         if not open_:
             break
         best = max(open_, key=lambda c: gain_of[c.name])
-        if not gain_of[best.name] > threshold:
+        if not earns_place(gain_of[best.name], _unexplained(best.term.groups, current), threshold):
             break
         chosen.append(best)
         remaining.remove(best)
