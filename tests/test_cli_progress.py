@@ -335,6 +335,55 @@ def test_sigterm_unwinds_the_command_and_removes_its_temp_file(monkeypatch, tmp_
     assert signal.getsignal(signal.SIGTERM) == before  # the handler is given back
 
 
+def test_a_sigterm_that_ipopt_swallows_still_ends_the_fit(monkeypatch):
+    """IPOPT (through casadi) runs the SIGTERM handler itself while it iterates, catches its
+    exception and returns early, as if it had failed to converge: the fit raises the
+    termination again rather than go on with a half-finished answer (until 2026-11-29 a
+    SIGTERM during `msarm train`'s sheath fit was ignored and a wrong mu cached)."""
+    import numpy as np
+    from conftest import load_arm
+    from test_diagnose_effects import _make_signals
+
+    from msarm import interrupts
+    from msarm.diagnose import fitting
+    from msarm.diagnose.effects import StribeckFriction
+
+    arm = load_arm()
+    signals = _make_signals(arm, seed=5)
+    effect = StribeckFriction()
+    residual = np.asarray(effect.torque(signals, effect.initial_guess(signals, None) + 0.1))
+    built = fitting._NonlinearProblem.__init__
+
+    def build(self, *args, **kwargs):
+        built(self, *args, **kwargs)
+        solver = self.solver
+
+        class Swallowing:  # as casadi does: the handler runs inside, its exception is caught
+            def __call__(self, **kwargs):
+                try:
+                    interrupts.on_sigterm(signal.SIGTERM, None)
+                except interrupts.Terminated:
+                    pass
+                return solver(**kwargs)
+
+            def stats(self):
+                return solver.stats()
+
+        self.solver = Swallowing()
+
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        with monkeypatch.context() as patch:
+            patch.setattr(fitting._NonlinearProblem, "__init__", build)
+            with pytest.raises(interrupts.Terminated) as exit_:
+                fitting.fit(effect, signals, residual)
+        assert exit_.value.code == 128 + signal.SIGTERM
+    finally:
+        interrupts.clear()
+        signal.signal(signal.SIGTERM, before)
+    assert fitting.fit(effect, signals, residual).success  # cleared: fits again
+
+
 # --- default folders name the seed -----------------------------------------------------------
 
 

@@ -309,6 +309,24 @@ def _check_the_identification_is_reused_only_for_the_same_input(
     assert reuse_or_identify_sheath(arm, [copy, logs[1]], logs[2:], record)[1] is False
     with pytest.raises(InputError, match="training and validation"):
         reuse_or_identify_sheath(arm, logs[:1], [], record)
+    # a capstan fit that stopped short (IPOPT out of iterations, or interrupted) is warned
+    # about and used, but not kept: the next run fits again
+    fit = identify.fit
+
+    def stopped_short(effect, *args, **kwargs):
+        result = fit(effect, *args, **kwargs)
+        if effect.linear:
+            return result
+        return replace(result, success=False, message="Maximum_Iterations_Exceeded")
+
+    record.unlink()
+    with monkeypatch.context() as patch:
+        patch.setattr(identify, "fit", stopped_short)
+        with pytest.warns(MsarmWarning, match="did not converge .*Maximum_Iterations_Exceeded"):
+            assert reuse_or_identify_sheath(arm, logs[:2], logs[2:], record) == (found, False)
+    assert not record.exists()
+    assert reuse_or_identify_sheath(arm, logs[:2], logs[2:], record) == (found, False)
+    assert record.is_file()
 
 
 def test_the_stage_brings_the_arm_closer_to_its_target_on_the_default_plant(arm):

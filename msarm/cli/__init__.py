@@ -111,18 +111,6 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
     return out
 
 
-class Terminated(SystemExit):
-    """SIGTERM received: unwinds the command (its ``finally`` and ``except`` blocks run)."""
-
-
-def _on_sigterm(signum, frame) -> None:
-    import signal
-
-    # a second SIGTERM while unwinding ends the process the usual way
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    raise Terminated(128 + signum)
-
-
 def main() -> None:
     """Entry point of the ``msarm`` console script.
 
@@ -142,6 +130,7 @@ def main() -> None:
     # typer's own copy of click's errors (typer exports only BadParameter of these)
     from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
 
+    from msarm import interrupts
     from msarm.errors import MsarmError, MsarmWarning
 
     default_show = warnings.showwarning
@@ -160,7 +149,8 @@ def main() -> None:
     # signal handlers can only be set in the main thread (not when called from another one)
     handles_sigterm = threading.current_thread() is threading.main_thread()
     if handles_sigterm:
-        previous_sigterm = signal.signal(signal.SIGTERM, _on_sigterm)
+        interrupts.clear()
+        previous_sigterm = signal.signal(signal.SIGTERM, interrupts.on_sigterm)
     try:
         code = app(
             args=spread_multi_value_options(sys.argv[1:]), prog_name="msarm", standalone_mode=False
@@ -187,7 +177,7 @@ def main() -> None:
     except Abort:
         print("msarm: aborted", file=sys.stderr)
         raise SystemExit(1) from None
-    except Terminated as exc:
+    except interrupts.Terminated as exc:
         print("msarm: terminated", file=sys.stderr)
         raise SystemExit(exc.code) from None
     else:
@@ -196,5 +186,6 @@ def main() -> None:
     finally:
         if handles_sigterm:  # as it was (None: set outside Python, left as the default)
             signal.signal(signal.SIGTERM, previous_sigterm or signal.SIG_DFL)
+            interrupts.clear()
         for text in repeats.summary():
             print(f"msarm: warning: {text}", file=sys.stderr)

@@ -90,12 +90,23 @@ def identify_sheath(
             plant's); the defaults (msarm's arm: 3 mm) when None.
 
     Returns:
-        The identified parameters with their held-out shares.
+        The identified parameters with their held-out shares (a capstan fit that IPOPT did
+        not bring to convergence is warned about, with its status).
 
     Raises:
         InputError: No logs on either side.
         LogError: A log the diagnosis cannot read (file and reason named).
     """
+    return _identify(model, train_paths, validation_paths, spec)[0]
+
+
+def _identify(
+    model: RobotModel,
+    train_paths: Sequence[str | Path],
+    validation_paths: Sequence[str | Path],
+    spec: ResidualSpec | None = None,
+) -> tuple[SheathParameters, bool]:
+    """:func:`identify_sheath`, and whether its capstan fit converged."""
     _require_logs(train_paths, validation_paths)
     train, residual, train_names = channels_from_logs(model, train_paths, spec)
     held, held_residual, held_names = channels_from_logs(model, validation_paths, spec)
@@ -105,6 +116,13 @@ def identify_sheath(
         train,
         residual["joint"],
     )
+    if not capstan.success:
+        warnings.warn(
+            f"identify_sheath: the capstan fit did not converge (IPOPT: {capstan.message}); "
+            f"mu = {capstan.parameters[0]:.4g} is where it stopped",
+            MsarmWarning,
+            stacklevel=3,
+        )
     predictions = {"joint": capstan.predict(held)}
     compliance = 0.0
     if "length" in residual and "length" in held_residual:
@@ -125,12 +143,13 @@ def identify_sheath(
         np.concatenate([held_residual[g] for g in layout.groups], axis=1),
         np.concatenate([predictions[g] for g in layout.groups], axis=1),
     )
-    return SheathParameters(
+    parameters = SheathParameters(
         mu=float(capstan.parameters[0]),
         compliance=compliance,
         mu_share=scores["joint"],
         compliance_share=scores.get("length", float("nan")),
     )
+    return parameters, capstan.success
 
 
 def _require_logs(
@@ -177,7 +196,8 @@ def reuse_or_identify_sheath(
     parameters are reused only when all of these are the same, so the answer is the one
     :func:`identify_sheath` would give (the fit is deterministic), to the bit. Otherwise (no
     record, another input, a record that cannot be read) the parameters are identified and
-    the record written anew, atomically.
+    the record written anew, atomically (not when the capstan fit did not converge: that
+    answer is warned about and used, not kept).
 
     Args:
         model: The nominal robot model the logs were recorded with.
@@ -206,6 +226,7 @@ def reuse_or_identify_sheath(
             return SheathParameters.from_dict(kept["parameters"]), True
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         pass  # no record, or one that cannot be used: identify again
-    parameters = identify_sheath(model, train_paths, validation_paths, spec)
-    write_json_atomic(record, {"key": key, "parameters": parameters.as_dict()})
+    parameters, converged = _identify(model, train_paths, validation_paths, spec)
+    if converged:  # a fit stopped short is not kept: the next run fits again
+        write_json_atomic(record, {"key": key, "parameters": parameters.as_dict()})
     return parameters, False

@@ -23,6 +23,7 @@ from threadpoolctl import threadpool_limits
 from msarm.diagnose.effects import CandidateEffect, CasadiOps
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
+from msarm.interrupts import raise_if_terminated
 
 __all__ = [
     "IPOPT_OPTIONS",
@@ -485,6 +486,7 @@ class _NonlinearProblem:
         solution = self.solver(
             x0=x0, p=values, lbx=self.lower, ubx=self.upper, **self.constraint_bounds
         )
+        raise_if_terminated()  # IPOPT stops early on a SIGTERM and swallows its exception
         stats = self.solver.stats()
         # IPOPT relaxes the bounds by up to 1e-8 (bound_relax_factor): a parameter at a bound
         # comes back just outside it (a friction coefficient of -1e-8); report it on the bound.

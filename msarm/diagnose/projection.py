@@ -39,6 +39,7 @@ from msarm.diagnose.fitting import (
 )
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
+from msarm.interrupts import raise_if_terminated
 
 __all__ = ["ProjectedProblem"]
 
@@ -164,6 +165,7 @@ class ProjectedProblem:
         solution = self.solver(
             x0=x0, p=values, lbx=self.lower, ubx=self.upper, **self.constraint_bounds
         )
+        raise_if_terminated()  # IPOPT stops early on a SIGTERM and swallows its exception
         status = str(self.solver.stats()["return_status"])
         x = np.clip(np.asarray(solution["x"], dtype=float).reshape(-1), self.lower, self.upper)
         thetas = np.split(x, np.cumsum(self.sizes)[:-1])

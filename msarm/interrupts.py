@@ -1,0 +1,49 @@
+"""SIGTERM as an exception that unwinds a command, also out of a solver that swallows it.
+
+The command line (:func:`msarm.cli.main`) installs :func:`on_sigterm` as the SIGTERM handler:
+it raises :class:`Terminated` where Python code runs. A solver in compiled code that checks
+for signals while it works (IPOPT through casadi does) runs the handler itself, catches the
+exception and returns early with a failure status: the command would then go on with a
+half-finished fit. So the handler also records the request, and code after such a solver
+calls :func:`raise_if_terminated`, which raises it again.
+"""
+
+from __future__ import annotations
+
+__all__ = ["Terminated", "clear", "on_sigterm", "raise_if_terminated"]
+
+#: The exit code of a SIGTERM received and not yet acted on (None: none received).
+_pending: int | None = None
+
+
+class Terminated(SystemExit):
+    """SIGTERM received: unwinds the command (its ``finally`` and ``except`` blocks run)."""
+
+
+def on_sigterm(signum: int, frame: object) -> None:
+    """SIGTERM handler: record the request and raise :class:`Terminated` (exit 128 + signum)."""
+    import signal
+
+    global _pending
+    _pending = 128 + signum
+    # a second SIGTERM while unwinding ends the process the usual way
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    raise Terminated(_pending)
+
+
+def raise_if_terminated() -> None:
+    """Raise :class:`Terminated` again if a SIGTERM came.
+
+    Call it after a solver that may have caught the handler's exception.
+
+    Raises:
+        Terminated: A SIGTERM was received since the last :func:`clear`.
+    """
+    if _pending is not None:
+        raise Terminated(_pending)
+
+
+def clear() -> None:
+    """Forget a received SIGTERM (the command line does at the start and end of a command)."""
+    global _pending
+    _pending = None
