@@ -114,14 +114,19 @@ def test_train_outside_the_repository_says_it_runs_the_recipe_defaults(monkeypat
 
 
 def test_diagnose_prints_a_line_a_step_where_no_spinner_shows(monkeypatch, tmp_path):
+    import msarm.cli.diagnose as command
     import msarm.diagnose.select as select
+
+    answer = SimpleNamespace(as_dict=lambda: {"selected": []}, groups=("joint",))
+    answer.with_where = lambda breakdowns, skipped: answer  # --json: with the where section
 
     def fake(model, train, held, progress=None, **options):
         progress(f"reading {len(train) + len(held)} log(s)")
         progress("step 1: screening 3 candidate(s)")
-        return SimpleNamespace(as_dict=lambda: {"selected": []})
+        return answer
 
     monkeypatch.setattr(select, "diagnose", fake)
+    monkeypatch.setattr(command, "where_breakdowns", lambda *args, **kwargs: ({}, {}))
     logs = [tmp_path / f"run{k}.parquet" for k in range(2)]  # never read by the fake
     for log in logs:
         log.write_bytes(log.name.encode())

@@ -7,7 +7,7 @@ import importlib.util
 import json
 import re
 import sys
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -103,7 +103,12 @@ def test_write_report_writes_every_file(arm, diagnosis, friction_logs, tmp_path)
             assert paths[key].read_bytes().startswith(PNG)
     assert not list(out.glob(".*.tmp")), "temporary files left behind"
 
-    assert json.loads(paths["json"].read_text()) == json.loads(json.dumps(diagnosis.as_dict()))
+    # the JSON is the diagnosis with its "where" section: the breakdowns given
+    payload = json.loads(paths["json"].read_text())
+    assert payload == json.loads(json.dumps(diagnosis.with_where(breakdowns).as_dict()))
+    assert payload["where"]["joint_torque"] == json.loads(
+        json.dumps(breakdowns["joint_torque"].as_dict())
+    )
 
     markdown = paths["markdown"].read_text()
     assert markdown.startswith("# Sim-to-real gap report")
@@ -182,6 +187,111 @@ def test_cli_writes_the_report_and_prints_the_tables(friction_logs, tmp_path, ca
     )
     payload = json.loads(capsys.readouterr().out)
     assert json.loads((out / "diagnosis.json").read_text()) == payload
+
+
+def test_the_answer_records_what_made_it(arm, diagnosis, friction_logs, tmp_path):
+    """Model and its SHA-256, code fingerprint, residual settings and the logs' absolute paths
+    are in the JSON and the report's header; each equation's fixed constants beside it."""
+    from msarm.diagnose.residuals import ResidualSpec
+    from msarm.io.code_version import code_fingerprint
+
+    payload = json.loads(json.dumps(diagnosis.as_dict(), allow_nan=False))
+    assert payload["residual_spec"] == asdict(ResidualSpec())  # the fixture's: the defaults
+    assert payload["model"] == {
+        "name": arm.name,
+        "sha256": arm.sha256,
+        "path": str(Path(arm.path).resolve()),
+    }
+    assert payload["code_fingerprint"] == code_fingerprint("diagnosis")
+    assert payload["log_paths"] == {
+        "train": [str(Path(p).resolve()) for p in friction_logs[:-1]],
+        "holdout": [str(Path(p).resolve()) for p in friction_logs[-1:]],
+    }
+    terms = {name: REGISTRY[name]() for name in CANDIDATES}  # the joint terms: no arguments
+    for effect, given in zip(diagnosis.selected, payload["selected"], strict=True):
+        assert effect.constants == terms[effect.name].constants()
+        assert given["constants"] == effect.constants
+    paths = write_report(diagnosis, tmp_path / "report")
+    for name in ("markdown", "html"):
+        text = paths[name].read_text()
+        header = text[: text.index("Where the gap lies")]
+        for value in (arm.sha256, code_fingerprint("diagnosis"), str(Path(arm.path).resolve())):
+            assert value in header, (name, value)
+        for log in friction_logs:
+            assert str(Path(log).resolve()) in header, (name, log)
+        spec = ResidualSpec()
+        assert f"drive_gain {spec.drive_gain:g}" in header
+        assert f"drum_radius {spec.drum_radius:g} m" in header
+        assert f"window {spec.target.window} samples" in header
+    markdown = paths["markdown"].read_text()
+    for effect in diagnosis.selected:
+        line = next(x for x in markdown.splitlines() if x.startswith(f"- {effect.name}: "))
+        assert effect.description in line
+        for symbol, value in effect.constants.items():
+            assert f"{symbol} = {value:.4g}" in line, line
+
+
+def test_the_cli_json_has_the_residual_settings_and_the_where_breakdown(friction_logs, capsys):
+    """--drive-gain and the other residual settings reach the JSON, and --json alone has the
+    "where" section: each kind's rows and thresholds, or why it was skipped."""
+    diagnose_command(
+        friction_logs[:2],
+        friction_logs[2:3],
+        True,
+        None,
+        candidates=CANDIDATES,
+        boot=0,
+        drive_gain=8.0,
+        filter_window=31,
+        tension_timing="instant",
+    )
+    text = capsys.readouterr().out
+
+    def refuse(token: str) -> None:
+        raise AssertionError(f"{token} in the JSON")
+
+    payload = json.loads(text, parse_constant=refuse)
+    spec = payload["residual_spec"]
+    assert spec["drive_gain"] == 8.0 and spec["drum_radius"] == 0.003  # --drum-radius's default
+    assert spec["target"]["window"] == 31 and spec["target"]["tension_timing"] == "instant"
+    where = payload["where"]
+    assert set(where) == {"joint_torque", "drive", "cable_length"}
+    joint = where["joint_torque"]
+    assert joint["unit"] == "N m" and joint["settings"]["hot_spot_density"] > 1
+    assert {r["group"] for r in joint["rows"]} == {"channel", "motion", "load", "posture"}
+    assert sum(r["share"] for r in joint["rows"] if r["group"] == "motion") == pytest.approx(100)
+    for kind in ("drive", "cable_length"):  # perfect drives and rigid cables
+        assert set(where[kind]) == {"skipped"} and where[kind]["skipped"]
+
+
+def test_the_report_says_which_gain_is_which_and_explains_its_terms(
+    diagnosis, tmp_path, monkeypatch
+):
+    import msarm.plots
+
+    markdown = diagnosis.to_markdown()
+    assert "gain when selected (fit at that step)" in markdown
+    assert "the final model, its terms added in selection order" in markdown
+    glossary = markdown[markdown.index("## Terms used") : markdown.index("## Which")]
+    for term in ("Explained share", "Confidence", "Screening", "Shrink", "joint_torque"):
+        assert term in glossary, term
+    # an explained share e is a shrink of the RMSE by 1 - sqrt(1 - e), as the glossary says
+    share = re.search(r"(\d\.\d+) is a shrink of (\d+\.\d) %", glossary)
+    assert share, glossary
+    e, shrink = float(share.group(1)), float(share.group(2))
+    assert 100 * (1 - np.sqrt(1 - e)) == pytest.approx(shrink, abs=0.05)
+    notes = []
+    save = msarm.plots.save_figure
+
+    def saved(fig, path):
+        notes.append((fig._suptitle.get_text(), fig._supxlabel.get_text()))
+        return save(fig, path)
+
+    monkeypatch.setattr(msarm.plots, "save_figure", saved)
+    plot_waterfall(diagnosis, tmp_path / "waterfall.png")
+    title, note = notes[0]
+    assert "final model" in title and "selection order" in title
+    assert "share of the nominal model's RMSE" in note and "not the gain when selected" in note
 
 
 def test_cli_refuses_unknown_candidates_and_bad_boot(friction_logs, tmp_path):

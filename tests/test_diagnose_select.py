@@ -129,8 +129,10 @@ def test_null_plant_names_nothing_and_never_reads_the_sidecar(
         copies.append(copy)
     again = diagnose(arm, copies[:-1], copies[-1:], candidates=CANDIDATES, n_boot=0)
     assert again.train_runs == tuple(str(p) for p in copies[:-1])
-    same = {key: value for key, value in again.as_dict().items() if not key.endswith("_runs")}
-    assert same == {k: v for k, v in result.as_dict().items() if not k.endswith("_runs")}
+    # the logs' names and paths differ, nothing else
+    names = ("_runs", "_paths")
+    same = {key: value for key, value in again.as_dict().items() if not key.endswith(names)}
+    assert same == {k: v for k, v in result.as_dict().items() if not k.endswith(names)}
     assert all(sidecar_path(path).is_file() for path in noise_logs)
 
 
@@ -463,6 +465,38 @@ def test_the_shortlist_makes_the_choice_of_the_full_search(arm, monkeypatch):
     for bad in (99, 150.5):
         with pytest.raises(InputError, match="screen_samples: expected an integer >= 100"):
             select.select_effects(data, screen_samples=bad)
+
+
+def test_each_step_says_which_scores_are_joint_fits_and_which_screening(arm):
+    """``shortlisted``: the candidates of a step fitted jointly with the effects named before;
+    the report marks the others' scores "(screening)"."""
+    import msarm.diagnose.select as select
+
+    data = _synthetic_data(arm)
+    for thinned in (False, True):
+        settings = {"screen_samples": 100} if thinned else {}
+        result = select.select_effects(data, n_boot=0, replay=False, shortlist=1, **settings)
+        assert len(result.shortlisted) == len(result.step_scores) >= 2
+        tried = [[n for n, v in scores.items() if np.isfinite(v)] for scores in result.step_scores]
+        # the first step on all samples: the screening fit is the joint fit, every one counts;
+        # screened on thinned samples, the shortlist (of 1) is refitted at that step too
+        if thinned:
+            assert len(result.shortlisted[0]) == 1
+        else:
+            assert sorted(result.shortlisted[0]) == sorted(tried[0])
+        for k, names in enumerate(result.shortlisted[1:], start=1):
+            assert len(names) == 1 and set(names) <= set(tried[k])
+        for k, name in enumerate(result.names):  # a step selects from its shortlist
+            assert name in result.shortlisted[k]
+        payload = json.loads(json.dumps(result.as_dict(), allow_nan=False))
+        assert payload["shortlisted"] == [list(names) for names in result.shortlisted]
+        lines = result.to_markdown().split("## Candidates tried at each step")[1].splitlines()
+        for k, names in enumerate(result.shortlisted, start=1):
+            line = next(text for text in lines if text.startswith(f"{k}. "))
+            for name in tried[k - 1]:
+                score = f"{name} {result.step_scores[k - 1][name]:+.3f}"
+                marked = f"{score} (screening)" in line
+                assert score in line and marked == (name not in names), (k, name, line)
 
 
 def test_several_values_after_one_multi_value_option():

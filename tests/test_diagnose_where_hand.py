@@ -6,7 +6,8 @@ No simulation: every input is laid out by hand and every expected value is worke
 
 from __future__ import annotations
 
-from dataclasses import replace
+import json
+from dataclasses import asdict, replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -239,6 +240,7 @@ def test_hot_spots_are_the_densest_non_channel_rows_with_enough_time():
         posture_edges=(np.zeros(2), np.zeros(2)),
         posture_rms=np.zeros((1, 1)),
         posture_samples=np.ones((1, 1), dtype=np.int64),
+        settings=PhaseSettings(hot_spot_samples=1),  # the rows have one sample each
     )
     hot = breakdown.hot_spots(min_time_share=5.0)
     assert [(r.group, r.where) for r in hot] == [("motion", "hold"), ("load", "high_load")]
@@ -256,3 +258,76 @@ def test_logs_of_different_robots_and_a_grid_without_bins_are_refused():
         break_down(one, posture_joints=("j0", "elbow"))
     with pytest.raises(ValueError, match=r"unknown group 'joints'"):
         break_down(one).group("joints")
+
+
+def _breakdown(rows: tuple[BreakdownRow, ...], settings: PhaseSettings) -> GapBreakdown:
+    return GapBreakdown(
+        kind="drive",
+        unit="N",
+        sources=("hand",),
+        samples=1000,
+        total_energy=100.0,
+        rms=1.0,
+        rows=rows,
+        posture_joints=("a", "b"),
+        posture_edges=(np.zeros(2), np.zeros(2)),
+        posture_rms=np.zeros((1, 1)),
+        posture_samples=np.ones((1, 1), dtype=np.int64),
+        settings=settings,
+    )
+
+
+def test_hot_spots_need_a_margin_above_one_and_enough_samples():
+    """Densities that scatter about 1 (a plant with sensor noise alone) are no hot spot."""
+    rows = (
+        BreakdownRow("motion", "hold", 71.0, 71.0 * 1.01, 71.0, 1.01, 710),
+        BreakdownRow("load", "high_load", 11.5, 11.5, 10.0, 1.15, 100),
+        BreakdownRow("posture", "cell", 15.0, 15.0, 10.0, 1.5, 99),
+    )
+    settings = PhaseSettings()
+    noise = _breakdown(rows, settings)
+    assert noise.hot_spots() == []
+    assert "Hot spots: none, no concentration" in noise.to_markdown()
+    assert f"density >= {settings.hot_spot_density:g}" in noise.to_markdown()
+    # the margins are the settings' (named, recorded with the breakdown)
+    looser = _breakdown(rows, replace(settings, hot_spot_density=1.1))
+    assert [r.where for r in looser.hot_spots()] == ["high_load"]
+    assert "Hot spots: load high_load (x1.15" in looser.to_markdown()
+    fewer = _breakdown(rows, replace(settings, hot_spot_samples=99))
+    assert [r.where for r in fewer.hot_spots()] == ["cell"]
+    for bad in ({"hot_spot_density": 0.9}, {"hot_spot_samples": 0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            PhaseSettings(**bad)
+
+
+def test_the_breakdown_as_json_has_every_row_and_null_for_empty_cells():
+    n_samples = 200
+    qd = np.zeros((n_samples, 2))
+    qd[: n_samples // 2, 0] = 1.0  # half the samples move: constant velocity
+    torque = np.tile([1.0, 2.0], (n_samples, 1))  # channel RMS 1 and 2 N m
+    q = np.zeros((n_samples, 2))
+    q[n_samples // 2 :] = 1.0  # two corners of the posture grid: the other cells are empty
+    settings = PhaseSettings(hot_spot_samples=10)
+    breakdown = break_down(_residuals(qd, torque=torque, q=q), settings=settings, bins=3)
+    payload = breakdown.as_dict()
+    text = json.dumps(payload, allow_nan=False)  # strict JSON: no NaN token
+    assert json.loads(text) == payload
+    assert payload["settings"] == asdict(settings)
+    assert payload["samples"] == n_samples and payload["unit"] == "N m"
+    assert [(r["group"], r["where"]) for r in payload["rows"]] == [
+        (r.group, r.where) for r in breakdown.rows
+    ]
+    channel = {r["where"]: r for r in payload["rows"] if r["group"] == "channel"}
+    assert channel["j0"]["rms"] == pytest.approx(1.0) and channel["j1"]["rms"] == pytest.approx(2.0)
+    phases = {r["where"]: r for r in payload["rows"] if r["group"] == "motion"}
+    assert phases["hold"]["samples"] == n_samples // 2
+    assert phases["hold"]["rms"] == pytest.approx(np.sqrt((1.0 + 4.0) / 2))
+    grid = payload["posture"]
+    cells = np.asarray(breakdown.posture_samples)
+    assert grid["samples"] == cells.tolist()
+    assert (cells == 0).any()
+    for i, k in np.ndindex(cells.shape):
+        assert (grid["rms"][i][k] is None) == (cells[i, k] == 0)
+    assert payload["hot_spots"] == [
+        {"group": r.group, "where": r.where} for r in breakdown.hot_spots()
+    ]

@@ -2,12 +2,14 @@
 
 The command fits the candidate effects (:func:`msarm.diagnose.select.diagnose`) on the
 training logs, scores them on the held-out ones and prints the named effects (parameters with
-their bootstrap std, gain, confidence), the held-out gap of each channel group before and after
-them, and the candidates that could not be tried. With ``--out`` it also breaks the gap of the
-training logs down by channel, phase and posture (:mod:`msarm.diagnose.where`; the
-joint-torque residual, and the drive and cable-length residuals when the logs have them) and
-writes the report (:func:`msarm.diagnose.report.write_report`: ``report.md``, ``report.html``,
-``diagnosis.json``, plots) plus ``diagnosis.md`` (the diagnosis' tables alone).
+their bootstrap std, gain when selected, confidence), the held-out gap of each channel group
+before and after them, and the candidates that could not be tried. With ``--out`` or
+``--json`` it also breaks the gap of the training logs down by channel, phase and posture
+(:mod:`msarm.diagnose.where`; the joint-torque residual, and the drive and cable-length
+residuals when the logs have them), into the JSON's ``where`` section; with ``--out`` it
+writes the report (:func:`msarm.diagnose.report.write_report`: ``report.md``,
+``report.html``, ``diagnosis.json``, plots) plus ``diagnosis.md`` (the diagnosis' tables
+alone).
 """
 
 from __future__ import annotations
@@ -152,10 +154,15 @@ def _print_diagnosis(
 
     from msarm.diagnose.builder import GROUP_UNITS
 
-    table = Table(title=f"diagnosis: {n_train} training run(s), {n_held} held-out run(s)")
+    table = Table(
+        title=f"diagnosis: {n_train} training run(s), {n_held} held-out run(s)",
+        caption="held-out score: explained share of the residual energy, mean over the groups; "
+        "gain when selected: its rise on the effect's groups, from the fit at that step (the "
+        "gap table's shrink is in RMSE, of the final model)",
+    )
     for column in ("step", "effect", "acts on", "parameters ± bootstrap std"):
         table.add_column(column)
-    for column in ("held-out score", "gain", "confidence"):
+    for column in ("held-out score", "gain when selected", "confidence"):
         table.add_column(column, justify="right")
     table.add_row("0", "nominal model", "", "", f"{result.explained_variance[0]:.3f}", "", "")
     for k, effect in enumerate(result.selected, start=1):
@@ -190,7 +197,7 @@ def _print_diagnosis(
             f"no candidate raises the held-out explained variance by more than "
             f"{result.threshold:g}: nothing selected"
         )
-    gap = Table(title="held-out gap per channel group (pooled RMSE of the residual)")
+    gap = Table(title="held-out gap per channel group (pooled RMSE of the residual, final model)")
     for column in ("group", "unit", "nominal model", "after the effects", "shrink"):
         gap.add_column(column, justify="left" if column in ("group", "unit") else "right")
     for g in result.groups:
@@ -233,7 +240,12 @@ def diagnose_command(
         ),
     ] = None,
     json_output: Annotated[
-        bool, typer.Option("--json", help="Print the diagnosis as JSON.")
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the diagnosis as JSON (diagnosis.json's content, with the where "
+            "breakdown; keys in the README).",
+        ),
     ] = False,
     out: Annotated[
         Path | None,
@@ -397,11 +409,13 @@ def diagnose_command(
         if split_said:  # in diagnosis.json and the report, as the logs' own warnings are
             said = dict.fromkeys([*split_said, *result.log_warnings])
             result = dataclasses.replace(result, log_warnings=tuple(said))
+        if out is not None or json_output:  # the "where" section of the JSON and report
+            say("breaking the gap of the training logs down")
+            breakdowns, where_skipped = where_breakdowns(model, train, result.groups, spec)
+            result = result.with_where(breakdowns, where_skipped)
         if out is not None:
             from msarm.diagnose.report import write_report
 
-            say("breaking the gap of the training logs down")
-            breakdowns, where_skipped = where_breakdowns(model, train, result.groups, spec)
             say(f"writing the report into {out}")
             tables = {"diagnosis.md": result.to_markdown().encode()}
             written = write_report(result, out, breakdowns, extra_files=tables)

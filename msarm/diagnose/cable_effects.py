@@ -85,6 +85,11 @@ class WinchFriction(CandidateEffect):
 
     indexed_by = "cable"
     name = "winch_friction"
+    constant_symbols: ClassVar[Mapping[str, str]] = {
+        "rho": "drum_radius",
+        "K": "drive_gain",
+        "omega_s": "smoothing_speed",
+    }
     parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m", "viscous": "N m s/rad"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb", "viscous"})
     description = (
@@ -112,6 +117,7 @@ class WinchFriction(CandidateEffect):
             shared: One pair of coefficients for all winches.
         """
         self.factor = _drive_factor(drum_radius, drive_gain)
+        self.drum_radius, self.drive_gain = float(drum_radius), float(drive_gain)
         if not smoothing_speed > 0:
             raise InputError(f"smoothing_speed: expected > 0 rad/s, got {smoothing_speed}")
         self.smoothing_speed = float(smoothing_speed)
@@ -141,6 +147,11 @@ class DriveCogging(CandidateEffect):
 
     indexed_by = "cable"
     name = "motor_cogging"
+    constant_symbols: ClassVar[Mapping[str, str]] = {
+        "N": "n_periods",
+        "rho": "drum_radius",
+        "K": "drive_gain",
+    }
     parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
         "e = (a sin(N theta) + b cos(N theta)) / (rho (1 + K)) (amplitude hypot(a, b)): motor "
@@ -170,6 +181,7 @@ class DriveCogging(CandidateEffect):
             raise InputError(f"n_periods: expected an integer >= 1, got {n_periods}")
         self.n_periods = int(n_periods)
         self.factor = _drive_factor(drum_radius, drive_gain)
+        self.drum_radius, self.drive_gain = float(drum_radius), float(drive_gain)
         self.n_cables, self.shared = int(n_cables), bool(shared)
         self.channels = tuple(range(self.n_cables))
         self.parameter_names = _names(("cogging_a", "cogging_b"), self.shared, self.n_cables)
@@ -346,6 +358,7 @@ class _DrumDirectionTerm(CandidateEffect):
     groups = ("length",)
     #: The kind of the term's parameter, in its parameter names.
     parameter_kind = ""
+    constant_symbols: ClassVar[Mapping[str, str]] = {"rho": "drum_radius", "w": "travel"}
 
     def __init__(
         self, drum_radius: float, n_cables: int = 9, travel: float = 5e-4, shared: bool = True
@@ -448,6 +461,7 @@ class CableSlack(CandidateEffect):
 
     indexed_by = "cable"
     name = "slack"
+    constant_symbols: ClassVar[Mapping[str, str]] = {"F_0": "tension_scale"}
     parameter_units: ClassVar[Mapping[str, str]] = {"slack": "m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"slack"})
     description = (

@@ -286,6 +286,31 @@ class CandidateEffect(ABC):
     #: a level: nothing to name). The diagnosis shows such a parameter with the joint's or
     #: cable's name (``coulomb[elbow]``).
     indexed_by: ClassVar[str | None] = None
+    #: The fixed (not fitted) constants of the term's equation: each symbol of
+    #: :attr:`description` by the attribute that holds its value, e.g. ``{"eps": "eps"}``
+    #: (see :meth:`constants`).
+    constant_symbols: ClassVar[Mapping[str, str]] = {}
+
+    def constants(self) -> dict[str, float | list[float]]:
+        """The fixed constants of the term's equation, by their symbol in :attr:`description`.
+
+        Read from the attributes :attr:`constant_symbols` names; a symbol that is also a fitted
+        parameter (a capstan's ``eps`` with ``fit_eps``) or whose attribute the term lacks is
+        left out. A per-channel constant with one value for every channel is that value.
+
+        Returns:
+            ``{symbol: value}`` in the constants' own units (see the term's docstring), e.g.
+            ``{"rho": 0.003, "K": 4.0, "omega_s": 0.5}``; empty when the term states none.
+        """
+        out: dict[str, float | list[float]] = {}
+        for symbol, attribute in self.constant_symbols.items():
+            if symbol in self.parameter_names or not hasattr(self, attribute):
+                continue
+            value = np.asarray(getattr(self, attribute), dtype=float)
+            if value.ndim and value.size and np.all(value == value.flat[0]):
+                value = value.flat[0]
+            out[symbol] = float(value) if value.ndim == 0 else [float(v) for v in value.flat]
+        return out
 
     def unit_of(self, parameter: str) -> str:
         """The unit of a parameter, by its kind (``""`` when the term states none).
@@ -528,6 +553,10 @@ class ParameterSubset(CandidateEffect):
         """Names of the term's parameters fixed at zero."""
         return tuple(p for k, p in enumerate(self.term.parameter_names) if k not in self.keep)
 
+    def constants(self) -> dict[str, float | list[float]]:
+        """The whole term's fixed constants (:meth:`CandidateEffect.constants`)."""
+        return self.term.constants()
+
     def full(self, theta: ArrayLike, fill: float = 0.0) -> FloatArray:
         """``theta`` of the kept parameters, ``(len(keep),)``, as the term's ``(p,)``.
 
@@ -652,6 +681,7 @@ class CoulombFriction(CandidateEffect):
 
     indexed_by = "joint"
     name = "coulomb"
+    constant_symbols: ClassVar[Mapping[str, str]] = {"eps": "eps"}
     parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb"})
     description = "r_j = c_j * tanh(qd_j / eps): Coulomb friction of joint j, smoothed sign"
@@ -718,6 +748,7 @@ class DahlFriction(CandidateEffect):
 
     indexed_by = "joint"
     name = "dahl"
+    constant_symbols: ClassVar[Mapping[str, str]] = {"a": "rate"}
     parameter_units: ClassVar[Mapping[str, str]] = {"coulomb": "N m"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"coulomb"})
     description = (
@@ -774,6 +805,7 @@ class StribeckFriction(CandidateEffect):
 
     indexed_by = "joint"
     name = "stribeck"
+    constant_symbols: ClassVar[Mapping[str, str]] = {"eps": "eps"}
     parameter_units: ClassVar[Mapping[str, str]] = {
         "coulomb": "N m",
         "static": "N m",
@@ -918,6 +950,7 @@ class CableCapstanFriction(CandidateEffect):
 
     indexed_by = "cable"
     name = "capstan"
+    constant_symbols: ClassVar[Mapping[str, str]] = {"eps": "eps"}
     parameter_units: ClassVar[Mapping[str, str]] = {"mu": "1/rad", "eps": "m/s"}
     nonnegative: ClassVar[frozenset[str]] = frozenset({"mu", "eps"})
     description = (
@@ -1176,6 +1209,7 @@ class MotorCogging(CandidateEffect):
 
     indexed_by = "cable"
     name = "cogging"
+    constant_symbols: ClassVar[Mapping[str, str]] = {"N": "n_periods", "rho": "drum_radius"}
     parameter_units: ClassVar[Mapping[str, str]] = {"cogging_a": "N m", "cogging_b": "N m"}
     description = (
         "r = -J_c^T dF, dF_c = (a_c sin(N theta_c) + b_c cos(N theta_c)) / rho (amplitude "

@@ -2,16 +2,20 @@
 
 :func:`write_report` writes, into one folder and file by file atomically:
 
-- ``diagnosis.json``: :meth:`~msarm.diagnose.select.Diagnosis.as_dict`;
+- ``diagnosis.json``: :meth:`~msarm.diagnose.select.Diagnosis.as_dict`, with the "where"
+  breakdowns given in its ``where`` section (see
+  :meth:`~msarm.diagnose.result.Diagnosis.with_where`);
 - ``waterfall.png`` (:func:`plot_waterfall`): per channel group, the pooled held-out RMSE of
   the residual for the nominal model and after each selected effect, each step's drop shaded;
 - ``gap.png`` (:func:`plot_gap`): per group, the held-out RMSE of each channel before and after
   the selected effects;
 - ``where-<kind>.png``: one heat map (:func:`msarm.diagnose.where.plot_heatmap`) per "where"
   breakdown given (``joint_torque``, ``drive``, ``cable_length``, ...);
-- ``report.md``: a title and summary, the "Where" section (each breakdown's tables, its heat map
-  linked), then the diagnosis' own sections (which effects, how far the gap shrinks, the
-  candidates tried) with the waterfall and gap plots linked (relative paths);
+- ``report.md``: a title and summary, what the answer was made from (model and its SHA-256,
+  code fingerprint, logs, residual settings), the terms it uses, the "Where" section (each
+  breakdown's tables, its heat map linked, and why a residual was not broken down), then the
+  diagnosis' own sections (which effects, how far the gap shrinks, the candidates tried)
+  with the waterfall and gap plots linked (relative paths);
 - ``report.html``: the same content as one self-contained page (the PNGs embedded as base64
   ``data:`` images) that can be mailed or archived alone. Markdown is rendered with
   ``markdown-it-py`` (a dependency of ``rich``), raw HTML in the text is escaped.
@@ -25,6 +29,7 @@ import os
 import re
 import tempfile
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -74,12 +79,14 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
     """Pooled held-out RMSE of each group after each selection step, as a waterfall.
 
     One panel per group of ``diagnosis.groups``. Bar ``k`` is the group's pooled held-out RMSE
-    [its unit, :data:`~msarm.diagnose.builder.GROUP_UNITS`] after the first ``k`` selected
-    effects (bar 0: the nominal model); the drop from the previous step is shaded (green, red
-    for a rise) and labelled with the RMSE and the drop's size in % of the nominal RMSE (a
-    grey bar, an effect on other groups that leaves this one unchanged, is not labelled). The
-    panel title gives the group's total shrink ``1 - RMSE_after / RMSE_nominal``. With nothing
-    selected, each panel has the nominal bar only.
+    [its unit, :data:`~msarm.diagnose.builder.GROUP_UNITS`] after the first ``k`` terms of the
+    final model (fitted together, added in selection order; bar 0: the nominal model), which
+    need not match the gains at selection time (each term's fit at its step, an explained
+    energy share; a note under the panels says so); the drop from the previous step is
+    shaded (green, red for a rise) and labelled with the RMSE and the drop's size in % of the
+    nominal RMSE (a grey bar, an effect on other groups that leaves this one unchanged, is not
+    labelled). The panel title gives the group's total shrink ``1 - RMSE_after /
+    RMSE_nominal``. With nothing selected, each panel has the nominal bar only.
 
     Args:
         diagnosis: The diagnosis.
@@ -157,8 +164,14 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
         ax.set_xlim(-0.6 if len(x) > 1 else -1.5, x[-1] + (0.6 if len(x) > 1 else 1.5))
         ax.grid(axis="y", alpha=0.3, zorder=0)
     fig.suptitle(
-        "held-out gap after each selected effect"
-        + ("" if diagnosis.selected else " (nothing selected)")
+        "held-out gap after each selected effect: the final model, its terms added in "
+        "selection order" + ("" if diagnosis.selected else " (nothing selected)")
+    )
+    fig.supxlabel(
+        "bars: pooled held-out RMSE of the residual; labels: RMSE and the step's change as a "
+        "share of the nominal model's RMSE (not the gain when selected, an explained-energy "
+        "share from the fit at that step)",
+        fontsize=8,
     )
     return save_figure(fig, path)
 
@@ -262,7 +275,7 @@ def _markdown(
         )
     lines += [
         "",
-        "Held-out gap shrink per channel group: "
+        "Held-out gap shrink per channel group (final model, RMSE): "
         + ", ".join(
             f"{g} {100 * diagnosis.group_shrink(g):.1f} % "
             f"({diagnosis.waterfall[0][g]:.4g} -> {diagnosis.waterfall[-1][g]:.4g} "
@@ -270,6 +283,10 @@ def _markdown(
             for g in diagnosis.groups
         )
         + ".",
+        "",
+        *diagnosis.settings_markdown(),
+        "",
+        *diagnosis.glossary_markdown(),
         "",
         "## Where the gap lies (training runs)",
         "",
@@ -280,7 +297,14 @@ def _markdown(
         body = _demote(breakdown.to_markdown().strip(), 1)
         head, _, rest = body.partition("\n")
         lines += [head, "", f"![where the {kind} gap lies]({image})", "", rest.strip(), ""]
-    diagnosis_md = _demote(diagnosis.to_markdown().strip(), 1).splitlines()
+    skipped = [
+        f"- {kind}: {entry['skipped']}"
+        for kind, entry in diagnosis.where.items()
+        if kind not in where and isinstance(entry, dict) and "skipped" in entry
+    ]
+    if skipped:
+        lines += ["Residuals not broken down:", "", *skipped, ""]
+    diagnosis_md = _demote(diagnosis.to_markdown(preamble=False).strip(), 1).splitlines()
     figures = [
         f"![held-out gap after each selected effect]({images['waterfall']})",
         "",
@@ -411,6 +435,9 @@ def _write_report_files(
     extras: Mapping[str, bytes],
 ) -> dict[str, Path]:
     """Every file of the report into ``out`` (see :func:`write_report`)."""
+    given = {k: b.as_dict() for k, b in where.items() if k not in diagnosis.where}
+    if given:  # the breakdowns in the JSON too
+        diagnosis = replace(diagnosis, where={**diagnosis.where, **given})
     paths: dict[str, Path] = {}
     paths["json"] = write_json_atomic(out / REPORT_FILES["json"], diagnosis.as_dict())
     paths["waterfall"] = plot_waterfall(diagnosis, out / REPORT_FILES["waterfall"])

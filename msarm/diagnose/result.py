@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.builder import GROUP_UNITS
 from msarm.diagnose.effects import parameter_index
+
+if TYPE_CHECKING:
+    from msarm.diagnose.where import GapBreakdown
 
 __all__ = ["Diagnosis", "SelectedEffect", "label_parameters"]
 
@@ -46,6 +49,15 @@ def label_parameters(
     return tuple(labels)
 
 
+def _number(value: Any) -> str:
+    """A value as shown: ``0.003``, ``4``, ``true``, or ``[0.003, 0.004]`` for one per channel."""
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_number(v) for v in value) + "]"
+    if isinstance(value, bool):
+        return str(value).lower()
+    return f"{value:.4g}" if isinstance(value, float | int) else str(value)
+
+
 @dataclass(frozen=True)
 class SelectedEffect:
     """One selected term of a :class:`Diagnosis`.
@@ -70,6 +82,9 @@ class SelectedEffect:
         parameter_labels: Each parameter's name as shown to a reader, with the joint or cable
             its bracketed index counts (``coulomb[elbow]`` for ``coulomb[3]``; see
             :func:`label_parameters`), ``(p,)`` strings; empty: the names themselves.
+        constants: The fixed (not fitted) constants of its equation by their symbol in
+            :attr:`description` (``{"rho": 0.003, "K": 4.0, "omega_s": 0.5}``; see
+            ``CandidateEffect.constants``); empty when the term states none.
     """
 
     name: str
@@ -85,6 +100,7 @@ class SelectedEffect:
     parameter_units: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     parameter_labels: tuple[str, ...] = ()
+    constants: dict[str, Any] = field(default_factory=dict)
 
     @property
     def labels(self) -> tuple[str, ...]:
@@ -141,7 +157,15 @@ class SelectedEffect:
             else {},
             "notes": list(self.notes),
             "labels": dict(zip(self.parameter_names, self.labels, strict=True)),
+            "constants": dict(self.constants),
         }
+
+    def equation(self) -> str:
+        """Its equation (:attr:`description`) with the fixed constants' values after it."""
+        if not self.constants:
+            return self.description
+        values = ", ".join(f"{k} = {_number(v)}" for k, v in self.constants.items())
+        return f"{self.description} (fixed, not fitted: {values})"
 
 
 @dataclass(frozen=True)
@@ -155,7 +179,7 @@ class Diagnosis:
         step_scores: Per step, the gain (on its own groups) of every candidate tried with the
             terms selected before, by name: from the joint fit for the shortlisted
             candidates (every candidate at the first step), from the screening fit for the
-            others.
+            others; NaN for a candidate not tried, confounded (see ``confounded``).
         groups: The channel groups diagnosed, in stack order.
         channel_names: Channel names of each group (joints or cables).
         gap_before: Held-out RMSE per channel of each group, nominal model, in the group's
@@ -185,6 +209,29 @@ class Diagnosis:
             missing channel, a time gap, a sensor that holds one value), as the
             :class:`~msarm.diagnose.residuals.DiagnosisWarning` messages said it, each once
             (the candidates not tried are in ``skipped``).
+        shortlisted: Per step (as ``step_scores``), the candidates whose score is a joint fit
+            with the terms selected before (the shortlist; every candidate tried when the
+            first step's screening was already that fit); the others' scores are screening
+            scores (each alone on thinned samples, the selected terms held fixed). Empty when
+            not recorded.
+        residual_spec: The residual settings the logs were read with
+            (:class:`~msarm.diagnose.residuals.ResidualSpec` as a dict: ``target`` (filter
+            ``window`` [samples], ``polyorder``, ``smooth_tension``, ``tension_timing``),
+            ``drum_radius`` [m], ``drive_gain`` [-], ``length_resolution`` [m], ``replay``,
+            ``replay_source``, ``replay_window`` [s], ``replay_substeps``); they set the
+            parameters (the drive terms' in N m through the drum radius and the drive gain).
+            Empty when not recorded.
+        model: The nominal model: ``name``, ``sha256`` (of its MJCF, as the logs carry it) and
+            ``path`` (absolute). Empty when not recorded.
+        code_fingerprint: :func:`msarm.io.code_version.code_fingerprint` of scope
+            ``"diagnosis"`` of the code that made the answer (msarm's sources and the fitting
+            libraries' versions); ``""`` when not recorded.
+        log_paths: The logs' absolute paths, ``{"train": (...), "holdout": (...)}`` in the
+            order of ``train_runs`` and ``holdout_runs`` (which keep the paths as given).
+        where: The "where" breakdown of the training runs by residual kind (``joint_torque``,
+            ``drive``, ``cable_length``): each :meth:`~msarm.diagnose.where.GapBreakdown.as_dict`,
+            or ``{"skipped": why}`` for a kind not broken down; empty when not computed (see
+            :meth:`with_where`).
     """
 
     selected: tuple[SelectedEffect, ...]
@@ -205,6 +252,30 @@ class Diagnosis:
     confounded: dict[str, str] = field(default_factory=dict)
     search: dict[str, Any] = field(default_factory=dict)
     log_warnings: tuple[str, ...] = ()
+    shortlisted: tuple[tuple[str, ...], ...] = ()
+    residual_spec: dict[str, Any] = field(default_factory=dict)
+    model: dict[str, str] = field(default_factory=dict)
+    code_fingerprint: str = ""
+    log_paths: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    where: dict[str, Any] = field(default_factory=dict)
+
+    def with_where(
+        self, breakdowns: Mapping[str, GapBreakdown], skipped: Mapping[str, str] | None = None
+    ) -> Diagnosis:
+        """The same diagnosis with its "where" section (:attr:`where`) filled in.
+
+        Args:
+            breakdowns: The breakdowns of the training runs by residual kind
+                (:func:`msarm.cli.diagnose.where_breakdowns`).
+            skipped: Why each kind not broken down was skipped.
+
+        Returns:
+            A new :class:`Diagnosis`; its :attr:`where` holds the kinds in the order given,
+            the breakdowns first.
+        """
+        where = {kind: breakdown.as_dict() for kind, breakdown in breakdowns.items()}
+        where.update({kind: {"skipped": why} for kind, why in (skipped or {}).items()})
+        return replace(self, where=where)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -294,7 +365,8 @@ class Diagnosis:
             Plain data keyed like the attributes (``selected`` as :meth:`SelectedEffect.as_dict`
             dicts), with ``gap`` (per group: unit, shrink and each channel's before, after and
             shrink) in place of ``gap_before`` / ``gap_after`` and with ``total_shrink``;
-            non-finite step scores are ``None``.
+            non-finite step scores are ``None``. The keys are documented in the README
+            ("Sim-to-real gap diagnosis", the keys of ``diagnosis.json``).
         """
         gap = {
             g: {
@@ -328,6 +400,12 @@ class Diagnosis:
             "confounded": dict(self.confounded),
             "search": dict(self.search),
             "log_warnings": list(self.log_warnings),
+            "shortlisted": [list(names) for names in self.shortlisted],
+            "residual_spec": dict(self.residual_spec),
+            "model": dict(self.model),
+            "code_fingerprint": self.code_fingerprint,
+            "log_paths": {k: list(v) for k, v in self.log_paths.items()},
+            "where": dict(self.where),
         }
 
     def _parameter_table(self) -> list[str]:
@@ -345,8 +423,92 @@ class Diagnosis:
                 lines.append(f"| {s.name} | {label} | {value:.4g} | {spread} | {unit} |")
         return lines
 
-    def to_markdown(self) -> str:
+    def settings_markdown(self) -> list[str]:
+        """Markdown lines: what the answer was made from (model, code, logs, residual settings).
+
+        Returns:
+            A ``## Made from`` section (without a blank line at its end); only the items
+            recorded (an answer made before they were recorded has the logs' names alone).
+        """
+        lines = ["## Made from", ""]
+        if self.model:
+            lines.append(
+                f"- model: {self.model.get('name', '')} (`{self.model.get('path', '')}`), "
+                f"SHA-256 `{self.model.get('sha256', '')}`"
+            )
+        if self.code_fingerprint:
+            lines.append(
+                f"- code fingerprint (msarm.io.code_version, scope diagnosis): "
+                f"`{self.code_fingerprint}`"
+            )
+        paths = self.log_paths or {"train": self.train_runs, "holdout": self.holdout_runs}
+        for key, label in (("train", "training logs"), ("holdout", "held-out logs")):
+            lines.append(f"- {label}: " + ", ".join(f"`{p}`" for p in paths.get(key, ())))
+        if self.residual_spec:
+            units = {
+                "window": "samples",
+                "drum_radius": "m",
+                "length_resolution": "m",
+                "replay_window": "s",
+            }
+            flat: list[tuple[str, Any]] = []
+            for key, value in self.residual_spec.items():
+                pairs = value.items() if isinstance(value, dict) else [(key, value)]
+                flat += list(pairs)
+            lines.append(
+                "- residual settings: "
+                + ", ".join(
+                    f"{key} {_number(value)}" + (f" {units[key]}" if key in units else "")
+                    for key, value in flat
+                )
+            )
+        return lines
+
+    def glossary_markdown(self) -> list[str]:
+        """Markdown lines: the terms the report uses, each in a sentence or two.
+
+        Returns:
+            A ``## Terms used`` section (without a blank line at its end).
+        """
+        return [
+            "## Terms used",
+            "",
+            "- **Residuals.** What the nominal model and the logs disagree on, in three "
+            "residuals named twice: the diagnosis's channel groups `joint` [N m], `drive` [N] "
+            "and `length` [m] are the where breakdown's residual kinds `joint_torque`, "
+            "`drive` and `cable_length` (the same residuals; cable lengths about each log's "
+            "mean).",
+            "- **Explained share** (the held-out score): per group, `1 - sum (r - pred)^2 / "
+            "sum r^2` over the held-out samples, an energy share; the score is its mean over "
+            "the groups. An explained share `e` shrinks the group's RMSE by `1 - sqrt(1 - e)`: "
+            "0.869 is a shrink of 63.8 %, 0.5 one of 29.3 %.",
+            "- **Gain when selected**: the rise of the explained share, averaged over the "
+            "groups the term acts on, that the term brought when it was selected (its fit at "
+            "that step, with the terms selected before it).",
+            "- **Screening / joint fit** (candidates tried): a screening score fits each "
+            "candidate alone, on thinned samples, the selected terms held fixed; the "
+            "shortlist is then fitted jointly with them, and only a shortlisted candidate can "
+            "be selected.",
+            "- **Shrink** and the effect-by-effect table / waterfall: `1 - RMSE_after / "
+            "RMSE_nominal` of the held-out residual (RMSE, not energy), from the final model: "
+            "the terms fitted together, then added one by one in selection order; a step's "
+            "drop is a share of the nominal RMSE. It need not match the gain when selected, "
+            "which is an energy share from the fit at that step.",
+            "- **Confidence**: the share of (bootstrap draw of the training runs, held-out "
+            "run) pairs in which leaving the term out of the refitted final model loses a "
+            "gain that would earn it its place (1: every draw and run needs it); n/a without "
+            "a bootstrap.",
+            "- **Density** (where): share of the residual energy / share of the time; a hot "
+            "spot is a phase or posture cell well above 1.",
+        ]
+
+    def to_markdown(self, preamble: bool = True) -> str:
         """The diagnosis as Markdown (tables only; :mod:`msarm.diagnose.report` adds plots).
+
+        Args:
+            preamble: Open with what the answer was made from (:meth:`settings_markdown`) and
+                the terms it uses (:meth:`glossary_markdown`); the report puts them in its
+                own header instead.
 
         Returns:
             The Markdown text: the selected effects, the held-out gap before and after per
@@ -356,6 +518,8 @@ class Diagnosis:
         from msarm.diagnose.select import RELATIVE_GAIN, RELATIVE_GAIN_FLOOR
 
         lines = ["# Sim-to-real gap diagnosis", ""]
+        if preamble:
+            lines += [*self.settings_markdown(), "", *self.glossary_markdown(), ""]
         lines.append(
             f"Training runs: {len(self.train_runs)} ({self.n_train} samples); held-out runs: "
             f"{len(self.holdout_runs)} ({self.n_holdout} samples); channel groups: "
@@ -399,7 +563,7 @@ class Diagnosis:
         else:
             lines += [
                 "| step | effect | acts on | parameters (± bootstrap std) | held-out score | "
-                "gain | confidence |",
+                "gain when selected (fit at that step) | confidence |",
                 "|---|---|---|---|---|---|---|",
             ]
             for k, s in enumerate(self.selected, start=1):
@@ -410,7 +574,7 @@ class Diagnosis:
                     f"{s.explained_variance:.3f} | {s.gain:+.3f} | {confidence} |"
                 )
             lines += ["", "What each named effect is (its equation):", ""]
-            lines += [f"- {s.name}: {s.description}" for s in self.selected]
+            lines += [f"- {s.name}: {s.equation()}" for s in self.selected]
             notes = [f"- {s.name}: {note}" for s in self.selected for note in s.notes]
             if notes:
                 lines += ["", "Notes:", "", *notes]
@@ -425,7 +589,13 @@ class Diagnosis:
                 )
             lines.append(f"| {g} | all | | | {100 * self.group_shrink(g):.1f} % |")
         if self.selected:
-            lines += ["", "Effect by effect (pooled held-out RMSE of each group):", ""]
+            lines += [
+                "",
+                "Effect by effect: the final model, its terms added in selection order (pooled "
+                "held-out RMSE of each group; the waterfall plot shows each drop as a share of "
+                "the nominal RMSE):",
+                "",
+            ]
             lines.append("| after | " + " | ".join(self.groups) + " |")
             lines.append("|---|" + "---|" * len(self.groups))
             steps = ["nominal model", *(f"+ {s.name}" for s in self.selected)]
@@ -453,12 +623,23 @@ class Diagnosis:
                     f"| {label} | {scale * b:.3g} {unit} | {scale * a:.3g} {unit} | {share:.1f} % |"
                 )
         lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
+        if self.shortlisted:
+            lines += [
+                "Scores marked (screening) fit the candidate alone on thinned samples, the "
+                "effects already named held fixed; the others are joint fits with those effects "
+                "(the shortlist, from which a step selects).",
+                "",
+            ]
         for k, scores in enumerate(self.step_scores, start=1):
             tried = sorted(
                 ((n, v) for n, v in scores.items() if np.isfinite(v)), key=lambda kv: -kv[1]
             )
             held_back = [n for n, v in scores.items() if not np.isfinite(v)]
-            text = ", ".join(f"{n} {v:+.3f}" for n, v in tried)
+            joint = set(self.shortlisted[k - 1]) if k <= len(self.shortlisted) else None
+            text = ", ".join(
+                f"{n} {v:+.3f}" + ("" if joint is None or n in joint else " (screening)")
+                for n, v in tried
+            )
             if held_back:
                 text += f" (not tried, confounded: {', '.join(held_back)})"
             lines.append(f"{k}. {text}")

@@ -66,7 +66,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -127,6 +127,7 @@ from msarm.diagnose.stack import (
     pooled_rmse,
 )
 from msarm.errors import InputError
+from msarm.io.code_version import code_fingerprint
 from msarm.model import RobotModel
 
 __all__ = [
@@ -391,6 +392,7 @@ def _selected_effect(
         parameter_units=tuple(term.unit_of(p) for p in term.parameter_names),
         notes=notes,
         parameter_labels=labels,
+        constants=term.constants(),
     )
 
 
@@ -1119,6 +1121,7 @@ def load_data(
         holdout_runs=hold_names,
         channel_names={g: names[g] for g in layout.groups},
         spec=spec,
+        log_paths={"train": _resolved(train_names), "holdout": _resolved(hold_names)},
     )
 
 
@@ -1206,6 +1209,7 @@ def select_effects(
 
     chosen: list[CandidateEffect] = []
     scores_per_step: list[dict[str, float]] = []
+    shortlisted: list[tuple[str, ...]] = []
     current = dict.fromkeys(layout.groups, 0.0)
     explained = [0.0]
     gains: list[float] = []
@@ -1258,6 +1262,7 @@ def select_effects(
         scores_per_step.append(gain_of)
         # a candidate's screening gain only puts it on the shortlist
         open_ = finalists if refit else [c for c in remaining if np.isfinite(gain_of[c.name])]
+        shortlisted.append(tuple(c.name for c in open_))
         if not open_:
             break
         best = max(open_, key=lambda c: gain_of[c.name])
@@ -1332,4 +1337,21 @@ def select_effects(
             "final_fit": "projection",
             "prune_tolerance": PRUNE_TOLERANCE,
         },
+        shortlisted=tuple(shortlisted),
+        residual_spec=asdict(data.spec),
+        model={
+            "name": data.model.name,
+            "sha256": data.model.sha256,
+            "path": str(Path(data.model.path).resolve()),
+        },
+        code_fingerprint=code_fingerprint("diagnosis"),
+        log_paths={
+            "train": data.log_paths.get("train", _resolved(data.train_runs)),
+            "holdout": data.log_paths.get("holdout", _resolved(data.holdout_runs)),
+        },
     )
+
+
+def _resolved(names: Sequence[str]) -> tuple[str, ...]:
+    """The absolute paths of logs named by their paths."""
+    return tuple(str(Path(name).resolve()) for name in names)

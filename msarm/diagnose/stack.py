@@ -718,6 +718,8 @@ class DiagnosisData:
         channel_names: Channel names of each group.
         spec: The residual settings the logs were read with; the held-out replay of the
             result (the gap as motion) uses its window, steps and source too.
+        log_paths: The logs' absolute paths, ``{"train": (...), "holdout": (...)}`` in the
+            order of ``train_runs`` and ``holdout_runs``; empty when not known.
     """
 
     model: RobotModel
@@ -732,3 +734,4 @@ class DiagnosisData:
     holdout_runs: tuple[str, ...]
     channel_names: dict[str, tuple[str, ...]]
     spec: ResidualSpec = field(default_factory=ResidualSpec)
+    log_paths: dict[str, tuple[str, ...]] = field(default_factory=dict)

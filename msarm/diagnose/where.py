@@ -39,14 +39,18 @@ energy, so that its shares sum to 100 %:
 
 Each row has the share of the energy [%], the share of time (samples) [%] and the energy
 density: share of energy / share of time. A density above 1 means the gap concentrates there
-(for channels: above an even split between channels).
+(for channels: above an even split between channels). A phase or posture cell is a hot spot
+only with a margin (:attr:`PhaseSettings.hot_spot_density`, 1.2, and
+:attr:`PhaseSettings.hot_spot_samples` samples or more): on a plant with sensor noise alone
+the densities scatter about 1 (1.01 and the like), which is no concentration.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,6 +67,8 @@ from msarm.model import RobotModel
 
 __all__ = [
     "GROUPS",
+    "HOT_SPOT_DENSITY",
+    "HOT_SPOT_SAMPLES",
     "LOAD_PHASES",
     "MOTION_PHASES",
     "BreakdownRow",
@@ -83,6 +89,11 @@ MOTION_PHASES = ("reversal", "acceleration", "hold", "constant_velocity")
 LOAD_PHASES = ("low_tension", "high_load", "normal_load")
 #: Groups of rows of a breakdown, in display order.
 GROUPS = ("channel", "motion", "load", "posture")
+#: Least energy density of a hot spot (:attr:`PhaseSettings.hot_spot_density`) [-].
+HOT_SPOT_DENSITY = 1.2
+#: Least number of samples of a hot spot (:attr:`PhaseSettings.hot_spot_samples`): 0.4 s at
+#: 250 Hz.
+HOT_SPOT_SAMPLES = 100
 
 
 @dataclass(frozen=True)
@@ -100,6 +111,9 @@ class PhaseSettings:
         low_tension: Load-cell tension below which a cable is slack or nearly [N].
         high_load_percentile: Percentile of the per-sample largest tension above which a
             sample is under high load [%].
+        hot_spot_density: Least energy density of a hot spot [-] (:meth:`GapBreakdown.hot_spots`):
+            a margin above 1, which noise alone scatters about.
+        hot_spot_samples: Least number of samples of a hot spot.
     """
 
     hold_speed: float = 0.05
@@ -108,6 +122,8 @@ class PhaseSettings:
     acceleration: float = 0.5
     low_tension: float = 2.0
     high_load_percentile: float = 90.0
+    hot_spot_density: float = HOT_SPOT_DENSITY
+    hot_spot_samples: int = HOT_SPOT_SAMPLES
 
     def __post_init__(self) -> None:
         for name in ("hold_speed", "reversal_speed", "reversal_window", "acceleration"):
@@ -117,6 +133,10 @@ class PhaseSettings:
             raise ValueError(
                 f"high_load_percentile must be in (0, 100), got {self.high_load_percentile}"
             )
+        if not self.hot_spot_density >= 1:
+            raise ValueError(f"hot_spot_density must be >= 1, got {self.hot_spot_density}")
+        if not self.hot_spot_samples >= 1:
+            raise ValueError(f"hot_spot_samples must be >= 1, got {self.hot_spot_samples}")
 
 
 @dataclass(frozen=True)
@@ -202,14 +222,72 @@ class GapBreakdown:
             min_time_share: Rows with less time share [%] are left out (too few samples).
 
         Returns:
-            Rows of the ``motion``, ``load`` and ``posture`` groups with density > 1.
+            Rows of the ``motion``, ``load`` and ``posture`` groups with a density of at least
+            ``settings.hot_spot_density`` and at least ``settings.hot_spot_samples`` samples;
+            none where the gap does not concentrate (a plant with sensor noise alone).
         """
+        s = self.settings
         rows = [
             r
             for r in self.rows
-            if r.group != "channel" and r.time_share >= min_time_share and r.density > 1
+            if r.group != "channel"
+            and r.time_share >= min_time_share
+            and r.samples >= s.hot_spot_samples
+            and r.density >= s.hot_spot_density
         ]
         return sorted(rows, key=lambda r: r.density, reverse=True)[:count]
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict of the breakdown (``None`` for an empty cell, never NaN).
+
+        Returns:
+            ``kind``, ``unit``, ``sources``, ``samples``, ``total_energy`` [unit^2], ``rms``
+            [unit], ``settings`` (the phase thresholds, :class:`PhaseSettings`), ``rows``
+            (each row's ``group``, ``where``, ``energy`` [unit^2], ``share`` and
+            ``time_share`` [%], ``density``, ``samples`` and ``rms`` [unit]: a channel's RMS
+            over its samples, a phase's or cell's over its samples and all channels),
+            ``hot_spots`` (``group`` and ``where`` of each, densest first) and ``posture``
+            (the grid's ``joints``, bin ``edges`` [rad], ``rms`` [unit] and ``samples`` per
+            cell, ``None`` for a cell without samples).
+        """
+        n_channels = max(1, len(self.group("channel")))
+
+        def number(value: float) -> float | None:
+            return float(value) if np.isfinite(value) else None
+
+        def rms(row: BreakdownRow) -> float | None:
+            count = row.samples * (1 if row.group == "channel" else n_channels)
+            return number(np.sqrt(row.energy / count)) if count else None
+
+        return {
+            "kind": self.kind,
+            "unit": self.unit,
+            "sources": list(self.sources),
+            "samples": int(self.samples),
+            "total_energy": number(self.total_energy),
+            "rms": number(self.rms),
+            "settings": asdict(self.settings),
+            "rows": [
+                {
+                    "group": r.group,
+                    "where": r.where,
+                    "energy": number(r.energy),
+                    "share": number(r.share),
+                    "time_share": number(r.time_share),
+                    "density": number(r.density),
+                    "samples": int(r.samples),
+                    "rms": rms(r),
+                }
+                for r in self.rows
+            ],
+            "hot_spots": [{"group": r.group, "where": r.where} for r in self.hot_spots()],
+            "posture": {
+                "joints": list(self.posture_joints),
+                "edges": [[float(e) for e in edges] for edges in self.posture_edges],
+                "rms": [[number(v) for v in row] for row in np.asarray(self.posture_rms)],
+                "samples": np.asarray(self.posture_samples).astype(int).tolist(),
+            },
+        }
 
     def to_markdown(self) -> str:
         """The breakdown as Markdown: a summary, the hot spots, one table per group."""
@@ -228,7 +306,8 @@ class GapBreakdown:
             f"{s.reversal_speed:g} rad/s both ways within +-{s.reversal_window:g} s, "
             f"acceleration |qdd| >= {s.acceleration:g} rad/s^2, low tension < "
             f"{s.low_tension:g} N, high load > p{s.high_load_percentile:g} of the largest "
-            "tension.",
+            f"tension; a hot spot has a density >= {s.hot_spot_density:g} over >= "
+            f"{s.hot_spot_samples} samples.",
             "",
         ]
         hot = self.hot_spots()
@@ -241,7 +320,12 @@ class GapBreakdown:
                 )
                 + "."
             )
-            lines.append("")
+        else:
+            lines.append(
+                f"Hot spots: none, no concentration (no phase or posture cell has a density "
+                f"of {s.hot_spot_density:g} or more over {s.hot_spot_samples} samples or more)."
+            )
+        lines.append("")
         for name in GROUPS:
             lines += [
                 f"### By {name}",
