@@ -137,6 +137,13 @@ def test_logs_the_diagnosis_refuses_together_are_said(arm, logs, tmp_path, monke
         "the diagnosis takes logs of one sample rate together"
     )
     assert check_logs(arm, [logs[0]])[1] == []
+    # a rate that differs in its ninth digit is the diagnosis's one rate (it was "logs of 2
+    # sample rates (250 Hz: ...; 250 Hz: ...)")
+    near = write_log(
+        tmp_path / "near.parquet",
+        RunLog(log.columns, replace(log.metadata, sample_rate_hz=rate * (1 + 1e-8))),
+    )
+    assert check_logs(arm, [logs[0], near])[1] == []
     monkeypatch.setattr(sys, "argv", ["msarm", "log", "check", str(logs[0]), str(copy)])
     with pytest.raises(SystemExit) as exit_info:
         main()

@@ -130,16 +130,29 @@ def test_a_sample_rate_slightly_off_is_warned_and_far_off_refused(logs, arm, tmp
     close = _rewrite(logs[0], tmp_path / "close.parquet", sample_rate_hz=rate * 1.01)
     with pytest.warns(
         DiagnosisWarning,
-        match=r"close\.parquet: column 't' has a median step .* "
+        match=r"close\.parquet: column 't' has a mean step .* "
         r"off the .* sample_rate_hz",
     ):
         residuals_from_log(arm, close, spec=spec)
     far = _rewrite(logs[0], tmp_path / "far.parquet", sample_rate_hz=rate * 1.2)
-    with pytest.raises(LogError, match=r"far\.parquet: column 't' has a median step"):
+    with pytest.raises(LogError, match=r"far\.parquet: column 't' has a mean step"):
         residuals_from_log(arm, far, spec=spec)
     with warnings.catch_warnings():
         warnings.simplefilter("error", DiagnosisWarning)
         residuals_from_log(arm, logs[0], spec=spec)  # an exact rate: no warning
+
+
+def test_time_stamps_rounded_to_whole_milliseconds_keep_their_rate(logs, arm, tmp_path):
+    """300 Hz stamped in whole ms steps 3, 3, 4 ms: the mean step between gaps is the
+    period (before, the median, 3 ms, refused the log's 300 Hz as 10 % off)."""
+    log = read_log(logs[0])
+    t = np.floor(np.arange(len(log)) * 1000 / 300) / 1000
+    path = _rewrite(logs[0], tmp_path / "ms.parquet", {**log.columns, "t": t}, sample_rate_hz=300)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = residuals_from_log(arm, path, spec=ResidualSpec(replay=False))
+    assert got.valid.all()
+    assert not [w for w in caught if "mean step" in str(w.message) or "gap" in str(w.message)]
 
 
 def test_a_filter_spanning_an_implausible_time_is_warned(logs, arm, tmp_path):
@@ -206,10 +219,34 @@ def test_a_channel_in_another_unit_than_its_partner_is_warned(logs, arm, tmp_pat
     mirrored = _rewrite(logs[0], tmp_path / "one.parquet", scaled(f"motor_angle.{least}", -1.0))
     with pytest.warns(DiagnosisWarning, match=rf"one\.parquet: .* for 'motor_angle\.{least}' \(-"):
         residuals_from_log(arm, mirrored, spec=spec)
+    # load cells and commands both in kN: their ratio is 1, but every sample would be slack
+    # (before, no warning at all, and the diagnosis named a mass error and slack); the
+    # commands alone in kN are the ratio's warning only
+    both = {k: (v / 1e3 if k.startswith("tension_") else v) for k, v in log.columns.items()}
+    both_kn = _rewrite(logs[0], tmp_path / "bothkn.parquet", both)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        residuals_from_log(arm, both_kn, spec=spec)
+    (said,) = [str(w.message) for w in caught if "below 1 N" in str(w.message)]
+    median = np.median(log.matrix("tension_motor", arm.cable_names)) / 1e3
+    assert f"bothkn.parquet: the tensions tension_motor.* (median {median:.3g} N), " in said
+    assert "tension_cmd.* (median" in said and "convert them to N" in said
+    assert not [w for w in caught if "times the load cells" in str(w.message)]
+    imported = replace(log.metadata, extra={"imported_from": "run.csv"})
+    with pytest.warns(
+        DiagnosisWarning,
+        match=r"import it again with --unit tension_motor=kN --unit tension_cmd=kN",
+    ):
+        residuals_from_log(arm, RunLog(both, imported), source="run.parquet", spec=spec)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        residuals_from_log(arm, kilo, spec=spec)
+    assert not [w for w in caught if "below 1 N" in str(w.message)]
     # and the log as recorded: no warning about its scales
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         residuals_from_log(arm, logs[0], spec=spec)
+    assert not [w for w in caught if "below 1 N" in str(w.message)]
     assert not [w for w in caught if "times the load cells" in str(w.message)]
     assert not [w for w in caught if "do not follow" in str(w.message)]
     assert not [w for w in caught if "outside the model's joint range" in str(w.message)]
@@ -229,11 +266,24 @@ def test_joint_angles_in_degrees_are_warned_about_by_name(logs, arm, tmp_path):
         residuals_from_log(arm, degrees, spec=ResidualSpec(replay=False))
     (said,) = [str(w.message) for w in caught if "joint range" in str(w.message)]
     assert "qdeg.parquet: joint angles far outside the model's joint range: " in said
-    assert "--unit q=deg" in said
-    # every joint leaves its range by far: the first three named, the fourth counted
+    assert "--unit q=deg --unit q_ref=deg converts them" in said
+    # every joint leaves its range by far, in q and q_ref: the first three named, the rest
+    # counted
     for joint in arm.joint_names[:3]:
         assert f"'q.{joint}' spans" in said, joint
-    assert f"'q.{arm.joint_names[3]}'" not in said and "and 1 more, in rad" in said
+    assert f"'q.{arm.joint_names[3]}'" not in said and "and 5 more, in rad" in said
+    # the reference alone in degrees (imported with --unit q=deg only): named too (before,
+    # only the measured q was checked, and the mass-error term read the reference as rad)
+    columns = {
+        k: (v * 180 / np.pi if k.startswith("q_ref.") else v) for k, v in log.columns.items()
+    }
+    reference = _rewrite(logs[0], tmp_path / "refdeg.parquet", columns)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        residuals_from_log(arm, reference, spec=ResidualSpec(replay=False))
+    (said,) = [str(w.message) for w in caught if "joint range" in str(w.message)]
+    assert "refdeg.parquet: joint angles far outside" in said and "'q_ref." in said
+    assert "'q." not in said and "msarm log import --unit q_ref=deg converts them" in said
     # 0.4 rad beyond a limit (a calibration offset, say) is not a unit slip
     q = log.matrix("q", arm.joint_names)
     offset = dict(log.columns)
@@ -593,6 +643,22 @@ def test_held_out_logs_of_another_sample_rate_are_refused(logs, arm, tmp_path):
         rf"{1 / rate:g} s of .*run40.*\(training\); diagnose logs of one sample rate together",
     ):
         load_data(arm, logs[:2], [slow], candidates=["coulomb"])
+
+
+def test_sample_periods_within_a_millionth_are_one_rate_and_others_named_in_full():
+    """Rates taken from time columns may differ in their last digits (1e-9 relative refused
+    them); periods that differ are printed with the digits that tell them apart."""
+    from types import SimpleNamespace
+
+    from msarm.diagnose.builder import SAME_PERIOD, check_same_rate
+
+    first = SimpleNamespace(dt=0.004)
+    roles = ("training", "held-out")
+    check_same_rate(first, "a", SimpleNamespace(dt=0.004 * (1 + SAME_PERIOD / 2)), "b", roles)
+    with pytest.raises(
+        LogError, match=r"b: sample period 0\.004000008 s \(held-out\) differs from 0\.004 s of a"
+    ):
+        check_same_rate(first, "a", SimpleNamespace(dt=0.004 * (1 + 2e-6)), "b", roles)
 
 
 def _with_missing(path, out, column, rows, value):

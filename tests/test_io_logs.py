@@ -17,6 +17,7 @@ from msarm.io.logs import (
     STANDARD_UNITS,
     LogMetadata,
     RunLog,
+    nominal_step,
     read_log,
     read_log_with_missing_values,
     read_sidecar,
@@ -405,3 +406,13 @@ def test_a_channel_name_given_twice_is_refused_not_overwritten():
     metadata = LogMetadata(robot_model="arm", model_sha256="0" * 64, sample_rate_hz=100.0)
     with pytest.raises(InputError, match="'a' given more than once"):
         RunLog.from_quantities(t, {"q": (("a", "a"), values)}, metadata)
+
+
+def test_the_nominal_step_is_the_mean_step_between_gaps():
+    """300 Hz stamped in whole ms steps 3, 3, 4 ms: the median is 3 ms, the mean the period;
+    a gap (longer than 1.5 median steps) is left out."""
+    t = np.floor(np.arange(301) * 1000 / 300) / 1000
+    assert np.median(np.diff(t)) == pytest.approx(0.003)
+    assert nominal_step(t) == pytest.approx(1 / 300, rel=1e-12)
+    gapped = np.concatenate([t, t[-1] + 0.5 + t])
+    assert nominal_step(gapped) == pytest.approx(1 / 300, rel=1e-12)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import math
 import sys
+import warnings
+from decimal import Decimal
 
 import numpy as np
 import pyarrow as pa
@@ -67,7 +69,7 @@ def test_a_csv_in_other_units_and_order_becomes_the_log_it_records(arm, tmp_path
         ]
     for name, values in log.columns.items():
         np.testing.assert_allclose(got.columns[name], values, rtol=1e-13, atol=0, err_msg=name)
-    assert got.metadata.sample_rate_hz == RATE  # from the median step
+    assert got.metadata.sample_rate_hz == RATE  # from the mean step
     assert got.metadata.model_sha256 == arm.sha256 and got.metadata.robot_model == arm.name
     assert dict(got.metadata.units) == {q: STANDARD_UNITS[q] for q in UNITS}
     assert got.metadata.extra == {
@@ -321,7 +323,7 @@ def test_the_time_unit_and_rate_are_checked_against_the_time_column(arm):
     columns = {"time_ms": t, "q.elbow": np.zeros(50)}
     with pytest.raises(
         InputError,
-        match=r"a sample rate of 0\.25 Hz \(from the median step of 4 s\) is outside "
+        match=r"a sample rate of 0\.25 Hz \(from the mean step of 4 s\) is outside "
         r"1-100000 Hz: is the time column 'time_ms' in 's'\? \(--time-unit",
     ):
         log_from_columns(columns, arm, time_column="time_ms")
@@ -331,8 +333,8 @@ def test_the_time_unit_and_rate_are_checked_against_the_time_column(arm):
         log_from_columns({"t": t / 1e3, "q.elbow": np.zeros(50)}, arm, time_unit="us")
     with pytest.raises(
         InputError,
-        match=r"the sample rate given, 1000 Hz, disagrees with the time column's median step "
-        r"of 0\.004 s \(250 Hz\)",
+        match=r"the sample rate given, 1000 Hz, disagrees with the time column's mean step "
+        r"of 0\.004 s \(250 Hz; gaps left out\)",
     ):
         log_from_columns(columns, arm, 1000.0, time_column="time_ms", time_unit="ms")
     assert log_from_columns(columns, arm, 251.0, time_column="time_ms", time_unit="ms")
@@ -379,6 +381,14 @@ def test_a_sparse_column_is_skipped_or_left_out_when_empty(arm):
     ("text", "message"),
     [
         ("t;q.elbow\n0;1\n", "separated by something else than commas"),
+        # a European spreadsheet's export: the parser's own error named no separator
+        (
+            "t;q.elbow\n0,0;1,5\n0,004;2,5\n",
+            r"separated by something else than commas \(semicolons, as a spreadsheet set to "
+            r"decimal commas writes: export it with commas between the fields and decimal "
+            r"points in the numbers\)",
+        ),
+        ("t\tq.elbow\n0.0\t1.5\n0.004\t2.5\n", r"separated by something else than commas;"),
         ("0,1\n0.004,2\n", r"the first row \(0, 1, \.\.\.\) holds numbers; expected a header"),
         ("t,q.elbow,\n0,1,\n", r"column 3 of the header has no name \(a trailing comma\?\)"),
     ],
@@ -433,7 +443,8 @@ def test_dropping_rows_may_not_change_the_time_step(arm):
         log_from_columns(columns, arm)
     with pytest.raises(
         InputError,
-        match=r"changes the time step from 0\.004 s to 0\.008 s \(median\): a column logged "
+        match=r"changes the time step from 0\.004 s to 0\.008 s \(the mean step between gaps\): "
+        r"a column logged "
         r"at a lower rate\? Leave it out \(--skip-column\)",
     ):
         log_from_columns(columns, arm, drop_missing=True)
@@ -456,3 +467,124 @@ def test_the_other_conversions(arm):
     np.testing.assert_allclose(got.columns["qd.elbow"], [2 * np.pi, 0.0, -np.pi])
     np.testing.assert_allclose(got.columns["activation.biceps"], [0.0, 0.5, 1.0])
     np.testing.assert_allclose(got.columns["motor_torque.biceps"], [1e-3, 2e-3, 3e-3])
+
+
+def test_time_stamps_rounded_to_whole_milliseconds_give_the_mean_step(arm):
+    """300 Hz stamped floor(t * 1000) ms steps 3, 3, 4 ms: the rate is their mean (the median
+    made 333.333 Hz, without a word, and refused --rate 300), and the uneven steps are said."""
+    n = 3000
+    columns = {"time_ms": np.floor(np.arange(n) * 1000 / 300), "q.elbow": np.zeros(n)}
+    options = {"time_column": "time_ms", "time_unit": "ms"}
+    with pytest.warns(
+        LogImportWarning,
+        match=r"table: the time column 'time_ms' steps unevenly: from 3 to 4 ms \(standard "
+        r"deviation 14 % of the mean step, 3\.33\d* ms; gaps left out\).* evenly spaced at "
+        r"300\.\d* Hz \(their mean; give the rate the robot was logged at with --rate\)",
+    ):
+        got = log_from_columns(columns, arm, **options)
+    assert got.metadata.sample_rate_hz == pytest.approx(300.0, rel=1e-3)
+    with pytest.warns(LogImportWarning, match=r"evenly spaced at 300 Hz \(given\)"):
+        given = log_from_columns(columns, arm, 300.0, **options)
+    assert given.metadata.sample_rate_hz == 300.0
+    with pytest.raises(
+        InputError,
+        match=r"the sample rate given, 333\.333 Hz, disagrees with the time column's mean step "
+        r"of 0\.00333\d* s \(300\.\d* Hz; gaps left out\)",
+    ):
+        log_from_columns(columns, arm, 333.333, **options)
+    # a gap is left out of the mean; even steps are not warned about
+    t = np.delete(np.arange(1000) / RATE, np.s_[500:520])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LogImportWarning)
+        got = log_from_columns({"t": t, "q.elbow": np.zeros(len(t))}, arm)
+    assert got.metadata.sample_rate_hz == RATE
+
+
+def test_epoch_seconds_as_text_keep_the_digits_of_their_steps(arm, tmp_path):
+    """t = 1700000123.456 + k / 250 s as written: the first time is subtracted in decimals,
+    then the rest made floats (parsed as floats first, the steps kept 2e-7 s of their 4 ms:
+    250.003 Hz, and a diagnosis with another 250 Hz log refused the two periods)."""
+    n = 5000
+    stamps = [str(1700000123456 + 4 * k) for k in range(n)]  # ms, written as s
+    text = [f"{stamp[:-3]}.{stamp[-3:]}" for stamp in stamps]
+    path = tmp_path / "epoch.csv"
+    path.write_text("t,q.elbow\n" + "".join(f"{t},{k % 7}\n" for k, t in enumerate(text)))
+    got = read_csv_log(path, arm)
+    assert got.metadata.sample_rate_hz == RATE
+    np.testing.assert_allclose(np.diff(got.t), 1 / RATE, rtol=1e-11)
+    assert got.t[0] == 0.0 and got.metadata.extra["time_origin"] == 1700000123.456
+    # text or decimals given to log_from_columns are counted exactly too
+    for times in (np.array(text), [Decimal(t) for t in text]):
+        same = log_from_columns({"t": times, "q.elbow": np.arange(n) % 7}, arm)
+        np.testing.assert_array_equal(same.t, got.t)
+    words = tmp_path / "words.csv"
+    words.write_text("t,q.elbow\n0,1\n0.004,2\nlate,3\n")
+    with pytest.raises(
+        InputError, match=r"column 't' holds a value that is not a number: 'late' at row 2"
+    ):
+        read_csv_log(words, arm)
+
+
+def test_degrees_given_for_some_angle_quantities_only_are_warned(arm):
+    """--unit q=deg without --unit q_ref=deg read the reference in degrees as radians."""
+    t = np.arange(5) / RATE
+    ones = np.ones(5)
+    columns = {"t": t, "q.elbow": ones, "q_ref.elbow": ones, "motor_angle.biceps": ones}
+    with pytest.warns(
+        LogImportWarning,
+        match=r"table: q in degrees \(--unit q=deg\), but no unit is given for q_ref, "
+        r"motor_angle, which are taken to be in rad: are they in degrees too \(--unit "
+        r"q_ref=deg --unit motor_angle=deg\)\? Say so if they are in rad \(--unit q_ref=rad "
+        r"--unit motor_angle=rad\)",
+    ):
+        log_from_columns(columns, arm, units={"q": "deg"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LogImportWarning)
+        log_from_columns(columns, arm, units={"q": "deg", "q_ref": "deg", "motor_angle": "rad"})
+        log_from_columns(columns, arm)  # all in SI
+
+
+def test_a_unit_in_a_header_name_is_hinted_and_empty_rows_are_skipped(arm, tmp_path):
+    """A header "q_ref.elbow [rad]" gets a hint; rows of empty fields only (",," as a
+    spreadsheet leaves) are skipped, a row with data but no time still refused."""
+    hint = r"a unit in the header\? Name the columns <quantity>\.<name> alone .*--unit"
+    path = tmp_path / "units.csv"
+    path.write_text("t,q_ref.shoulder_abduction [rad]\n0,1\n0.004,2\n")
+    with pytest.raises(
+        InputError, match=rf"column 'q_ref\.shoulder_abduction \[rad\]' names no joint .*{hint}"
+    ):
+        read_csv_log(path, arm)
+    path.write_text("t,pressure (bar).pump\n0,1\n0.004,2\n")
+    with pytest.raises(InputError, match=rf"'pressure \(bar\)\.pump' is not named .*{hint}"):
+        read_csv_log(path, arm)
+    with pytest.raises(InputError, match=r"names no joint") as refused:
+        log_from_columns({"t": np.arange(2) / RATE, "q.Elbow": np.ones(2)}, arm)
+    assert "a unit in the header" not in str(refused.value)
+    path = tmp_path / "trailing.csv"
+    path.write_text("t,q.elbow,tension_motor.biceps\n0,1,2\n,,\n0.004,2,3\n0.008,3,4\n,,\n,,\n")
+    got = read_csv_log(path, arm)
+    np.testing.assert_array_equal(got.t, [0.0, 0.004, 0.008])
+    np.testing.assert_array_equal(got.columns["q.elbow"], [1.0, 2.0, 3.0])
+    path.write_text("t,q.elbow\n0,1\n0.004,2\n,3\n,\n")
+    with pytest.raises(
+        InputError, match=r"the time column 't' has 1 missing value\(s\), the first"
+    ):
+        read_csv_log(path, arm)
+
+
+def test_tensions_in_kn_imported_as_n_are_warned_with_the_unit_to_give(
+    arm, tmp_path, monkeypatch, capsys
+):
+    """Load cells and commands both in kN, imported without --unit: before, no warning."""
+    log = _recording(arm)
+    columns = {k: (v / 1e3 if k.startswith("tension_") else v) for k, v in log.columns.items()}
+    csv = _write_csv(tmp_path / "kn.csv", columns)
+    code, out, err = _main(monkeypatch, capsys, "log", "import", str(csv), "--json")
+    assert code == 0, err
+    (said,) = [w for w in json.loads(out)["logs"][0]["warnings"] if "below 1 N" in w]
+    assert f"{tmp_path / 'kn.parquet'}: the tensions tension_motor.* (median " in said
+    assert "import it again with --unit tension_motor=kN --unit tension_cmd=kN" in said
+    units = ["--unit", "tension_motor=kN", "--unit", "tension_cmd=kN"]
+    code, out, err = _main(monkeypatch, capsys, "log", "import", str(csv), *units, "--json")
+    assert code == 0, err
+    assert not [w for w in json.loads(out)["logs"][0]["warnings"] if "below 1 N" in w]

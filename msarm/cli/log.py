@@ -164,7 +164,8 @@ def import_command(
         float | None,
         typer.Option(
             metavar="HZ",
-            help=r"Nominal sample rate \[Hz]; default: 1 / median step of the time column.",
+            help=r"Nominal sample rate \[Hz]; default: 1 / mean step of the time column "
+            "(its gaps left out).",
         ),
     ] = None,
     time_column: Annotated[

@@ -37,6 +37,7 @@ __all__ = [
     "GROUPS",
     "GROUP_UNITS",
     "MIN_TRAVEL",
+    "SAME_PERIOD",
     "channels_from_logs",
     "check_distinct_files",
     "check_log_file",
@@ -52,6 +53,9 @@ GROUPS = ("joint", "drive", "length")
 #: Least joint travel [rad] (the largest joint's range over a log) below which a log is
 #: said to hold too little motion to diagnose (10 mrad, 0.57 degrees).
 MIN_TRAVEL = 0.01
+#: Relative difference of two logs' sample periods up to which they are of one rate: a rate
+#: taken from a time column is rounded to six digits (1/0.004 s in floats is 250 within 1e-15).
+SAME_PERIOD = 1e-6
 #: Unit of each group's residual.
 GROUP_UNITS = {"joint": "N m", "drive": "N", "length": "m"}
 
@@ -215,9 +219,9 @@ def channels_from_logs(
         arrays, residual, period = _one_run(model, path, base)
         if dt is None:
             dt = period
-        elif abs(period - dt) > 1e-9 * dt:
+        elif abs(period - dt) > SAME_PERIOD * dt:
             raise LogError(
-                f"{path}: sample period {period:g} s differs from {dt:g} s of {paths[0]}; "
+                f"{path}: sample period {period:.9g} s differs from {dt:.9g} s of {paths[0]}; "
                 "diagnose logs of one sample rate together"
             )
         arrays["run"] = np.full(arrays["t"].shape[0], label, dtype=np.int64)
@@ -273,11 +277,11 @@ def check_same_rate(
         roles: What the two sets are, e.g. ``("training", "held-out")``.
 
     Raises:
-        LogError: The periods differ (by more than 1e-9 relative), both named.
+        LogError: The periods differ (by more than :data:`SAME_PERIOD` relative), both named.
     """
-    if abs(second.dt - first.dt) > 1e-9 * first.dt:
+    if abs(second.dt - first.dt) > SAME_PERIOD * first.dt:
         raise LogError(
-            f"{second_name}: sample period {second.dt:g} s ({roles[1]}) differs from "
-            f"{first.dt:g} s of {first_name} ({roles[0]}); diagnose logs of one sample rate "
+            f"{second_name}: sample period {second.dt:.9g} s ({roles[1]}) differs from "
+            f"{first.dt:.9g} s of {first_name} ({roles[0]}); diagnose logs of one sample rate "
             "together"
         )

@@ -145,7 +145,7 @@ def check_logs(
         logs together (one run given twice or under two names; logs of different sample
         rates), empty when it would not.
     """
-    from msarm.diagnose.builder import check_distinct_files
+    from msarm.diagnose.builder import SAME_PERIOD, check_distinct_files
 
     checks = [check_log(model, path, spec) for path in paths]
     together: list[str] = []
@@ -156,10 +156,13 @@ def check_logs(
     rates: dict[float, list[str]] = {}
     for check in checks:
         if check.ok and check.sample_rate_hz is not None:
-            rates.setdefault(check.sample_rate_hz, []).append(check.path)
+            # one rate as the diagnosis takes it: periods within SAME_PERIOD of each other
+            rate = check.sample_rate_hz
+            same = [r for r in rates if abs(r / rate - 1.0) <= SAME_PERIOD]
+            rates.setdefault(same[0] if same else rate, []).append(check.path)
     if len(rates) > 1:
         groups = "; ".join(
-            f"{rate:g} Hz: {', '.join(logs)}" for rate, logs in sorted(rates.items())
+            f"{rate:.9g} Hz: {', '.join(logs)}" for rate, logs in sorted(rates.items())
         )
         together.append(
             f"logs of {len(rates)} sample rates ({groups}); the diagnosis takes logs of one "

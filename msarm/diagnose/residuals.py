@@ -47,7 +47,7 @@ from scipy.signal import savgol_filter
 from msarm.compensation.target import TargetSpec, filtered_motion, torque_error
 from msarm.diagnose.missing_values import read_log_for_diagnosis
 from msarm.errors import LogError, MsarmWarning
-from msarm.io.logs import TIME, RunLog, check_standard_units
+from msarm.io.logs import TIME, RunLog, check_standard_units, nominal_step
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 
@@ -57,6 +57,7 @@ __all__ = [
     "JOINT_RANGE_MARGIN",
     "LENGTH_SLOPE",
     "MIN_CHECKED_TRAVEL",
+    "MIN_MEDIAN_TENSION",
     "RESIDUAL_UNITS",
     "TENSION_RATIO",
     "gap_starts",
@@ -77,6 +78,9 @@ _QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
 #: Range of the commanded tensions' median over the load cells' outside which a log is
 #: warned about (a unit slip: kN logged as N gives 0.001).
 TENSION_RATIO = (0.5, 2.0)
+#: Median tension [N] of the load cells (or commands) over a log below which it is warned
+#: about: every sample would be slack (tensions in kN read as N; msarm's arm runs at 18 N).
+MIN_MEDIAN_TENSION = 1.0
 #: Range of the slope of the encoder cable lengths over the path lengths (least squares,
 #: cable by cable) outside which a log is warned about: degrees read as radians give 57, a
 #: mirrored winch -1, a gearbox left out of the drum radius its ratio.
@@ -92,7 +96,8 @@ JOINT_RANGE_MARGIN = 0.5
 FILTER_SPAN_S = (0.01, 1.0)
 #: A step of ``t`` longer than this many nominal sample periods is a gap.
 GAP_FACTOR = 1.5
-#: The median step of ``t`` may differ from the nominal period by this fraction at most.
+#: The mean step of ``t`` (gaps left out, :func:`~msarm.io.logs.nominal_step`) may differ
+#: from the nominal period by this fraction at most.
 _RATE_TOLERANCE = 0.05
 #: Beyond this fraction (but within :data:`_RATE_TOLERANCE`) the difference is warned about:
 #: the filtered derivatives use the metadata's period, so velocities are off by as much.
@@ -363,7 +368,12 @@ def residuals_from_log(
     motor_all = log.matrix("motor_angle", cables) if has_motor else None
     command_all = log.matrix("tension_cmd", cables) if has_command else None
     reference_all = log.matrix("q_ref", joints) if has_reference else None
-    _warn_outside_joint_range(source, q_all, model, joints)
+    _warn_outside_joint_range(
+        source,
+        [("q", q_all)] + ([("q_ref", reference_all)] if reference_all is not None else []),
+        model,
+        joints,
+    )
     _warn_constant_sensors(
         source,
         [("q", joints, q_all), ("tension_motor", cables, tension_all)]
@@ -414,7 +424,8 @@ def residuals_from_log(
             driving = out["tension_cmd"][part] if use_command else tension_all[part]
             out["replay"][part] = _replay(work, q, q_f, qd, driving, dt, spec)
         valid[part] = True
-    _warn_implausible_scales(source, out, tension_all, motor_all, valid, spec, cables)
+    imported = "imported_from" in log.metadata.extra  # msarm log import wrote it
+    _warn_implausible_scales(source, out, tension_all, motor_all, valid, spec, cables, imported)
     return Residuals(
         source=source,
         joint_names=tuple(joints),
@@ -448,9 +459,15 @@ def _warn_implausible_scales(
     valid: NDArray[np.bool_],
     spec: ResidualSpec,
     cable_names: list[str],
+    imported: bool = False,
 ) -> None:
     """Warn when a channel's scale disagrees with what it should match (a unit or sign slip).
 
+    - The load cells' tensions against a cable that pulls: a median below
+      :data:`MIN_MEDIAN_TENSION` over the log would make every sample slack, as tensions
+      logged in kN and read as N do (the commands are named too when theirs is as low: both
+      in kN pass the next check). The message suggests ``msarm log import --unit`` when
+      ``imported`` (the log's ``msarm.extra`` has ``imported_from``).
     - The commanded tensions against the load cells: the drives render each command at the
       load cell, so their medians agree within :data:`TENSION_RATIO` unless one is logged in
       another unit (kN as N). The drive residual ``F - F_cmd`` would then be mostly that.
@@ -463,6 +480,29 @@ def _warn_implausible_scales(
     if not valid.any():
         return
     command = out["tension_cmd"]
+    slack = [
+        (quantity, median)
+        for quantity, matrix in (("tension_motor", tension), ("tension_cmd", command))
+        if matrix is not None
+        and (median := float(np.median(np.abs(matrix[valid])))) < MIN_MEDIAN_TENSION
+    ]
+    if slack and slack[0][0] == "tension_motor":  # commands alone: the ratio check below
+        named = ", ".join(f"{quantity}.* (median {median:.3g} N)" for quantity, median in slack)
+        fix = (
+            "import it again with "
+            + " ".join(f"--unit {quantity}=kN" for quantity, _ in slack)
+            + " if they are in kN"
+            if imported
+            else "convert them to N if they are in another unit"
+        )
+        warnings.warn(
+            f"{source}: the tensions {named} are below {MIN_MEDIAN_TENSION:g} N in most "
+            "samples, where a cable that pulls the arm carries several N: are they in kN (or "
+            f"another unit) read as N? The diagnosis would take the cables as slack and the "
+            f"tensions as far too small to carry the arm; {fix}",
+            DiagnosisWarning,
+            stacklevel=3,
+        )
     if command is not None:
         measured = float(np.median(np.abs(tension[valid])))
         commanded = float(np.median(np.abs(command[valid])))
@@ -506,31 +546,39 @@ def _warn_implausible_scales(
 
 
 def _warn_outside_joint_range(
-    source: str, q: FloatArray, model: RobotModel, joints: list[str]
+    source: str, angles: list[tuple[str, FloatArray]], model: RobotModel, joints: list[str]
 ) -> None:
     """Warn when joint angles lie far outside the model's joint range (a unit slip).
 
-    ``q`` ``(T, n)`` [rad] in the order of ``joints``; a joint with no finite limit is not
-    checked. "Far": more than :data:`JOINT_RANGE_MARGIN` beyond a limit.
+    ``angles`` holds ``(quantity, matrix)``: the measured ``q`` and the reference ``q_ref``,
+    each ``(T, n)`` [rad] in the order of ``joints`` (degrees read as radians in either: the
+    reference's give the mass-error term its accelerations). A joint with no finite limit is
+    not checked. "Far": more than :data:`JOINT_RANGE_MARGIN` beyond a limit.
     """
     lower = np.asarray(model.joint_lower, dtype=float)
     upper = np.asarray(model.joint_upper, dtype=float)
-    with np.errstate(invalid="ignore"):
-        below = np.where(np.isfinite(lower), lower - np.nanmin(q, axis=0), -np.inf)
-        above = np.where(np.isfinite(upper), np.nanmax(q, axis=0) - upper, -np.inf)
-    off = np.flatnonzero(np.maximum(below, above) > JOINT_RANGE_MARGIN)
-    if not off.size:
+    named, quantities = [], []
+    for quantity, q in angles:
+        with np.errstate(invalid="ignore"):
+            below = np.where(np.isfinite(lower), lower - np.nanmin(q, axis=0), -np.inf)
+            above = np.where(np.isfinite(upper), np.nanmax(q, axis=0) - upper, -np.inf)
+        off = np.flatnonzero(np.maximum(below, above) > JOINT_RANGE_MARGIN)
+        if off.size:
+            quantities.append(quantity)
+        named += [
+            f"'{quantity}.{joints[k]}' spans [{np.nanmin(q[:, k]):.3g}, "
+            f"{np.nanmax(q[:, k]):.3g}] (range [{lower[k]:.3g}, {upper[k]:.3g}])"
+            for k in off
+        ]
+    if not named:
         return
-    named = ", ".join(
-        f"'q.{joints[k]}' spans [{np.nanmin(q[:, k]):.3g}, {np.nanmax(q[:, k]):.3g}] "
-        f"(range [{lower[k]:.3g}, {upper[k]:.3g}])"
-        for k in off[:3]
-    )
-    more = f" and {off.size - 3} more" if off.size > 3 else ""
+    more = f" and {len(named) - 3} more" if len(named) > 3 else ""
+    convert = " ".join(f"--unit {quantity}=deg" for quantity in quantities)
     warnings.warn(
-        f"{source}: joint angles far outside the model's joint range: {named}{more}, in rad. "
+        f"{source}: joint angles far outside the model's joint range: "
+        f"{', '.join(named[:3])}{more}, in rad. "
         "Are the joint angles in rad (degrees read as radians are 57 times too large; "
-        "msarm log import --unit q=deg converts them), and is this the robot's model? The "
+        f"msarm log import {convert} converts them), and is this the robot's model? The "
         "cable geometry and the inverse dynamics would be evaluated at postures the robot "
         "cannot take",
         DiagnosisWarning,
@@ -627,22 +675,23 @@ def _segments(log: RunLog, source: str, window: int) -> list[tuple[int, int]]:
     """Contiguous, uniformly sampled stretches ``[start, stop)`` of a log; warns about gaps.
 
     Raises:
-        LogError: The median step disagrees with the nominal rate, or no stretch is long
-            enough for the filter.
+        LogError: The mean step (gaps left out) disagrees with the nominal rate, or no
+            stretch is long enough for the filter.
     """
     t = log.t
     period = 1.0 / log.metadata.sample_rate_hz
-    steps = np.diff(t)
-    if len(steps) and abs(np.median(steps) - period) > _RATE_TOLERANCE * period:
+    # the mean step between gaps: stamps rounded to whole ms at 300 Hz step 3, 3, 4 ms
+    step = nominal_step(t) if len(t) > 1 else period
+    if abs(step - period) > _RATE_TOLERANCE * period:
         raise LogError(
-            f"{source}: column '{TIME}' has a median step of {np.median(steps):.6g} s, but the "
-            f"metadata's sample_rate_hz {log.metadata.sample_rate_hz:g} means {period:.6g} s; "
-            "resample the log or fix its sample rate"
+            f"{source}: column '{TIME}' has a mean step of {step:.6g} s (gaps left out), but "
+            f"the metadata's sample_rate_hz {log.metadata.sample_rate_hz:g} means {period:.6g} "
+            "s; resample the log or fix its sample rate"
         )
-    if len(steps) and abs(np.median(steps) - period) > _RATE_WARNING * period:
-        off = 100.0 * (np.median(steps) / period - 1.0)
+    if abs(step - period) > _RATE_WARNING * period:
+        off = 100.0 * (step / period - 1.0)
         warnings.warn(
-            f"{source}: column '{TIME}' has a median step of {np.median(steps):.6g} s, "
+            f"{source}: column '{TIME}' has a mean step of {step:.6g} s (gaps left out), "
             f"{off:+.2g} % off the {period:.6g} s of the metadata's sample_rate_hz "
             f"{log.metadata.sample_rate_hz:g}; the filtered velocities and accelerations use "
             "the metadata's period, so they are off by about as much (fix sample_rate_hz if "

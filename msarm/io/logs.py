@@ -71,6 +71,7 @@ from msarm.io.atomic import atomic_path
 
 __all__ = [
     "SCHEMA_VERSION",
+    "NOMINAL_STEP_GAP",
     "SIDECAR_SCHEMA_VERSION",
     "STANDARD_TRUTH_UNITS",
     "STANDARD_UNITS",
@@ -80,6 +81,7 @@ __all__ = [
     "TruthSidecar",
     "check_increasing_time",
     "check_standard_units",
+    "nominal_step",
     "read_log",
     "read_log_with_missing_values",
     "read_model_sha256",
@@ -105,6 +107,8 @@ _TRUTH_PREFIX = "msarm_truth."
 _SIDECAR_SUFFIX = ".truth.parquet"
 #: Name of the time column.
 TIME = "t"
+#: A time step longer than this many median steps is a gap, left out of the nominal step.
+NOMINAL_STEP_GAP = 1.5
 _QUANTITY_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 #: Units of the quantities msarm logs (SI), for :attr:`LogMetadata.units`: every quantity of
@@ -605,6 +609,24 @@ def check_increasing_time(
             f"({name}[{row - 1}] = {float(t[row - 1])!r} {unit}, {name}[{row}] = "
             f"{float(t[row])!r} {unit}: a step of {float(steps[row - 1]):.6g} {unit}{counted})"
         )
+
+
+def nominal_step(t: FloatArray) -> float:
+    """The nominal time step of sample times: the mean of the steps between gaps.
+
+    The steps shorter than :data:`NOMINAL_STEP_GAP` times the median step (a longer one is a
+    gap) are averaged: time stamps rounded to a coarser unit than the step (300 Hz in whole
+    milliseconds: steps of 3, 3, 4 ms) have the median of one rounding, but their mean is
+    the step.
+
+    Args:
+        t: Sample times, shape ``(T,)`` with ``T >= 2``, strictly increasing.
+
+    Returns:
+        The nominal step, in the unit of ``t``.
+    """
+    steps = np.diff(np.asarray(t, dtype=float))
+    return float(np.mean(steps[steps < NOMINAL_STEP_GAP * np.median(steps)]))
 
 
 def same_unit(a: str, b: str) -> bool:

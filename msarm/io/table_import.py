@@ -10,7 +10,8 @@ What it does, and refuses (each error names the file, the column and what was ex
 - the time column (``t`` unless told) becomes ``t`` in seconds from the first sample
   (``time_unit`` ``s``, ``ms``, ``us`` or ``ns``; the first sample's time is kept in the log's
   ``msarm.extra`` as ``time_origin``, in that unit, so that an epoch time keeps its steps'
-  digits); it must be strictly increasing and have no missing value;
+  digits: a time given as text, as a CSV file's is read, is subtracted in decimals); it must
+  be strictly increasing and have no missing value;
 - every other column is a channel ``<quantity>.<name>``. Its unit is the one given for the
   quantity (``units``), else msarm's (:data:`~msarm.io.logs.STANDARD_UNITS`); a unit other
   than msarm's SI unit is converted to it by the factors of :data:`CONVERSIONS` (``deg`` to
@@ -24,8 +25,9 @@ What it does, and refuses (each error names the file, the column and what was ex
   first row, or with ``drop_missing`` its rows are left out (said in a warning; a column with
   no value at all is left out instead): the log schema has no missing values.
   ``skip_columns`` leaves out columns first (a sensor logged at a lower rate, say);
-- the sample rate is the one given, or ``1 / median step`` of the time column (rounded to
-  six significant digits); one outside :data:`RATE_RANGE_HZ` is refused as a likely wrong
+- the sample rate is the one given, or ``1 / mean step`` of the time column, its gaps left
+  out (rounded to six significant digits; steps that spread by more than a few per cent
+  are warned about); one outside :data:`RATE_RANGE_HZ` is refused as a likely wrong
   time unit (milliseconds read as seconds), and one given that the time contradicts by more
   than 5 % is refused.
 """
@@ -35,6 +37,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping, Sequence
+from decimal import Decimal
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,11 +46,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError, LogError, MsarmWarning
 from msarm.io.logs import (
+    NOMINAL_STEP_GAP,
     STANDARD_UNITS,
     TIME,
     LogMetadata,
     RunLog,
     check_increasing_time,
+    nominal_step,
     same_unit,
     split_channel,
 )
@@ -101,8 +106,11 @@ TIME_UNITS: Mapping[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 _RATE_DIGITS = 6
 #: Sample rates [Hz] a robot's log may have; outside, the time unit is likely wrong.
 RATE_RANGE_HZ = (1.0, 100_000.0)
-#: Largest relative difference between a given rate and the time column's median step.
+#: Largest relative difference between a given rate and the time column's nominal step.
 _RATE_TOLERANCE = 0.05
+#: Standard deviation of the time steps (gaps left out), as a fraction of their mean,
+#: beyond which they are warned about (stamps rounded to whole ms at 300 Hz: 14 %).
+_JITTER_WARNING = 0.02
 #: Columns with missing values named in a message before the rest are counted.
 _NAMED = 5
 #: How messages count a file's rows.
@@ -110,7 +118,10 @@ _ROWS = "rows count from 0, the header not counted"
 
 
 class LogImportWarning(MsarmWarning):
-    """Something was left out while turning a recording into a log (rows with a gap)."""
+    """Something was left out or looks amiss while turning a recording into a log.
+
+    Rows with a gap left out; uneven time steps; degrees given for some angle quantities only.
+    """
 
 
 def log_from_columns(
@@ -129,9 +140,11 @@ def log_from_columns(
 
     Args:
         columns: Column name -> values, each of shape ``(T,)``: the time column and channels
-            ``<quantity>.<name>``.
+            ``<quantity>.<name>``. Times given as text or :class:`~decimal.Decimal` are
+            counted from the first exactly (floats keep an epoch time's steps to ~2e-7 s).
         model: The robot model the recording is of (its name, hash, joints and cables).
-        sample_rate_hz: Nominal sample rate [Hz]; None: ``1 / median step`` of the time.
+        sample_rate_hz: Nominal sample rate [Hz]; None: ``1 / mean step`` of the time, its
+            gaps left out (:func:`~msarm.io.logs.nominal_step`).
         units: Quantity -> the unit its columns are in (e.g. ``{"q": "deg"}``); quantities
             not given are taken to be in msarm's SI units.
         time_column: Name of the time column.
@@ -152,7 +165,7 @@ def log_from_columns(
             holds a value that is not a number or a missing value (without
             ``drop_missing``); a unit that cannot be converted; a bad time unit; a sample
             rate outside :data:`RATE_RANGE_HZ` (a wrong time unit?) or one given that the
-            time column's median step contradicts by more than 5 %.
+            time column's mean step contradicts by more than 5 %.
         LogError: The time is not strictly increasing (the row named).
     """
     if time_unit not in TIME_UNITS:
@@ -199,7 +212,7 @@ def log_from_columns(
     check_increasing_time(raw_time, source, _ROWS, name=time_column, unit=time_unit)
     # from the first sample: an epoch time (1.7e9 s) scaled whole loses its steps' digits
     origin = float(raw_time[0])
-    time = (raw_time - origin) * TIME_UNITS[time_unit]
+    time = _from_origin(columns[time_column], raw_time) * TIME_UNITS[time_unit]
     check_increasing_time(time, source, _ROWS)
     by_quantity: dict[str, dict[str, FloatArray]] = {}
     for name, values in arrays.items():
@@ -207,7 +220,8 @@ def log_from_columns(
             quantity, channel = split_channel(name)
         except InputError as exc:
             raise InputError(
-                f"{source}: {exc} (the time column is {time_column!r}: --time-column names another)"
+                f"{source}: {exc} (the time column is {time_column!r}: --time-column names "
+                f"another){_unit_hint(name)}"
             ) from None
         by_quantity.setdefault(quantity, {})[channel] = values
     unknown_units = sorted(set(declared) - set(by_quantity))
@@ -216,6 +230,7 @@ def log_from_columns(
             f"{source}: a unit is given for {', '.join(map(repr, unknown_units))}, which no "
             f"column has; quantities: {', '.join(by_quantity) or '-'}"
         )
+    _warn_some_angles_in_degrees(list(by_quantity), declared, source)
     out: dict[str, FloatArray] = {TIME: time}
     log_units: dict[str, str] = {}
     for quantity, channels in by_quantity.items():
@@ -239,7 +254,8 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
 
     Args:
         path: The CSV file: a header of column names, then one row per sample; an empty
-            field is a missing value.
+            field is a missing value, and a row of empty fields only is skipped. The time
+            column is read as text (see :func:`log_from_columns`).
         model: The robot model the recording is of.
         **options: Those of :func:`log_from_columns` but ``columns`` and ``source``.
 
@@ -250,6 +266,7 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
         InputError: The file is missing or not CSV, or what :func:`log_from_columns` refuses.
     """
     import pyarrow as pa
+    import pyarrow.compute as pc
     import pyarrow.csv as pacsv
 
     path = Path(path)
@@ -257,14 +274,37 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
     if not path.is_file():
         what = "a folder, expected a CSV file" if path.is_dir() else "no such CSV file"
         raise InputError(f"{source}: {what}")
+    # the header first: a file of another separator fails in the parser with a message
+    # that names no separator ("Expected 1 columns, got 37")
+    header = _header(path, source)
+    _check_header([name.strip() for name in header], source)
+    # the time as text: an epoch time parsed to float64 would lose its steps' digits
+    time_column = options.get("time_column", TIME)
+    text = {name: pa.string() for name in header if name.strip() == time_column}
+    convert = pacsv.ConvertOptions(column_types=text, strings_can_be_null=True)
     try:
-        table = pacsv.read_csv(path)
+        table = pacsv.read_csv(path, convert_options=convert)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{source}: not a readable CSV file: {exc}") from None
+    if table.num_columns:  # rows of empty fields only (",,,," as a spreadsheet leaves at
+        # the end) hold nothing: skipped, as the parser skips blank lines
+        empty = pc.is_null(table.column(0))
+        for column in table.columns[1:]:
+            empty = pc.and_(empty, pc.is_null(column))
+        table = table.filter(pc.invert(empty))
     names = [name.strip() for name in table.column_names]  # "t, q.elbow" as "t,q.elbow"
-    _check_header(names, source)
-    columns = {}
+    columns: dict[str, Any] = {}
     for name, column in zip(names, table.columns, strict=True):
+        if name == time_column and pa.types.is_string(column.type):
+            values = column.to_pylist()
+            row, value = _first_text(values)
+            if value is not None and not _is_number(value):
+                raise InputError(
+                    f"{source}: column {name!r} holds a value that is not a number: {value!r} "
+                    f"at row {row} ({_ROWS}); expected numbers (the time of each sample)"
+                )
+            columns[name] = np.array(values, dtype=object)  # text, counted exactly
+            continue
         if not (pa.types.is_integer(column.type) or pa.types.is_floating(column.type)):
             if column.null_count == len(column):  # an empty column: every value missing
                 columns[name] = np.full(len(column), np.nan)
@@ -279,12 +319,35 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
     return log_from_columns(columns, model, source=source, extra=extra, **options)
 
 
+def _header(path: Path, source: str) -> list[str]:
+    """The names of a CSV file's first line, as written (``.csv.gz`` decompressed)."""
+    import csv
+
+    import pyarrow as pa
+
+    line = b""
+    try:
+        with pa.input_stream(path, compression="detect") as stream:
+            while b"\n" not in line and (chunk := stream.read(1 << 16)):
+                line += chunk
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{source}: not a readable CSV file: {exc}") from None
+    first = line.split(b"\n", 1)[0].decode("utf-8", errors="replace").removeprefix("\ufeff")
+    return next(csv.reader([first.rstrip("\r")]), [])
+
+
 def _check_header(names: list[str], source: str) -> None:
     """Refuse a header that is not one: data, another separator, a duplicate or empty name."""
     if len(names) == 1 and any(sep in names[0] for sep in ";\t|"):
+        european = (
+            " (semicolons, as a spreadsheet set to decimal commas writes: export it with "
+            "commas between the fields and decimal points in the numbers)"
+            if ";" in names[0]
+            else ""
+        )
         raise InputError(
             f"{source}: the header is one column ({names[0][:60]!r}...): the file is separated "
-            "by something else than commas; expected a comma-separated file"
+            f"by something else than commas{european}; expected a comma-separated file"
         )
     if names and all(_is_number(name) for name in names):
         raise InputError(
@@ -317,6 +380,51 @@ def _first_text(values: list[Any]) -> tuple[int, Any]:
     return 0, values[0]
 
 
+def _from_origin(values: ArrayLike, parsed: FloatArray) -> FloatArray:
+    """Sample times less the first, in their own unit; exact when given as text.
+
+    ``parsed`` ``(T,)`` are ``values`` as float64, whose 16 digits keep an epoch time's
+    steps only to about 2e-7 s (1.7e9 s): a time given as text (``"1700000123.456"``, as
+    :func:`read_csv_log` reads it) or as :class:`~decimal.Decimal` is subtracted exactly,
+    then turned into floats. Every value is a finite number here.
+    """
+    given = np.asarray(values)
+    if given.dtype.kind not in "OU":
+        return parsed - parsed[0]
+    exact = [Decimal(str(value).strip()) for value in given]
+    return np.array([float(value - exact[0]) for value in exact])
+
+
+def _warn_some_angles_in_degrees(
+    quantities: list[str], declared: Mapping[str, str], source: str
+) -> None:
+    """Warn when some angle quantities are given in degrees and others in no unit (rad).
+
+    A ``--unit q=deg`` without ``--unit q_ref=deg`` leaves a reference in degrees read as
+    radians; one in rad indeed is said so with ``--unit q_ref=rad``.
+    """
+    angles = [q for q in quantities if STANDARD_UNITS.get(q, "").startswith("rad")]
+    degrees = [
+        q
+        for q in angles
+        if q in declared and same_unit(declared[q], "deg" + STANDARD_UNITS[q][len("rad") :])
+    ]
+    untold = [q for q in angles if q not in declared]
+    if not degrees or not untold:
+        return
+    given = " ".join(f"--unit {q}={declared[q]}" for q in degrees)
+    suggested = " ".join(f"--unit {q}=deg{STANDARD_UNITS[q][len('rad') :]}" for q in untold)
+    said = " ".join(f"--unit {q}={STANDARD_UNITS[q]}" for q in untold)
+    taken = ", ".join(dict.fromkeys(STANDARD_UNITS[q] for q in untold))
+    warnings.warn(
+        f"{source}: {', '.join(degrees)} in degrees ({given}), but no unit is given for "
+        f"{', '.join(untold)}, which are taken to be in {taken}: are they in degrees too "
+        f"({suggested})? Say so if they are in {taken} ({said})",
+        LogImportWarning,
+        stacklevel=3,
+    )
+
+
 def _numbers(values: ArrayLike, name: str, source: str) -> FloatArray:
     try:
         array = np.asarray(values, dtype=np.float64)
@@ -325,6 +433,16 @@ def _numbers(values: ArrayLike, name: str, source: str) -> FloatArray:
     if array.ndim != 1:
         raise InputError(f"{source}: column {name!r} must be 1-D, got shape {array.shape}")
     return array
+
+
+def _unit_hint(name: str) -> str:
+    """A hint for a column name that holds a unit (``q.elbow [deg]``), else ``""``."""
+    if not any(mark in name for mark in "[( "):
+        return ""
+    return (
+        " (the name holds '[', '(' or a space: a unit in the header? Name the columns "
+        "<quantity>.<name> alone and give units with --unit QUANTITY=UNIT)"
+    )
 
 
 def _si_unit(quantity: str, given: str | None, source: str) -> tuple[str, float]:
@@ -368,7 +486,7 @@ def _in_model_order(
     if strangers:
         raise InputError(
             f"{source}: column '{quantity}.{strangers[0]}' names no {kind} of the model "
-            f"{model.name!r}; its {kind}s: {', '.join(known)}"
+            f"{model.name!r}; its {kind}s: {', '.join(known)}{_unit_hint(strangers[0])}"
         )
     return [name for name in known if name in channels]
 
@@ -434,14 +552,16 @@ def _counts(missing: Mapping[str, NDArray[np.bool_]]) -> str:
 def _check_step_kept(t: FloatArray, rate: float, source: str) -> None:
     """Refuse a log whose rows left out (``drop_missing``) changed its time step.
 
-    Every other row dropped (a column logged at half the rate) doubles the median step: the
-    log would no longer be at its sample rate.
+    Every other row dropped (a column logged at half the rate) doubles the nominal step
+    (:func:`~msarm.io.logs.nominal_step`): the log would no longer be at its sample rate.
     """
-    steps = np.diff(t)
-    if len(steps) and abs(float(np.median(steps)) * rate - 1.0) > _RATE_TOLERANCE:
+    if len(t) < 2:
+        return
+    step = nominal_step(t)
+    if abs(step * rate - 1.0) > _RATE_TOLERANCE:
         raise InputError(
             f"{source}: leaving out the rows with a missing value changes the time step from "
-            f"{1.0 / rate:.6g} s to {float(np.median(steps)):.6g} s (median): a column logged "
+            f"{1.0 / rate:.6g} s to {step:.6g} s (the mean step between gaps): a column logged "
             "at a lower rate? Leave it out (--skip-column) rather than its rows"
         )
 
@@ -449,27 +569,31 @@ def _check_step_kept(t: FloatArray, rate: float, source: str) -> None:
 def _sample_rate(
     t: FloatArray, given: float | None, time_column: str, time_unit: str, source: str
 ) -> float:
-    """The sample rate given, or ``1 / median step`` of ``t`` to six significant digits.
+    """The sample rate given, or ``1 / nominal step`` of ``t`` to six significant digits.
+
+    The nominal step is the mean of the steps between gaps
+    (:func:`~msarm.io.logs.nominal_step`): time stamps rounded to whole milliseconds at
+    300 Hz step 3, 3, 4 ms, whose median would make 333 Hz. Steps that spread by more than
+    :data:`_JITTER_WARNING` of it are warned about (:class:`LogImportWarning`).
 
     Raises:
         InputError: A rate not finite and > 0, outside :data:`RATE_RANGE_HZ`, given and off
-            the median step by more than 5 %, or not to be had (fewer than two samples).
+            the nominal step by more than 5 %, or not to be had (fewer than two samples).
     """
     if given is not None and not (math.isfinite(given) and given > 0):
         raise InputError(f"{source}: sample rate must be finite and > 0 [Hz], got {given}")
-    steps = np.diff(t)
-    if len(steps) == 0:
+    if len(t) < 2:
         if given is None:
             raise InputError(
                 f"{source}: the sample rate cannot be taken from one sample; give it (--rate)"
             )
         return float(given)
-    step = float(np.median(steps))
+    step = nominal_step(t)
     measured = float(f"{1.0 / step:.{_RATE_DIGITS}g}")
     rate = measured if given is None else float(given)
     low, high = RATE_RANGE_HZ
     if not low <= rate <= high:
-        how = "given" if given is not None else f"from the median step of {step:.6g} s"
+        how = "given" if given is not None else f"from the mean step of {step:.6g} s"
         raise InputError(
             f"{source}: a sample rate of {rate:.6g} Hz ({how}) is outside {low:g}-{high:g} Hz: "
             f"is the time column {time_column!r} in {time_unit!r}? (--time-unit: one of "
@@ -478,7 +602,28 @@ def _sample_rate(
     if given is not None and abs(given * step - 1.0) > _RATE_TOLERANCE:
         raise InputError(
             f"{source}: the sample rate given, {given:g} Hz, disagrees with the time column's "
-            f"median step of {step:.6g} s ({measured:g} Hz); give the rate the file was "
-            "logged at, or leave --rate out to take it from the time"
+            f"mean step of {step:.6g} s ({measured:g} Hz; gaps left out); give the rate the "
+            "file was logged at, or leave --rate out to take it from the time"
+        )
+    steps = np.diff(t)
+    regular = steps[steps < NOMINAL_STEP_GAP * np.median(steps)]
+    spread = float(np.std(regular)) / step
+    if spread > _JITTER_WARNING:
+        scale = TIME_UNITS[time_unit]
+        how = (
+            "given"
+            if given is not None
+            else "their mean; give the rate the robot was logged at with --rate"
+        )
+        warnings.warn(
+            f"{source}: the time column {time_column!r} steps unevenly: from "
+            f"{float(regular.min()) / scale:.6g} to {float(regular.max()) / scale:.6g} "
+            f"{time_unit} (standard deviation {100.0 * spread:.2g} % of the mean step, "
+            f"{step / scale:.6g} {time_unit}; gaps left out): time stamps rounded to a "
+            "coarser unit than the step, or a clock that jitters? The diagnosis takes the "
+            f"samples as evenly spaced at {rate:g} Hz ({how}): right if only the stamps "
+            "are rounded, not if the sampling jitters",
+            LogImportWarning,
+            stacklevel=3,
         )
     return rate
