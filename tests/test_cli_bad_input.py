@@ -96,6 +96,25 @@ def test_train_refuses_a_data_folder_that_cannot_be_created(
     assert "expected a folder that can be written" in line
 
 
+def test_train_names_the_recipe_for_a_split_that_leaves_no_training_run(
+    monkeypatch, capsys, tmp_path, no_training
+):
+    recipe = _recipe(tmp_path)
+    recipe.write_text(
+        recipe.read_text().replace("n_runs: 3", "n_runs: 4\n  split: [0.1, 0.45, 0.45]")
+    )
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'data': invalid DataConfig: n_runs and split: 4 runs leave none" in line
+    assert "expected more runs or a larger training share" in line
+
+
+def test_train_refuses_an_empty_data_folder(monkeypatch, capsys, tmp_path, no_training):
+    # Path("") is the working directory: the runs were written all over it
+    recipe = _recipe(tmp_path, folder='""')
+    line = _error(monkeypatch, capsys, "train", "--config", str(recipe))
+    assert f"{recipe}: key 'data': invalid DataConfig: folder must name a folder" in line
+
+
 def test_train_names_the_recipe_for_gains_of_the_wrong_count(
     monkeypatch, capsys, tmp_path, no_training
 ):

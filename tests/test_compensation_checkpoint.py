@@ -86,6 +86,14 @@ def test_behaviour_hash_follows_what_the_compensator_does_not_its_training_recor
     assert timed.behaviour_sha256() == value
     timed.metadata["training"]["collect_time_s"] = 0.2
     assert timed.behaviour_sha256() == value
+    # nor where the recipe put its files (the same network trained into another folder)
+    placed = _compensator()
+    placed.metadata["recipe"] = {"checkpoint": "a/c.pt", "data": {"folder": "a", "n_runs": 14}}
+    moved = _compensator()
+    moved.metadata["recipe"] = {"checkpoint": "b/c.pt", "data": {"folder": "b", "n_runs": 14}}
+    assert placed.behaviour_sha256() == moved.behaviour_sha256()
+    moved.metadata["recipe"]["data"]["n_runs"] = 10  # the rest of the recipe does
+    assert placed.behaviour_sha256() != moved.behaviour_sha256()
     # a weight, a normaliser, the config or the rest of the metadata does
     nudged = _compensator()
     name = next(iter(nudged._module.state_dict()))

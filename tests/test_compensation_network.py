@@ -146,6 +146,11 @@ def test_resume_after_an_interruption(data, tmp_path):
     again = train_network(*data, FAST, checkpoint_path=path, resume=True, progress=seen.append)
     assert seen == [6, 7, 8, 9, 10]
     assert _states_equal(again.compensator.state_dict(), whole.compensator.state_dict())
+    # a shorter training is not the finished longer one (its weights may come from epochs a
+    # run of 4 never reaches): refused, so the pipeline starts that round over
+    shorter = NetworkConfig(batch_size=64, max_epochs=4, patience=50)
+    with pytest.raises(CheckpointError, match="has run 10 epochs, more than max_epochs 4"):
+        train_network(*data, shorter, checkpoint_path=path, resume=True)
 
 
 def test_resume_refuses_other_data_or_config(data, tmp_path, monkeypatch):

@@ -239,16 +239,24 @@ class Compensator:
 
         The weights, normalisers, network config and metadata (the robot model, feature and
         target specs, the recipe with its controller gains, the sheath stage), but not the
-        training's own record (``metadata["training"]``: losses, epochs, times). Two trainings
-        that end in the same network thus have the same value, though their files differ in
-        their recorded times; ``msarm compare`` keys its runs with feedforward by it, so that
+        training's own record (``metadata["training"]``: losses, epochs, times) nor where the
+        recipe put its files (its ``checkpoint`` and ``data.folder``). Two trainings that end
+        in the same network thus have the same value, though their files differ in their
+        recorded times or places; ``msarm compare`` keys its runs with feedforward by it, so that
         a retraining that changed nothing does not make it simulate them again.
 
         Returns:
             64 hex digits.
         """
         plain = self.to_dict()
-        plain["metadata"] = {k: v for k, v in plain["metadata"].items() if k != "training"}
+        metadata = {k: v for k, v in plain["metadata"].items() if k != "training"}
+        recipe = metadata.get("recipe")
+        if isinstance(recipe, Mapping):  # where its files went changes nothing it does
+            recipe = {k: v for k, v in recipe.items() if k != "checkpoint"}
+            if isinstance(recipe.get("data"), Mapping):
+                recipe["data"] = {k: v for k, v in recipe["data"].items() if k != "folder"}
+            metadata["recipe"] = recipe
+        plain["metadata"] = metadata
         text = json.dumps(plain, sort_keys=True, default=_hashable)
         return hashlib.sha256(text.encode()).hexdigest()
 

@@ -68,6 +68,13 @@ class DataConfig:
             raise ValueError(f"n_runs must be >= 3 (training, validation, test), got {self.n_runs}")
         if len(self.split) != 3 or min(self.split) <= 0 or abs(sum(self.split) - 1) > 1e-9:
             raise ValueError(f"split must be three positive shares adding to 1, got {self.split}")
+        if not str(self.folder).strip():
+            # Path("") is the working directory: the runs would be written all over it
+            raise ValueError("folder must name a folder for the runs' logs, got an empty string")
+        try:
+            split_runs(self.seeds, self.split)
+        except InputError as exc:
+            raise ValueError(f"n_runs and split: {exc}") from None
 
     @property
     def seeds(self) -> list[int]:
@@ -97,7 +104,10 @@ def split_runs(seeds: Sequence[int], shares: tuple[float, float, float]) -> RunS
     n_test = max(1, round(shares[2] * n))
     n_train = n - n_val - n_test
     if n_train < 1:
-        raise InputError(f"{n} runs leave none for training with shares {shares}")
+        raise InputError(
+            f"{n} runs leave none for training with shares {shares} (each set gets at least "
+            "one run): expected more runs or a larger training share"
+        )
     return RunSplit(
         tuple(seeds[:n_train]),
         tuple(seeds[n_train : n_train + n_val]),

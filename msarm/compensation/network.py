@@ -77,7 +77,8 @@ ACTIVATIONS: dict[str, type[torch.nn.Module]] = {"tanh": torch.nn.Tanh, "relu": 
 #: Format tag and version of a training checkpoint (the file ``resume`` reads).
 TRAINING_CHECKPOINT_FORMAT = "msarm.compensation.training_checkpoint"
 TRAINING_CHECKPOINT_VERSION = 1
-#: Config fields that may change when a run is resumed (everything else must match).
+#: Config fields that may change when a run is resumed (everything else must match;
+#: ``max_epochs`` not below the epochs already run).
 _RESUMABLE_CHANGES = ("max_epochs", "threads")
 #: Rows evaluated at once when computing a loss without gradients.
 _EVAL_CHUNK = 65536
@@ -844,6 +845,12 @@ def _check_resumable(
         raise error(
             f"{path}: checkpoint was trained with another config ({'; '.join(differ)}); only "
             f"{', '.join(_RESUMABLE_CHANGES)} may change on resume"
+        )
+    if int(saved["epoch"]) > config.max_epochs:
+        # its weights and best epoch may come from epochs a run of max_epochs never reaches
+        raise error(
+            f"{path}: checkpoint has run {int(saved['epoch'])} epochs, more than max_epochs "
+            f"{config.max_epochs} now; resume needs max_epochs >= the epochs already run"
         )
 
 
