@@ -359,7 +359,7 @@ def test_cli_takes_the_nominal_model(arm, noise_logs, capsys):
         diagnose_command(noise_logs[:2], noise_logs[2:3], True, None, model_path=cable_robot)
 
 
-def _synthetic_data(arm):
+def _synthetic_data(arm, viscous=(0.4, 0.5, 0.3, 0.35), noise=0.02, capstan=True):
     """Diagnosis data whose joint residual is Coulomb + viscous friction + noise."""
     from test_diagnose_effects import _make_signals
     from test_diagnose_stack import diagnosis_data
@@ -373,15 +373,15 @@ def _synthetic_data(arm):
     )
 
     signals = _make_signals(arm, seed=5)
-    coulomb, viscous = CoulombFriction(), ViscousFriction()
+    coulomb, viscous_term = CoulombFriction(), ViscousFriction()
     rng = np.random.default_rng(5)
     torque = (
         np.asarray(coulomb.torque(signals, np.array([0.3, 0.2, 0.25, 0.15])))
-        + np.asarray(viscous.torque(signals, np.array([0.4, 0.5, 0.3, 0.35])))
-        + rng.normal(0.0, 0.02, size=(signals.n_samples, arm.n_joints))
+        + np.asarray(viscous_term.torque(signals, np.array(viscous)))
+        + rng.normal(0.0, noise, size=(signals.n_samples, arm.n_joints))
     )
-    pool = [coulomb, viscous, DahlFriction(), InertiaError(arm), CableCapstanFriction()]
-    return diagnosis_data(arm, signals, torque, pool)
+    pool = [coulomb, viscous_term, DahlFriction(), InertiaError(arm)]
+    return diagnosis_data(arm, signals, torque, pool + [CableCapstanFriction()] * capstan)
 
 
 def test_a_small_term_that_explains_most_of_what_is_left_is_named(arm, monkeypatch):
@@ -389,22 +389,9 @@ def test_a_small_term_that_explains_most_of_what_is_left_is_named(arm, monkeypat
     noise: after the Coulomb term, the viscous one gains less than the threshold but nearly
     all of what is left, and is named (the second way of the rule); without that way it is
     not."""
-    from test_diagnose_effects import _make_signals
-    from test_diagnose_stack import diagnosis_data
-
     import msarm.diagnose.select as select
-    from msarm.diagnose.effects import CoulombFriction, DahlFriction, InertiaError, ViscousFriction
 
-    signals = _make_signals(arm, seed=5)
-    coulomb, viscous = CoulombFriction(), ViscousFriction()
-    rng = np.random.default_rng(5)
-    torque = (
-        np.asarray(coulomb.torque(signals, np.array([0.3, 0.2, 0.25, 0.15])))
-        + np.asarray(viscous.torque(signals, np.array([0.16, 0.2, 0.12, 0.14])))
-        + rng.normal(0.0, 0.005, size=(signals.n_samples, arm.n_joints))
-    )
-    pool = [coulomb, viscous, DahlFriction(), InertiaError(arm)]
-    data = diagnosis_data(arm, signals, torque, pool)
+    data = _synthetic_data(arm, viscous=(0.16, 0.2, 0.12, 0.14), noise=0.005, capstan=False)
     result = select.select_effects(data, n_boot=0, replay=False)
     assert result.names == ("coulomb", "viscous")
     gain = result.selected[1].gain

@@ -228,20 +228,8 @@ def test_hot_spots_are_the_densest_non_channel_rows_with_enough_time():
         _row("posture", "cell", 9.8, 4.9),  # density 2, but under 5 % of the time
         _row("load", "low_tension", 12.0, 4.0),  # density 3, too little time
     )
-    breakdown = GapBreakdown(
-        kind="joint_torque",
-        unit="N m",
-        sources=("hand",),
-        samples=1,
-        total_energy=100.0,
-        rms=1.0,
-        rows=rows,
-        posture_joints=("a", "b"),
-        posture_edges=(np.zeros(2), np.zeros(2)),
-        posture_rms=np.zeros((1, 1)),
-        posture_samples=np.ones((1, 1), dtype=np.int64),
-        settings=PhaseSettings(hot_spot_samples=1),  # the rows have one sample each
-    )
+    # the rows have one sample each
+    breakdown = _breakdown(rows, PhaseSettings(hot_spot_samples=1))
     hot = breakdown.hot_spots(min_time_share=5.0)
     assert [(r.group, r.where) for r in hot] == [("motion", "hold"), ("load", "high_load")]
     assert [r.where for r in breakdown.hot_spots(count=1)] == ["hold"]
