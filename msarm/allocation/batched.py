@@ -10,11 +10,12 @@ Its dual is unconstrained: for multipliers lambda (n,) the minimising x is
 ``x(lambda) = clip(A^T lambda, lo, hi)`` and the concave, piecewise-quadratic dual function has
 gradient ``c - A x(lambda)``. A semismooth Newton method (a "dual Newton" method, as in
 qpDUNES) maximises it, all problems in lockstep: the generalised Hessian is ``A D A^T`` with D
-the free (unclipped) entries, regularised by 1e-14 tr(A A^T) (it is singular while fewer than
-n entries are free). A step is taken in full where the dual still rises at its end (or ends
-higher), else after an *exact* line search over the breakpoints of the piecewise-linear
-directional derivative (sorted, prefix sums). It starts from the unconstrained minimum-norm
-solution, so a problem with no active bound ends after 0 iterations.
+the free (unclipped) entries, regularised by 1e-14 tr(A A^T), at least 1e-300 (it is singular
+while fewer than n entries are free). A step is taken in full where the dual still rises at its
+end (or ends higher), else after an *exact* line search over the breakpoints of the
+piecewise-linear directional derivative (sorted, prefix sums). It starts from the
+unconstrained minimum-norm solution, so a problem with no active bound ends after 0
+iterations.
 
 Exactness: at every iterate ``x = clip(A^T lambda)`` meets the bounds exactly, and the sign
 conditions of the bound multipliers hold by construction; so once ``A x = c`` holds (to
@@ -61,6 +62,7 @@ __all__ = [
     "ITER_OVERHEAD",
     "MAX_ITER",
     "REG",
+    "REG_FLOOR",
     "BatchedAllocator",
     "dual_newton",
 ]
@@ -69,6 +71,8 @@ MAX_ITER = 15
 """Newton iterations after which a problem goes to the DAQP path."""
 REG = 1e-14
 """Regularisation of the generalised Hessian, relative to tr(A A^T)."""
+REG_FLOOR = 1e-300
+"""Least regularisation (a normal number: ``REG tr(A A^T)`` underflows for ``M ~ 0``)."""
 HANDOFF_COST = 6.0
 """Cost of one DAQP solve, in units of one problem's share of a Newton iteration."""
 ITER_OVERHEAD = 100.0
@@ -212,7 +216,7 @@ def dual_newton(
     eye = np.eye(n)
     At = A.transpose(0, 2, 1)
     G = A @ At
-    reg = (REG * np.maximum(np.einsum("kii->k", G), 1e-300))[:, None, None] * eye
+    reg = np.maximum(REG * np.einsum("kii->k", G), REG_FLOOR)[:, None, None] * eye
     lam = np.linalg.solve(G + reg, c[..., None])[..., 0]
     tol = CONV_TOL * (1.0 + np.abs(c).max(axis=1))
     idx = np.arange(count)
@@ -389,8 +393,9 @@ class BatchedAllocator(Allocator):
         c = b - (M @ ref[..., None])[..., 0]
         x, converged, iterations, y, infeasible = dual_newton(A, c, w * (lo - ref), w * (hi - ref))
         active = (y >= w * (hi - ref)).astype(np.int8) - (y <= w * (lo - ref)).astype(np.int8)
-        # Forces at a bound are the bound exactly (x / w + ref would round).
-        f = np.where(active < 0, lo, np.where(active > 0, hi, ref + x / w))
+        # Forces at a bound are the bound exactly (x / w + ref would round); the others, x
+        # within its bounds, are clipped only of the rounding of ref + x / w.
+        f = np.where(active < 0, lo, np.where(active > 0, hi, np.clip(ref + x / w, lo, hi)))
         r = (M @ f[..., None])[..., 0] - b
         residual = np.sqrt((r * r).sum(axis=1))
         limit = self._tol * (1.0 + np.sqrt((b * b).sum(axis=1)))

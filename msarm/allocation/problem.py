@@ -45,6 +45,7 @@ __all__ = [
     "active_set",
     "check_bound_order",
     "check_tick",
+    "snap_to_bounds",
     "validate_batch",
     "validate_tick",
 ]
@@ -261,6 +262,33 @@ def active_set(f: FloatArray, f_min: FloatArray, f_max: FloatArray, tol: float) 
     at_max = f >= f_max - tol * (1.0 + np.abs(f_max))
     at_min = f <= f_min + tol * (1.0 + np.abs(f_min))
     return at_max.astype(np.int8) - at_min.astype(np.int8)
+
+
+def snap_to_bounds(
+    f: FloatArray, f_min: FloatArray, f_max: FloatArray, tol: float
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Forces within round-off of a bound set onto it; and which rows were within that.
+
+    A solver's forces may step past a bound by round-off (DAQP holds its bounds to 1e-12, an
+    interior-point method to its tolerance). Such excursions, up to ``tol (1 + |bound|)``,
+    are removed; a row with a force farther out, or a NaN, is flagged, never clipped into a
+    plausible-looking answer: its solve failed.
+
+    Args:
+        f: Forces [N], shape (..., m).
+        f_min: Lower bounds [N], broadcastable to f.
+        f_max: Upper bounds [N], broadcastable to f.
+        tol: Allowed excursion, relative to ``1 + |bound|``.
+
+    Returns:
+        ``(f, ok)``: f clipped to the bounds, shape of f (to be used only where ok), and ok,
+        shape (...,) bool: every force of the row is finite and within the tolerance.
+    """
+    excess = np.maximum(
+        f_min - f - tol * (1.0 + np.abs(f_min)), f - f_max - tol * (1.0 + np.abs(f_max))
+    )
+    ok = (excess <= 0.0).all(axis=-1)  # False for NaN
+    return np.clip(f, f_min, f_max), ok
 
 
 def _as_float_array(value: ArrayLike, name: str) -> FloatArray:

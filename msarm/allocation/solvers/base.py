@@ -1,8 +1,9 @@
 """The interface every allocation solver implements, and the bookkeeping they share.
 
 A solver implements ``_solve`` for one validated tick; ``Allocator.solve`` adds validation,
-the reference force, the bounded least-squares fallback, the residual, the feasibility flag,
-the active set and timing, identically for all solvers.
+the reference force, the check of the method's answer (bounds and ``M f = b``, NaN-safe), the
+bounded least-squares fallback, the residual, the feasibility flag, the active set and
+timing, identically for all solvers.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from msarm.allocation.problem import (
     check_tick,
     validate_batch,
 )
+from msarm.allocation.solution_check import PAST_A_BOUND, bounded_residual
 from msarm.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -37,7 +39,9 @@ MethodOutput = tuple[FloatArray | None, str, int, NDArray[np.int8] | None]
 """What ``_solve`` returns: ``(f or None, status, iterations, active set or None)``.
 
 ``f = None`` means the method found no force meeting the constraints; the caller then runs
-the bounded least-squares fallback. An active set of ``None`` is computed from f.
+the fallback. So does an f that misses ``M f = b`` or a bound (beyond the spec's tolerance)
+or holds a NaN; an f within that round-off of a bound is set onto it. An active set of
+``None`` is computed from f.
 """
 
 
@@ -90,18 +94,58 @@ class Allocator(ABC):
         """Forces when the method found none: ``(f, iterations)``, f within the bounds.
 
         First the exact QP (DAQP): the problem may be feasible though the method failed, and
-        then the answer is the optimum. If DAQP finds no solution, the bounded least squares
-        of ``msarm.allocation.fallback``.
+        then the answer is the optimum. If DAQP finds no solution, or one that misses
+        ``M f = b`` or the bounds (it called x = 0 optimal for a zero row of M, below
+        f_min), the bounded least squares of ``msarm.allocation.fallback``.
         """
         if self._exact is None:
             from msarm.allocation.solvers.daqp_solver import DaqpAllocator
 
             self._exact = DaqpAllocator(self.spec)
         f, _, iterations, _ = self._exact._solve(M, b, f_min, f_max, f_ref)
+        f, _ = self._accept(f, M, b, f_min, f_max, self._tol * (1.0 + math.sqrt(b @ b)))
         if f is not None:
             return f, iterations
         f, extra = bounded_least_squares(M, b, f_min, f_max, self._weights, f_ref)
         return f, iterations + extra
+
+    def _accept(
+        self,
+        f: FloatArray | None,
+        M: FloatArray,
+        b: FloatArray,
+        f_min: FloatArray,
+        f_max: FloatArray,
+        limit: float,
+    ) -> tuple[FloatArray | None, float]:
+        """A method's f if it is a solution, within the bounds; else ``None``.
+
+        A solution meets ``||M f - b|| <= limit`` and the bounds to ``tol (1 + |bound|)``
+        (the spec's tolerance); a force within that round-off of a bound is set onto it. A
+        force farther out, a NaN or a missed ``M f = b`` means that the method failed
+        (``None``): it is never clipped into a plausible-looking answer.
+
+        Args:
+            f: The method's forces [N], shape (m,), or ``None``.
+            M: Shape (n, m).
+            b: Shape (n,).
+            f_min: Lower bounds [N], shape (m,).
+            f_max: Upper bounds [N], shape (m,).
+            limit: The largest ``||M f - b||``, ``tol (1 + ||b||)``.
+
+        Returns:
+            ``(f, residual)``: f [N] of shape (m,) exactly within the bounds, or ``None``;
+            its ``||M f - b||`` (NaN when f is ``None``).
+        """
+        if f is None:
+            return None, math.nan
+        residual = bounded_residual(f, f_min, f_max, self._tol, M, b)
+        if residual == PAST_A_BOUND:  # by round-off: onto the bound (a new array)
+            f = np.clip(f, f_min, f_max)
+            residual = bounded_residual(f, f_min, f_max, self._tol, M, b)
+        if not residual <= limit:  # False for NaN: a NaN or a force farther out
+            return None, math.nan
+        return f, residual
 
     def _reference(
         self, f_min: FloatArray, f_max: FloatArray, f_ref: ArrayLike | str | None
@@ -167,18 +211,21 @@ class Allocator(ABC):
         ref = self._reference(f_min, f_max, f_ref)
         f, status, iterations, active = self._solve(M, b, f_min, f_max, ref)
         tol = self._tol
-        bnorm = math.sqrt(bb)
-        if f is not None:
-            r = M @ f - b
-            residual = math.sqrt(r @ r)
-            if residual > tol * (1.0 + bnorm):
-                f = None  # a method that claims success but misses M f = b: do not trust it
+        limit = tol * (1.0 + math.sqrt(bb))
+        # a method that claims success but misses M f = b or the bounds (beyond round-off),
+        # or returns NaN, is not trusted: its tick goes to the fallback
+        f, residual = self._accept(f, M, b, f_min, f_max, limit)
         if f is None:
             f, extra = self._fallback(M, b, f_min, f_max, ref)
             iterations += extra
+            if not np.maximum(f_min - f, f - f_max).max() <= 0.0:  # NaN too
+                raise RuntimeError(  # pragma: no cover - the fallback clips to finite bounds
+                    f"{self.name}: the bounded least-squares fallback returned forces outside "
+                    f"[f_min, f_max] or not finite: {f}"
+                )
             r = M @ f - b
             residual = math.sqrt(r @ r)
-            status = FALLBACK if residual <= tol * (1.0 + bnorm) else INFEASIBLE
+            status = FALLBACK if residual <= limit else INFEASIBLE
             active = None
         if active is None:
             active = active_set(f, f_min, f_max, tol)

@@ -53,7 +53,8 @@ def weighted_closed_form(
         y = np.linalg.solve(K, b - M @ f_ref)
     except np.linalg.LinAlgError:
         return None
-    f = f_ref + MW.T @ y
+    with np.errstate(over="ignore", invalid="ignore"):  # a non-finite f is refused below
+        f = f_ref + MW.T @ y
     # np.linalg.solve does not flag near-singular systems: check that M f = b holds.
     r = M @ f - b
     if not np.isfinite(r).all() or np.abs(r).max() > 1e-9 * (1.0 + np.abs(b).max()):

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.allocation.fallback import bounded_least_squares
-from msarm.allocation.problem import OPTIMAL, AllocationSpec
+from msarm.allocation.problem import OPTIMAL, AllocationSpec, snap_to_bounds
 from msarm.allocation.solvers.base import Allocator, FloatArray, MethodOutput
 
 __all__ = ["DaqpAllocator", "PRIMAL_TOL"]
@@ -96,8 +96,13 @@ class DaqpAllocator(Allocator):
         x, _, exitflag, info = self._model.solve()
         if exitflag != _EXIT_OPTIMAL:
             return None, OPTIMAL, int(info["iterations"]), None
-        # Forces at a bound meet it to round-off (DAQP works in scaled variables).
-        return x, OPTIMAL, info["iterations"], np.sign(info["lam"][:m]).astype(np.int8)
+        # DAQP meets an active bound only to round-off (it works in scaled variables), which
+        # may lie outside it (-3e-15 N on f_min = 0): forces at a bound are set exactly on it,
+        # as in solve_many. The rest is within PRIMAL_TOL; Allocator.solve checks the bounds.
+        lam = info["lam"][:m]
+        np.copyto(x, f_min, where=lam < 0.0)
+        np.copyto(x, f_max, where=lam > 0.0)
+        return x, OPTIMAL, info["iterations"], np.sign(lam).astype(np.int8)
 
     def solve_many(
         self,
@@ -117,8 +122,9 @@ class DaqpAllocator(Allocator):
             f_ref: Reference forces [N], shape (K, m).
 
         Returns:
-            ``(f, solved, active, iterations)``: f (K, m) (undefined where not solved),
-            solved (K,) bool (DAQP found the optimum), active (K, m), iterations (K,).
+            ``(f, solved, active, iterations)``: f (K, m) within the bounds (undefined where
+            not solved), solved (K,) bool (DAQP found the optimum, within the bounds to the
+            spec's tolerance), active (K, m), iterations (K,).
         """
         count, m = f_min.shape
         bu = np.concatenate([f_max, b], axis=1)
@@ -139,4 +145,8 @@ class DaqpAllocator(Allocator):
                 f[i], lam[i], solved[i] = x, info["lam"][:m], True
         np.copyto(f, f_min, where=lam < 0.0)  # forces at a bound exactly on it
         np.copyto(f, f_max, where=lam > 0.0)
+        # the others within PRIMAL_TOL of theirs; a point farther out is no optimum (DAQP
+        # called x = 0 optimal for a zero row of M)
+        f, within = snap_to_bounds(f, f_min, f_max, self._tol)
+        solved &= within
         return f, solved, np.sign(lam).astype(np.int8), iterations

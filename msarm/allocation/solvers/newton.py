@@ -11,13 +11,16 @@ call without the interpreter (:mod:`msarm.tasks.compiled_loop`) and that
 
 the dual in the multipliers lambda (n,) is maximised by semismooth Newton steps:
 ``x(lambda) = clip(A^T lambda, lo, hi)``, gradient ``r = c - A x``, generalised Hessian
-``A D A^T + reg I`` (D the free entries, ``reg = REG tr(A A^T)``), solved by a Cholesky
-factorisation. A full step is taken where the dual still rises at its end (or ends higher),
-else the exact line search over the breakpoints of the piecewise-linear directional derivative.
+``A D A^T + reg I`` (D the free entries, ``reg = max(REG tr(A A^T), REG_FLOOR)``), solved by a
+Cholesky factorisation. A full step is taken where the dual still rises at its end (or ends
+higher), else the exact line search over the breakpoints of the piecewise-linear directional
+derivative.
 It starts from the unconstrained minimum-norm solution and stops when
 ``||A x - c||_inf <= CONV_TOL (1 + ||c||_inf)``: with the right active set the last step
 solved the KKT system to round-off, so x is the optimum. Forces at a bound are then exactly on
-it.
+it, and the others within the bounds. A NaN residual never converges: it ends the iterations
+with :data:`NOT_CONVERGED` (``M ~ 0`` once made the regulariser underflow to 0, the multipliers
+NaN, and NaN forces came back as the optimum).
 
 What it cannot settle it does not guess: a problem proven infeasible (Farkas test along the
 Newton direction), a stall of the line search, a failed factorisation or ``MAX_ITER``
@@ -34,7 +37,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
-from msarm.allocation.batched import CONV_TOL, MAX_ITER, REG
+from msarm.allocation.batched import CONV_TOL, MAX_ITER, REG, REG_FLOOR
 from msarm.allocation.problem import OPTIMAL, AllocationSpec
 from msarm.allocation.solvers.base import Allocator, FloatArray, MethodOutput
 from msarm.numba_cache import drop_stale_kernels
@@ -78,7 +81,7 @@ def _transposed_product(A, v, out):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _clip_and_residual(A, c, y, lo, hi, x, r):  # pragma: no cover - compiled
-    """``x = clip(y, lo, hi)`` and ``r = c - A x``; returns ``||r||_inf``."""
+    """``x = clip(y, lo, hi)`` and ``r = c - A x``; returns ``||r||_inf`` (NaN if r has one)."""
     n, m = A.shape
     for j in range(m):
         x[j] = min(max(y[j], lo[j]), hi[j])
@@ -88,7 +91,9 @@ def _clip_and_residual(A, c, y, lo, hi, x, r):  # pragma: no cover - compiled
         for j in range(m):
             s -= A[i, j] * x[j]
         r[i] = s
-        worst = max(worst, abs(s))
+        a = abs(s)
+        if a > worst or a != a:  # a NaN stays (max() would drop it and claim convergence)
+            worst = a
     return worst
 
 
@@ -201,7 +206,7 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
     trace = 0.0
     for i in range(n):
         trace += K[i, i]
-    reg = REG * max(trace, 1e-300)
+    reg = max(REG * trace, REG_FLOOR)  # a normal number: M ~ 0 gave 0 and NaN forces
     for i in range(n):
         K[i, i] += reg
     lam, delta, r, r1 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
@@ -213,16 +218,16 @@ def dual_newton_tick(M, b, w, f_ref, f_min, f_max, f, active, max_iter):  # prag
     worst = _clip_and_residual(A, c, y, lo, hi, x, r)
     tol = CONV_TOL * (1.0 + c_max)
     for it in range(max_iter + 1):
-        if worst <= tol:
+        if worst <= tol:  # False for NaN
             for j in range(m):
                 if y[j] < lo[j]:
                     f[j], active[j] = f_min[j], -1
                 elif y[j] > hi[j]:
                     f[j], active[j] = f_max[j], 1
-                else:
-                    f[j], active[j] = f_ref[j] + y[j] / w[j], 0
+                else:  # y within [lo, hi]: only the round-off of f_ref + y / w can step out
+                    f[j], active[j] = min(max(f_ref[j] + y[j] / w[j], f_min[j]), f_max[j]), 0
             return it
-        if it == max_iter:
+        if it == max_iter or not math.isfinite(worst):
             break
         for j in range(m):
             free[j] = y[j] > lo[j] and y[j] < hi[j]
