@@ -7,6 +7,7 @@ of work.
 
 from __future__ import annotations
 
+import json
 import sys
 import zipfile
 from pathlib import Path
@@ -311,3 +312,36 @@ def test_bench_sim_names_an_odd_plant_step_and_a_diverging_plant(monkeypatch, ca
         "plant 'stiff': the closed loop diverges on table1-1 (simulation diverged at t = 0.0"
         in (line)
     )
+
+
+def test_track_refuses_a_delay_as_long_as_the_task(monkeypatch, capsys, tmp_path):
+    """A 40 s delay on a 20 s task ran to the end with a 565 mm final error and exit 0."""
+    slow = tmp_path / "slow.yaml"
+    slow.write_text("effects:\n  delay: {enabled: true, sensing_periods: 5000}\n")
+    out = tmp_path / "run"
+    line = _error(monkeypatch, capsys, "track", "--plant", str(slow), "--out", str(out))
+    assert "effects.delay: a delay of 5000 control periods is as long as task 'table1-1'" in line
+    assert not out.exists()
+
+
+def test_track_says_on_stderr_where_a_run_diverged(monkeypatch, capsys, tmp_path):
+    """The error went to stdout (into the --json result only) while MuJoCo's own warning, with
+    another time, went to stderr and to MUJOCO_LOG.TXT in the working folder."""
+    from msarm.cli import main
+
+    stiff = tmp_path / "stiff.yaml"
+    stiff.write_text("name: stiff\neffects:\n  elasticity: {stiffness: 1.0e9}\n")
+    monkeypatch.chdir(tmp_path)
+    argv = ["msarm", "track", "--plant", str(stiff), "--out", "run", "--json"]
+    monkeypatch.setattr(sys, "argv", argv)
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 1
+    captured = capsys.readouterr()
+    lines = [line for line in captured.err.splitlines() if line.startswith("msarm: error:")]
+    assert len(lines) == 1 and "simulation diverged at t = 0.0" in lines[0]
+    assert lines[0].endswith(f"(partial log kept: {Path('run') / 'log.parquet'})")
+    assert "MuJoCo" not in captured.err.replace("MuJoCo found", "")  # no raw MuJoCo line
+    assert "diverged" in json.loads(captured.out)
+    assert (tmp_path / "run" / "log.parquet").is_file()
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()

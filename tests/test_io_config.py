@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 import pytest
 import yaml
 
@@ -428,3 +429,40 @@ def test_configs_built_in_python_name_a_word_given_for_a_number():
     for build, message in cases:
         with pytest.raises(InputError, match=message):
             build()
+
+
+def test_configs_built_in_python_refuse_a_switch_that_is_no_bool_and_a_block_no_dataclass():
+    """``enabled="false"`` (a non-empty string: true) switched the effect on, and a dict
+    for a block skipped its checks, before 2026-11-29."""
+    from dataclasses import replace
+
+    from msarm.compensation.sheath import SheathSpec
+    from msarm.control import ArmControllerConfig
+    from msarm.errors import InputError
+    from msarm.plant import IDEAL_PLANT
+    from msarm.plant.config import DelayConfig, EffectsConfig, PlantConfig
+
+    sheath = IDEAL_PLANT.effects.sheath_friction
+    cases = (
+        (lambda: replace(sheath, enabled="false"), "enabled must be true or false"),
+        (lambda: ArmControllerConfig(activation_dynamics="no"), "activation_dynamics must be"),
+        (lambda: SheathSpec(enabled=1), "enabled must be true or false .* got 1"),
+        (lambda: PlantConfig(winch={"drum_radius": 0.0}), "winch must be a WinchConfig"),
+        (lambda: EffectsConfig(delay={}), "delay must be a DelayConfig"),
+        (lambda: PlantConfig(timestep="0.001"), "timestep must be a number, got '0.001'"),
+        (lambda: DelayConfig(sensing_periods=10**11), "at most 10000 control periods"),
+    )
+    for build, message in cases:
+        with pytest.raises(InputError if "periods" not in message else ValueError, match=message):
+            build()
+    assert replace(sheath, enabled=np.True_).enabled  # numpy's bool is one
+
+
+def test_an_integer_too_large_for_a_float_is_named(tmp_path):
+    """An OverflowError with a traceback before."""
+    from msarm.plant.config import PlantConfig
+
+    path = tmp_path / "plant.yaml"
+    path.write_text("name: huge\neffects:\n  elasticity: {stiffness: 1" + "0" * 400 + "}\n")
+    with pytest.raises(ConfigError, match=r"key 'effects.elasticity.stiffness' expects a finite"):
+        load_config(path, PlantConfig)

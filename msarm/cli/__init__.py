@@ -111,6 +111,20 @@ def spread_multi_value_options(args: list[str]) -> list[str]:
     return out
 
 
+def _mujoco_warning(message: str) -> None:
+    """MuJoCo's warnings under the command line: one ``msarm: warning:`` line each.
+
+    An instability warning ("... The simulation is unstable") is left out: the plant stops
+    the run itself with an error naming the time, the state and what MuJoCo found (MuJoCo's
+    own line gave another time, and its default handler wrote ``MUJOCO_LOG.TXT`` into the
+    working folder).
+    """
+    import sys
+
+    if "simulation is unstable" not in message:
+        print(f"msarm: warning: MuJoCo: {message}", file=sys.stderr)
+
+
 def main() -> None:
     """Entry point of the ``msarm`` console script.
 
@@ -125,6 +139,7 @@ def main() -> None:
     import threading
     import warnings
 
+    import mujoco
     from typer import Abort
 
     # typer's own copy of click's errors (typer exports only BadParameter of these)
@@ -146,6 +161,8 @@ def main() -> None:
             default_show(message, category, filename, lineno, file, line)
 
     warnings.showwarning = show
+    previous_mujoco_warning = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(_mujoco_warning)
     # signal handlers can only be set in the main thread (not when called from another one)
     handles_sigterm = threading.current_thread() is threading.main_thread()
     if handles_sigterm:
@@ -187,5 +204,6 @@ def main() -> None:
         if handles_sigterm:  # as it was (None: set outside Python, left as the default)
             signal.signal(signal.SIGTERM, previous_sigterm or signal.SIG_DFL)
             interrupts.clear()
+        mujoco.set_mju_user_warning(previous_mujoco_warning)
         for text in repeats.summary():
             print(f"msarm: warning: {text}", file=sys.stderr)

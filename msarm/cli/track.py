@@ -293,7 +293,8 @@ def track_command(
         out_console.print(f"controller: {gains_from}")
         for kind, path in result.files.items():
             out_console.print(f"{kind}: {path}")
-        if result.run.error is not None:
-            out_console.print(f"[red]{result.run.error}[/red] (partial log kept)")
-    if result.run.error is not None:
+    if result.run.error is not None:  # on stderr, one line, with --json too
+        log = result.files.get("log")
+        kept = f" (partial log kept: {log})" if log is not None else ""
+        typer.echo(f"msarm: error: {result.run.error}{kept}", err=True)
         raise typer.Exit(code=1)

@@ -53,6 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from msarm.compensation.sheath_kernel import sheath_tick
 from msarm.errors import InputError
+from msarm.io.config import check_field_types
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import cable_kinematics_batch, current_wrap_angles
 from msarm.muscle.geometry import cable_kinematics
@@ -95,6 +96,7 @@ class SheathSpec:
     floor: float = 0.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if not (np.isfinite(self.width) and self.width > 0):
             raise ValueError(f"sheath width must be > 0 [m], got {self.width}")
         if not (0 < self.gain <= 1):

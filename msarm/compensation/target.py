@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
 from msarm.errors import InputError
+from msarm.io.config import check_field_types
 from msarm.io.logs import RunLog
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import cable_kinematics_batch
@@ -84,6 +85,7 @@ class TargetSpec:
     tension_timing: str = "period"
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.window % 2 == 0 or self.window <= self.polyorder:
             raise ValueError(
                 f"window must be odd and > polyorder, got {self.window}, {self.polyorder}"

@@ -41,7 +41,7 @@ from msarm.control.kernels import (
     muscle_speed,
 )
 from msarm.errors import InputError
-from msarm.io.config import check_numbers
+from msarm.io.config import check_field_types, check_numbers
 from msarm.model import RobotModel
 from msarm.muscle.activation import step_activation
 from msarm.muscle.fast import FastHill
@@ -103,6 +103,7 @@ class ArmControllerConfig:
 
     def __post_init__(self) -> None:
         # a config file's loader names the key; the controller checks the gain count
+        check_field_types(self)
         check_numbers(
             self,
             positive=("rate_hz", "velocity_cutoff_hz"),

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import numbers
 import re
@@ -41,6 +42,7 @@ from msarm.errors import ConfigError, InputError
 from msarm.io.atomic import write_bytes_atomic
 
 __all__ = [
+    "check_field_types",
     "check_numbers",
     "check_plant_name",
     "config_to_dict",
@@ -58,6 +60,42 @@ T = TypeVar("T")
 
 #: Label of a config given as a mapping rather than a file.
 _MAPPING_SOURCE = "<mapping>"
+
+
+@functools.cache
+def _typed_fields(cls: type) -> tuple[tuple[str, type], ...]:
+    """The fields of a config dataclass that are switches (bool) or blocks (dataclasses)."""
+    hints = typing.get_type_hints(cls)
+    return tuple(
+        (f.name, hints[f.name])
+        for f in dataclasses.fields(cls)
+        if hints[f.name] is bool
+        or (isinstance(hints[f.name], type) and dataclasses.is_dataclass(hints[f.name]))
+    )
+
+
+def check_field_types(config: object) -> None:
+    """Refuse a switch that is not a bool, or a block that is not its dataclass.
+
+    For a ``__post_init__``: a config built in Python is not checked by the YAML loader, and
+    ``enabled="false"`` (a non-empty string, so true) would switch an effect on.
+
+    Args:
+        config: The config dataclass instance.
+
+    Raises:
+        InputError: The first offending field, named with what was expected (a config file's
+            loader adds the file and the key).
+    """
+    for name, kind in _typed_fields(type(config)):
+        value = getattr(config, name)
+        if kind is bool:
+            if not isinstance(value, bool | np.bool_):
+                raise InputError(f"{name} must be true or false (a bool), got {value!r}")
+        elif not isinstance(value, kind):
+            raise InputError(
+                f"{name} must be a {kind.__name__}, got {type(value).__name__} {value!r}"
+            )
 
 
 def check_numbers(
@@ -473,7 +511,10 @@ def _convert(value: Any, tp: Any, label: str, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise wrong("a number (float)")
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:  # an integer of 400 digits
+            raise wrong("a finite number (float)") from None
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise wrong("an integer")

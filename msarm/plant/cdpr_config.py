@@ -55,7 +55,7 @@ from msarm.cdpr.winch_friction import (
     V_LOW_M_PER_MIN,
     WinchFrictionModel,
 )
-from msarm.io.config import check_numbers, check_plant_name
+from msarm.io.config import check_field_types, check_numbers, check_plant_name
 
 __all__ = [
     "DEFAULT_CDPR_PLANT",
@@ -95,6 +95,7 @@ class CdprWinchConfig:
     nominal_torque: float = 0.69
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, positive=("drum_radius", "inertia", "torque_limit", "nominal_torque"))
 
 
@@ -122,6 +123,7 @@ class DriveConfig:
     default_mode: DriveMode = "pi"
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, positive=("position_gain", "integral_time"), finite=("fe_compliance",))
         if not self.fe_compliance < 0.0:
             raise ValueError(
@@ -158,6 +160,7 @@ class CableConfig:
     damping_time: float = 2.0e-4
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(
             self, positive=("axial_stiffness",), non_negative=("chain_length", "damping_time")
         )
@@ -193,6 +196,7 @@ class CdprFrictionConfig:
     beyond_v_high: Literal["clamp", "extrapolate"] = "clamp"
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if self.beyond_v_high not in ("clamp", "extrapolate"):
             raise ValueError(
                 f"friction.beyond_v_high must be 'clamp' or 'extrapolate', got "
@@ -232,6 +236,7 @@ class LoadCellConfig:
     bias: float = 0.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, finite=("bias",))
 
 
@@ -255,6 +260,7 @@ class CdprNoiseConfig:
     load_cell: float = 0.05
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, non_negative=("encoder", "velocity", "torque", "load_cell"))
 
 
@@ -283,6 +289,7 @@ class CdprPlantConfig:
     noise: CdprNoiseConfig = field(default_factory=CdprNoiseConfig)
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, positive=("timestep",))
         if not self.timestep <= 0.001:
             raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")

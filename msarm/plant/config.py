@@ -32,11 +32,12 @@ from __future__ import annotations
 import numbers
 from dataclasses import dataclass, field, replace
 
-from msarm.io.config import check_numbers, check_plant_name
+from msarm.io.config import check_field_types, check_numbers, check_plant_name
 
 __all__ = [
     "DEFAULT_PLANT",
     "IDEAL_PLANT",
+    "MAX_DELAY_PERIODS",
     "PLANT_PRESETS",
     "CoggingConfig",
     "DelayConfig",
@@ -99,6 +100,7 @@ class ElasticityConfig:
     damping: float = 40.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, positive=("stiffness",), non_negative=("damping",))
 
 
@@ -117,6 +119,7 @@ class SheathFrictionConfig:
     smoothing_velocity: float = 0.002
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, positive=("smoothing_velocity",), non_negative=("mu",))
 
 
@@ -137,6 +140,7 @@ class WinchFrictionConfig:
     smoothing_speed: float = 0.5
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, positive=("smoothing_speed",), non_negative=("coulomb", "viscous"))
 
 
@@ -155,6 +159,7 @@ class JointFrictionConfig:
     viscous: float = 0.05
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, non_negative=("coulomb", "viscous"))
 
 
@@ -175,6 +180,7 @@ class CoggingConfig:
     phase: float = 0.0
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(self, finite=("amplitude", "phase"))
         _check_count(self, "periods_per_revolution", 1)
 
@@ -200,11 +206,17 @@ class SensorNoiseConfig:
     torque_noise: float = 0.005
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         check_numbers(
             self,
             non_negative=("joint_noise", "motor_angle_noise", "tension_noise", "torque_noise"),
             finite=("tension_bias",),
         )
+
+
+#: Longest delay a :class:`DelayConfig` takes, in control periods (40 s at 250 Hz, longer
+#: than any task; a run refuses a delay as long as itself).
+MAX_DELAY_PERIODS = 10_000
 
 
 @dataclass(frozen=True)
@@ -222,8 +234,14 @@ class DelayConfig:
     actuation_periods: int = 0
 
     def __post_init__(self) -> None:
-        _check_count(self, "sensing_periods", 0)
-        _check_count(self, "actuation_periods", 0)
+        check_field_types(self)
+        for name in ("sensing_periods", "actuation_periods"):
+            _check_count(self, name, 0)
+            if getattr(self, name) > MAX_DELAY_PERIODS:  # its buffer would not fit in memory
+                raise ValueError(
+                    f"{name} must be at most {MAX_DELAY_PERIODS} control periods, got "
+                    f"{getattr(self, name)}"
+                )
 
 
 @dataclass(frozen=True)
@@ -247,6 +265,9 @@ class EffectsConfig:
     cogging: CoggingConfig = field(default_factory=CoggingConfig)
     sensor_noise: SensorNoiseConfig = field(default_factory=SensorNoiseConfig)
     delay: DelayConfig = field(default_factory=DelayConfig)
+
+    def __post_init__(self) -> None:
+        check_field_types(self)
 
     def enabled(self) -> list[str]:
         """Names of the effects switched on.
@@ -290,6 +311,8 @@ class PlantConfig:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"name must be a non-empty string, got {self.name!r}")
         check_plant_name(self.name)
+        check_field_types(self)
+        check_numbers(self, positive=("timestep",))
         if not 0 < self.timestep <= 0.001:
             raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
 

@@ -205,6 +205,14 @@ def run_tracking(
             f"task {task.name!r} lasts {task.duration} s: expected at least two control periods "
             f"({2 * period} s) to have a start and an end to measure"
         )
+    delay = plant.config.effects.delay
+    longest = max(delay.sensing_periods, delay.actuation_periods) if delay.enabled else 0
+    if longest >= n_ticks:
+        raise InputError(
+            f"effects.delay: a delay of {longest} control periods is as long as task "
+            f"{task.name!r} ({n_ticks} periods of {period:g} s): the controller would never "
+            "see a reading or the drives a command; expected fewer periods than the task has"
+        )
     check_task_against(task, model)  # a target outside the joint range: refused, not run
     home = np.asarray(task.home, dtype=float)
     zeros = np.zeros(model.n_joints)
