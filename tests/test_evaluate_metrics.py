@@ -152,3 +152,28 @@ def test_a_run_that_ends_before_the_settle_time_has_no_settle_error(arm):
     final = math.dist(_hand(arm, q[149]), _hand(arm, TARGET))
     assert metrics.final_error_mm == pytest.approx(1000.0 * final, rel=1e-9)
     assert metrics.slack_events == (2, 0, 0, 0, 0, 0, 0, 0, 0)  # cable 1's dip comes later
+
+
+def test_hand_jacobian_is_the_finite_difference_of_the_hand_position(arm):
+    from msarm.tasks.evaluate import hand_jacobian
+
+    step = 1e-6
+    columns = [(_hand(arm, TARGET + step * e) - _hand(arm, TARGET)) / step for e in np.eye(4)]
+    np.testing.assert_allclose(hand_jacobian(arm, TARGET), np.column_stack(columns), atol=1e-6)
+
+
+def test_encoder_noise_floor_is_the_mean_hand_error_of_the_encoders_noise(arm):
+    """The closed form (one quadrature) against seeded Monte Carlo: E|J e|, e ~ N(0, s^2 I)."""
+    from msarm.tasks.evaluate import encoder_noise_floor, hand_jacobian
+
+    sigma = 1e-4
+    samples = np.random.default_rng(5).standard_normal((400_000, 4)) * sigma
+    sampled = np.linalg.norm(samples @ hand_jacobian(arm, TARGET).T, axis=1).mean()
+    floor = encoder_noise_floor(arm, TARGET, sigma)
+    assert floor == pytest.approx(sampled, rel=3e-3)
+    # below the RMS sigma * |J|_F (the mean of a norm is less than its RMS), linear in sigma
+    assert floor < sigma * np.linalg.norm(hand_jacobian(arm, TARGET))
+    assert encoder_noise_floor(arm, TARGET, 2 * sigma) == pytest.approx(2 * floor, rel=1e-9)
+    assert encoder_noise_floor(arm, TARGET, 0.0) == 0.0
+    with pytest.raises(ValueError, match="joint_noise"):
+        encoder_noise_floor(arm, TARGET, -1e-4)

@@ -14,6 +14,9 @@ the nominal model, never the plant's ground truth:
 - slack events (a load cell falling below ``SLACK_THRESHOLD``) and the time each tension
   spends outside its bounds ``[min_tension, F_max]`` by more than ``BOUND_TOLERANCE`` (a
   tension held at its lower bound must not count as outside through round-off or noise).
+
+:func:`encoder_noise_floor` gives the final error that the joint encoders' noise alone puts
+on the reading (the floor under the final error metric).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from dataclasses import asdict, dataclass
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
+from scipy.integrate import quad
 from scipy.optimize import minimize
 
 from msarm.model import RobotModel
@@ -30,7 +34,14 @@ from msarm.muscle.batch_kinematics import cable_kinematics_batch
 from msarm.muscle.geometry import joint_grid
 from msarm.tasks import metrics
 
-__all__ = ["TrackingMetrics", "cable_travel", "evaluate_run", "hand_position"]
+__all__ = [
+    "TrackingMetrics",
+    "cable_travel",
+    "encoder_noise_floor",
+    "evaluate_run",
+    "hand_jacobian",
+    "hand_position",
+]
 
 FloatArray = NDArray[np.float64]
 #: Load-cell tension below which a cable counts as slack [N].
@@ -90,6 +101,53 @@ def hand_position(model: RobotModel, q: FloatArray) -> FloatArray:
         mujoco.mj_kinematics(model.mj_model, data)
         out[k] = data.site_xpos[site]
     return out
+
+
+def hand_jacobian(model: RobotModel, q: FloatArray) -> FloatArray:
+    """Jacobian ``dp/dq`` of the hand site's position at posture ``q`` (n,) [m/rad], ``(3, n)``."""
+    data = model.scratch_data().mj
+    data.qpos[:] = q
+    mujoco.mj_kinematics(model.mj_model, data)
+    mujoco.mj_comPos(model.mj_model, data)
+    jacobian = np.zeros((3, model.mj_model.nv))
+    mujoco.mj_jacSite(model.mj_model, data, jacobian, None, model.mj_model.site(HAND_SITE).id)
+    return jacobian
+
+
+def encoder_noise_floor(model: RobotModel, q: FloatArray, joint_noise: float) -> float:
+    """Mean hand-position error [m] that the joint encoders' noise alone puts on one reading.
+
+    The final error is read from one sample of the encoders, each with Gaussian noise of std
+    ``joint_noise``: at posture ``q`` the hand then moves by ``x = J e`` with
+    ``J = dp/dq`` (:func:`hand_jacobian`), ``e ~ N(0, sigma^2 I)``. Returns ``E|x|``, the
+    final error that a run ending exactly on its target reads on average. With the
+    eigenvalues ``l_i`` of ``sigma^2 J J^T``,
+    ``E|x| = (1 / sqrt(pi)) int_0^inf (1 - prod_i (1 + 2 l_i u^2)^(-1/2)) / u^2 du``
+    (from ``sqrt(s) = (2 sqrt(pi))^-1 int_0^inf (1 - exp(-t s)) t^(-3/2) dt``, ``t = u^2``).
+
+    Args:
+        model: The robot.
+        q: Posture [rad], shape ``(n,)`` (the target, where a run ends).
+        joint_noise: Encoder noise std [rad].
+
+    Returns:
+        The mean error [m]; 0 without noise.
+    """
+    if joint_noise < 0 or not np.isfinite(joint_noise):
+        raise ValueError(f"joint_noise must be a finite std >= 0 [rad], got {joint_noise}")
+    jacobian = hand_jacobian(model, np.asarray(q, dtype=float))
+    eigenvalues = np.clip(np.linalg.eigvalsh(joint_noise**2 * jacobian @ jacobian.T), 0, None)
+    scale = float(eigenvalues.max())
+    if scale == 0.0:
+        return 0.0
+    shares = eigenvalues / scale
+
+    def integrand(u: float) -> float:
+        return (1.0 - float(np.prod(1.0 + 2.0 * shares * u * u) ** -0.5)) / (u * u) if u else 0.0
+
+    # near u = 0 the integrand tends to sum(shares), not 0; quad never evaluates u = 0 itself
+    value, _ = quad(integrand, 0.0, np.inf, epsabs=0.0, epsrel=1e-10, limit=200)
+    return float(np.sqrt(scale) * value / np.sqrt(np.pi))
 
 
 _TRAVEL_CACHE: dict[str, FloatArray] = {}

@@ -35,7 +35,7 @@ from msarm.tasks.evaluate import TrackingMetrics, evaluate_run
 from msarm.tasks.runner import LOG_UNITS, TRUTH_UNITS, Feedforward, TrackingRun, run_tracking
 from msarm.tasks.trajectories import Task
 
-__all__ = ["TrackResult", "TrackSettings", "track"]
+__all__ = ["TrackResult", "TrackSettings", "run_title", "track"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,21 @@ class TrackResult:
 
 #: The plots a run writes (and a new run in its folder removes first).
 PLOT_FILES = ("joints.png", "tensions.png")
+
+
+def run_title(task: str, settings: TrackSettings, with_feedforward: bool) -> str:
+    """The title of a run's plots: task, plant, the feedforward if any, the seed if not 0.
+
+    ``"<task> on the <plant> plant[, with feedforward (<checkpoint file name>)][, seed <s>]"``;
+    the checkpoint is named by its file name (``settings.feedforward``), if given.
+    """
+    title = f"{task} on the {settings.plant.name} plant"
+    if with_feedforward:
+        name = Path(settings.feedforward).name if settings.feedforward else ""
+        title += f", with feedforward ({name})" if name else ", with feedforward"
+    if settings.seed != 0:
+        title += f", seed {settings.seed}"
+    return title
 
 
 def track(
@@ -140,7 +155,7 @@ def track(
     if run.error is not None:
         payload["diverged"] = {"time": run.error.time, "message": str(run.error)}
     if plots_too and len(run.columns["t"]) > 1:
-        title = f"{task.name} on the {settings.plant.name} plant"
+        title = run_title(task.name, settings, feedforward is not None)
         files["joints_plot"] = plots.plot_joint_tracking(
             run.columns, model.joint_names, out_dir / "joints.png", title=title
         )
