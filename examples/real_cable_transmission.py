@@ -64,6 +64,8 @@ from msarm.io.atomic import atomic_path, write_json_atomic
 
 FloatArray = NDArray[np.float64]
 
+#: Factor on the RGB of a load's colour for its predicted loop (a darker shade of it).
+PREDICTION_SHADE = 0.55
 #: Environment variable that points at the data folder.
 DATA_ENV = "MSARM_MIS_TOOL_DATA"
 #: Default data folder: ``../shared/data/mis-tool`` relative to the repository root.
@@ -714,12 +716,15 @@ def plot_loops(runs: Sequence[Run], chosen: Sequence[str], path: Path) -> None:
 
     The model ``chosen`` is fitted on the two other pitches. Its terms read only the motion
     and the load, so it predicts the input torque the held-out pitch needs at the jaw,
-    ``load + r_pred`` (dashed), against the measured ``tau_in / k`` (solid).
+    ``load + r_pred`` (dashed, a darker shade of the load's colour), against the measured
+    ``tau_in / k`` (solid). The prediction is drawn from the second cycle of the sine on: a
+    state of the model (Dahl's) starts from zero and takes the first cycle to settle.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
 
     pitches = sorted({r.pitch for r in runs}, reverse=True)
     fig, axes = plt.subplots(2, len(pitches), figsize=(4.2 * len(pitches), 7.5), squeeze=False)
@@ -741,19 +746,39 @@ def plot_loops(runs: Sequence[Run], chosen: Sequence[str], path: Path) -> None:
             pred = result.predict(data.signals.take(mask))[:, 0]
             lost = data.residual[mask, 0]
             colour = "C0" if r.torque_pct == 20.0 else "C3"
+            dark = tuple(PREDICTION_SHADE * c for c in to_rgb(colour))
+            settled = r.t >= r.t[0] + 1.0 / r.freq  # after the first cycle
             ax = axes[0, col]
             ax.plot(tau_ms, -r.tau_out, color=colour, lw=0.8, label=f"measured {r.torque_pct:g}%")
-            ax.plot(-r.tau_out + pred, -r.tau_out, "--", color="k", lw=0.8)
+            ax.plot(
+                (-r.tau_out + pred)[settled],
+                -r.tau_out[settled],
+                "--",
+                color=dark,
+                lw=0.8,
+                label=f"predicted {r.torque_pct:g}%",
+            )
             ax = axes[1, col]
             ax.plot(r.q_out, lost, color=colour, lw=0.8, label=f"measured {r.torque_pct:g}%")
-            ax.plot(r.q_out, pred, "--", color="k", lw=0.8)
+            ax.plot(
+                r.q_out[settled],
+                pred[settled],
+                "--",
+                color=dark,
+                lw=0.8,
+                label=f"predicted {r.torque_pct:g}%",
+            )
         axes[0, col].set_title(f"pitch {np.degrees(pitch):.0f} deg (held out)", fontsize=10)
         axes[0, col].set_xlabel("input torque at the jaw, tau_in / k [N m]")
         axes[0, col].set_ylabel("load (output) torque -tau_out [N m]")
         axes[1, col].set_xlabel("jaw angle q [rad]")
         axes[1, col].set_ylabel("lost torque r [N m]")
         axes[0, col].legend(fontsize=7, title="dashed: " + " + ".join(chosen), title_fontsize=7)
-    fig.suptitle("0.3 Hz, yaw 0; prediction fitted on the two other pitches", fontsize=10)
+    fig.suptitle(
+        "0.3 Hz, yaw 0; prediction (dashed, darker) fitted on the two other pitches, "
+        "drawn after the first cycle",
+        fontsize=10,
+    )
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)

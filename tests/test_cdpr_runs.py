@@ -95,6 +95,11 @@ def test_compare_writes_tables_and_repeatability(
     assert rho_mean == pytest.approx(rho.mean(), rel=1e-12)
     data = json.loads((tmp_path / "cdpr_comparison.json").read_text())
     assert data["tests"]["41"]["controller"] == "nc"
+    # the largest error after the start-up too (path and run as above, seed 0)
+    assert data["start_up_time_s"] == 0.5
+    after = 1000.0 * errors[0][runs[0][2].columns["t"] >= 0.5].max()
+    assert data["tests"]["41"]["max_position_error_after_start_up_mm"] == pytest.approx(after)
+    assert data["switching"] == {}  # test 25 not run
     assert (tmp_path / "forces_test_41.png").is_file()
 
     # a second call takes both runs from tmp_path/runs: no simulation, the same numbers
@@ -343,6 +348,112 @@ def test_the_forces_plot_names_controller_and_trajectory_once(robot, triangle):
     run = run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", trajectory_head(triangle, 5))
     assert forces_title(run).startswith("hc-e on triangle-12 (")
     assert forces_title(run, "test 21").startswith("test 21: hc-e on triangle-12 (")
+    # the plant, seed and options, where given (msarm cdpr run gives all three)
+    title = forces_title(run, "", "ideal", 3, {"fe_feedforward": True, "filter_time": 0.005})
+    assert title.startswith("hc-e on triangle-12, ideal plant, seed 3, ")
+    assert "fe_feedforward=true filter_time=0.005 (" in title
+    assert "default plant, seed 0, no options (" in forces_title(run, "test 21", "default", 0, {})
+
+
+def _saved_figures(monkeypatch) -> list:
+    """The figures ``msarm.plots.save_figure`` writes from now on (still written)."""
+    import msarm.plots
+
+    figures = []
+    save = msarm.plots.save_figure
+    monkeypatch.setattr(
+        msarm.plots, "save_figure", lambda fig, path: figures.append(fig) or save(fig, path)
+    )
+    return figures
+
+
+def _switching_run(trajectory, delta_ms: int = 79):
+    """A made-up HC-e run on the rectangle: the activation of pair 3,4 from t = 0, a switch
+    to pair 1,2 at 1 s, each over ``delta_ms``; a start-up error spike (1.5 mm at 28 ms) and
+    force dip (4.7 N on cable_5 at 26 ms), then a smaller spike (0.9 mm) and dip (6.5 N on
+    cable_4) at the switch."""
+    from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun
+
+    t = trajectory.t[:2000]
+    error = np.full(len(t), 1e-4)
+    error[28], error[1050] = 1.5e-3, 0.9e-3
+    marker = trajectory.position[: len(t)] + np.outer(error, [1.0, 0.0, 0.0])
+    # eq. 10: h = sin^2(alpha), alpha one step delta up at the first cycle already
+    ramp = delta_ms * 1e-3
+    rising = np.sin(0.5 * np.pi * np.clip((t + 1e-3) / ramp, 0.0, 1.0)) ** 2
+    switching = np.sin(0.5 * np.pi * np.clip((t - 0.999) / ramp, 0.0, 1.0)) ** 2
+    columns = {"t": t, **{f"marker.{a}": marker[:, k] for k, a in enumerate("xyz")}}
+    for i in range(8):
+        share = switching if i < 2 else rising - switching if i < 4 else np.zeros(len(t))
+        columns[f"h.cable_{i}"] = share
+    truth = {"t": t, **{f"tension.cable_{i}": np.full(len(t), 10.0) for i in range(8)}}
+    truth["tension.cable_5"][26] = 4.7
+    truth["tension.cable_4"][1040] = 6.5
+    metrics = CdprMetrics(1.5, 0.1, 99.9, 4.7, 10.0, 0.1, True)
+    return CdprRun("hc-e", trajectory.name, columns, truth, metrics)
+
+
+def test_switching_statistics_leave_the_start_up_out():
+    from msarm.tasks.cdpr_compare import START_UP_TIME, switch_intervals, switching_statistics
+
+    assert START_UP_TIME == 0.5  # the trajectories' initial hold
+    run = _switching_run(get_cdpr_trajectory("rectangle-switch"))
+    # the ramps' last samples below h = 1, to a sample's rounding
+    intervals = switch_intervals(run)
+    np.testing.assert_allclose(intervals, [(0.0, 0.077), (1.0, 1.077)], atol=1.5e-3)
+    stats = switching_statistics(run)
+    assert stats["start_up_time_s"] == START_UP_TIME
+    assert stats["whole_run"] == {
+        "max_position_error_mm": pytest.approx(1.5),
+        "max_position_error_time_s": 0.028,
+        "min_force_N": 4.7,
+        "min_force_time_s": 0.026,
+        "min_force_cable": "cable_5",
+    }
+    after = stats["after_start_up"]
+    assert after["max_position_error_mm"] == pytest.approx(0.9)
+    assert after["max_position_error_time_s"] == 1.05
+    assert (after["min_force_N"], after["min_force_cable"]) == (6.5, "cable_4")
+    assert stats["activation_s"] == list(intervals[0])
+    (switch,) = stats["switches"]
+    assert (switch["start_s"], switch["end_s"]) == intervals[1]
+    assert switch["max_position_error_mm"] == pytest.approx(0.9)
+    assert switch["min_force_time_s"] == 1.04
+
+
+def test_the_switching_plot_scales_the_error_to_after_the_start_up(tmp_path, monkeypatch):
+    from msarm.tasks.cdpr_compare import plot_switching
+
+    figures = _saved_figures(monkeypatch)
+    rectangle = get_cdpr_trajectory("rectangle-switch")
+    plot_switching(
+        {0.02: _switching_run(rectangle), 0.5: _switching_run(rectangle, 4)}, tmp_path / "s.png"
+    )
+    (fig,) = figures
+    forces, _, errors, _ = fig.axes
+    assert len(forces.get_lines()) >= 8  # every cable drawn
+    legend = [t.get_text() for t in forces.get_legend().get_texts()]
+    assert "cables 5-8 (paper), never switched" in legend
+    assert "start-up (first 0.5 s), left out" in legend
+    assert "switch starts / ends" in legend
+    # the error axis is set by the largest error after the start-up, the spike named instead
+    assert errors.get_ylim()[1] == pytest.approx(1.3 * 0.9)
+    notes = [t.get_text() for t in errors.texts]
+    assert any(n.startswith("start-up peak 1.50 mm at 0.028 s") for n in notes)
+    assert "after 0.5 s: max error 0.90 mm" in errors.get_title()
+    assert "whole run: max error 1.50 mm" in errors.get_title()
+
+
+def test_the_sensitivity_maps_share_one_scale_that_says_when_it_clips():
+    from msarm.tasks.cdpr_compare import SIGMA_CLIP, sigma_colour_scale
+
+    low = [np.array([[1.0, np.nan], [2.0, 3.0]]), np.array([[1.5, 3.5]])]
+    norm, extend, label = sigma_colour_scale(low)
+    assert (norm.vmin, norm.vmax, extend) == (0.0, SIGMA_CLIP, "neither")
+    assert "clipped" not in label
+    norm, extend, label = sigma_colour_scale([*low, np.array([[6.0]])])
+    assert (norm.vmax, extend) == (SIGMA_CLIP, "max")
+    assert "clipped at 4 N" in label
 
 
 def test_fe_feedforward_holds_hc_e_position_controlled_cables_at_their_set_length(robot):
@@ -382,6 +493,7 @@ def test_cdpr_run_takes_controller_options(tmp_path, monkeypatch):
         with pytest.raises(InputError, match=message):
             controller_options(bad)
     monkeypatch.chdir(tmp_path)
+    figures = _saved_figures(monkeypatch)
     args = ["cdpr", "run", "--controller", "hc-e", "--option", "fe_feedforward=true", "--json"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -390,6 +502,13 @@ def test_cdpr_run_takes_controller_options(tmp_path, monkeypatch):
     assert config["controller_options"] == {"fe_feedforward": True}
     # the feed-forward brings HC-e's mean error to HC-f's (0.26 mm on triangle-12)
     assert json.loads(result.output)["mean_position_error_mm"] < 0.35
+    # forces.png names the plant, the seed and the options, and what its line is
+    (fig,) = figures
+    assert "hc-e on triangle-12, default plant, seed 0, fe_feedforward=true (" in (
+        fig._suptitle.get_text()
+    )
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert labels[0] == "true force (simulation)"
     wrong = CliRunner().invoke(app, ["cdpr", "run", "--controller", "hc-f", "--option", "x=1"])
     assert wrong.exit_code != 0 and "invalid option" in str(wrong.exception)
 

@@ -247,3 +247,62 @@ def test_parameters_are_compared_with_the_plants_by_hand():
         "scenarios": 2,
     }
     assert summary["winch_friction"]["viscous"]["median"] == pytest.approx(0.5)
+
+
+def test_the_confusion_columns_put_the_right_answers_on_the_diagonal():
+    from msarm.diagnose.bench import confusion_columns
+
+    truths = ["sheath_friction", "winch_friction", "elasticity", "null"]
+    named = ["sheath_stretch", "capstan", "winch_friction", "coulomb", "none", "dahl"]
+    # each row's candidates named, in the registry's order; elasticity was never named
+    # first: its column is there, empty; then the wrong answers, alphabetically
+    assert confusion_columns(truths, named) == [
+        "capstan",
+        "sheath_stretch",
+        "winch_friction",
+        "elasticity",
+        "none",
+        "coulomb",
+        "dahl",
+    ]
+    # "none" named in an effect's row only: a wrong answer, after the others
+    assert confusion_columns(["cogging"], ["none", "viscous"]) == [
+        "motor_cogging",
+        "viscous",
+        "none",
+    ]
+
+
+def test_the_confusion_plot_orders_its_columns_and_names_its_scenarios(tmp_path, monkeypatch):
+    import msarm.plots
+    from msarm.diagnose.bench import plot_benchmark
+
+    def scenario(effects, ours, theirs):
+        return {"effects": effects, "msarm": {"names": ours}, "sindy": {"names": theirs}}
+
+    report = {
+        "scenarios": [
+            scenario(["delay"], ["command_delay"], ["viscous"]),
+            scenario(["cogging"], ["motor_cogging"], []),
+            scenario([], [], ["coulomb"]),
+            scenario(["delay", "cogging"], ["command_delay"], []),
+        ],
+        "summary": {
+            m: {"top1_accuracy": 0.5, "false_alarms": 0, "null_scenarios": 1}
+            for m in ("msarm", "sindy")
+        },
+    }
+    figures = []
+    save = msarm.plots.save_figure
+    monkeypatch.setattr(
+        msarm.plots, "save_figure", lambda fig, path: figures.append(fig) or save(fig, path)
+    )
+    plot_benchmark(report, tmp_path / "confusion.png")
+    (fig,) = figures
+    rows = [t.get_text() for t in fig.axes[0].get_yticklabels()]
+    assert rows == ["cogging", "delay", "null"]
+    for ax in fig.axes[:2]:
+        columns = [t.get_text() for t in ax.get_xticklabels()]
+        assert columns[:3] == ["motor_cogging", "command_delay", "none"]
+    assert "3 single-effect and null scenarios" in fig._suptitle.get_text()
+    assert "two-effect scenarios left out: 1" in fig._suptitle.get_text()

@@ -283,8 +283,11 @@ def test_the_report_says_which_gain_is_which_and_explains_its_terms(
     notes = []
     save = msarm.plots.save_figure
 
+    legends = []
+
     def saved(fig, path):
         notes.append((fig._suptitle.get_text(), fig._supxlabel.get_text()))
+        legends.append([t.get_text() for legend in fig.legends for t in legend.get_texts()])
         return save(fig, path)
 
     monkeypatch.setattr(msarm.plots, "save_figure", saved)
@@ -292,6 +295,26 @@ def test_the_report_says_which_gain_is_which_and_explains_its_terms(
     title, note = notes[0]
     assert "final model" in title and "selection order" in title
     assert "share of the nominal model's RMSE" in note and "not the gain when selected" in note
+    # the bar colours are named: the nominal bar, the effect's bars and the drop each shows
+    assert legends[0][0] == "nominal model"
+    assert "after an effect acting on this group" in legends[0]
+    assert "the step's drop" in legends[0] and "final RMSE" in legends[0]
+
+
+def test_the_waterfall_legend_names_each_colour_drawn():
+    from msarm.diagnose.report import _waterfall_legend
+
+    every = {"nominal", "kept", "other", "drop", "rise", "final"}
+    labels = [a.get_label() for a in _waterfall_legend(every)]
+    assert labels == [
+        "nominal model",
+        "after an effect acting on this group",
+        "after an effect on other groups only",
+        "the step's drop",
+        "the step's rise",
+        "final RMSE",
+    ]
+    assert [a.get_label() for a in _waterfall_legend({"nominal"})] == ["nominal model"]
 
 
 def test_cli_refuses_unknown_candidates_and_bad_boot(friction_logs, tmp_path):

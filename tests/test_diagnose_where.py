@@ -351,6 +351,42 @@ def test_markdown_and_heat_map(arm, residuals, tmp_path):
         assert break_down(residuals["joint_friction"], kind=kind).unit in ("m", "rad")
 
 
+def _saved_figures(monkeypatch) -> list:
+    """The figures ``msarm.plots.save_figure`` writes from now on (still written)."""
+    import msarm.plots
+
+    figures = []
+    save = msarm.plots.save_figure
+
+    def keep(fig, path):
+        figures.append(fig)
+        return save(fig, path)
+
+    monkeypatch.setattr(msarm.plots, "save_figure", keep)
+    return figures
+
+
+def test_the_heat_map_shows_degrees_millimetres_and_names_the_even_share(
+    arm, residuals, tmp_path, monkeypatch
+):
+    figures = _saved_figures(monkeypatch)
+    breakdown = break_down(residuals["joint_friction"], kind="cable_length", model=arm)
+    plot_heatmap(breakdown, tmp_path / "where.png")
+    grid, channels, _ = figures[-1].axes[:3]
+    assert grid.get_xlabel().endswith("[deg]") and grid.get_ylabel().endswith("[deg]")
+    x0, x1 = sorted(grid.get_xlim())
+    edges = np.degrees(breakdown.posture_edges[1])
+    assert (x0, x1) == pytest.approx((edges[0], edges[-1]))
+    colourbar = figures[-1].axes[-1]
+    assert colourbar.get_ylabel() == "cable_length RMS [mm]"
+    mesh = grid.collections[0]
+    finite = np.isfinite(breakdown.posture_rms)
+    assert mesh.get_array().compressed() == pytest.approx(1000 * breakdown.posture_rms[finite])
+    legend = [t.get_text() for t in channels.get_legend().get_texts()]
+    assert legend == [f"even share (100 % / {len(breakdown.group('channel'))})"]
+    assert breakdown.unit == "m"  # the data stay SI
+
+
 def _replay_one_window_at_a_time(work, q_log, q_start, qd_start, tension, dt, spec, lost):
     """The reference: each window integrated alone, sample by sample."""
     from msarm.diagnose.residuals import _REPLAY_LIMIT

@@ -111,3 +111,32 @@ def test_withheld_pitch_wrap_from_pitch_does_not_help(pitch_folds):
     wrap = np.array([ex.held_out_score(("dahl", "capstan_load_pitch"), f)[0] for f in pitch_folds])
     assert np.all(wrap - blind < 0.01)
     assert wrap.mean() < blind.mean()
+
+
+def test_the_loops_plot_draws_each_prediction_in_its_load_s_colour(runs, tmp_path, monkeypatch):
+    """Predictions dashed, each a darker shade of its load's colour, from the second cycle."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+
+    close = plt.close
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)
+    ex.plot_loops(runs, ("dahl", "capstan_load"), tmp_path / "loops.png")
+    (fig,) = figures
+    try:
+        for ax in fig.axes:  # the two rows of each pitch
+            lines = ax.get_lines()
+            measured = [line for line in lines if line.get_linestyle() == "-"]
+            predicted = [line for line in lines if line.get_linestyle() == "--"]
+            assert len(measured) == len(predicted) == 2  # the 20 % and 80 % loads
+            shades = []
+            for solid, dashed in zip(measured, predicted, strict=True):
+                colour, dark = np.array(to_rgb(solid.get_color())), to_rgb(dashed.get_color())
+                assert np.allclose(dark, ex.PREDICTION_SHADE * colour)
+                assert dashed.get_label().replace("predicted", "measured") == solid.get_label()
+                # the first cycle of the sine (1 / freq) is not drawn: at 0.3 Hz, 3.3 s of 20 s
+                assert 0.75 < len(dashed.get_xdata()) / len(solid.get_xdata()) < 0.9
+                shades.append(dark)
+            assert shades[0] != shades[1]
+    finally:
+        close(fig)

@@ -245,7 +245,9 @@ def run_command(
         },
         folder / "config.yaml",
     )
-    files["forces_plot"] = plot_forces(run, model, folder / "forces.png")
+    files["forces_plot"] = plot_forces(
+        run, model, folder / "forces.png", plant=plant_config.name, seed=seed, options=options
+    )
     payload["files"] = {k: str(v) for k, v in files.items()}
     if json_output:
         typer.echo(json.dumps(payload, indent=2))

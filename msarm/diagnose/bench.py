@@ -76,6 +76,7 @@ __all__ = [
     "EFFECT_GROUPS",
     "BenchCacheWarning",
     "BenchSettings",
+    "confusion_columns",
     "plot_benchmark",
     "run_diagnosis_benchmark",
     "summarise",
@@ -535,9 +536,11 @@ def _mean_seconds(rows: list[dict[str, Any]], method: str, key: str) -> float | 
 def plot_benchmark(report: dict[str, Any], path: str | Path) -> Path:
     """Confusion of each method: the plant's effect (rows) against the first term named.
 
-    Single-effect scenarios give one row per effect class, null plants the row ``null``;
-    columns are the candidates named first (``none`` when nothing was named). Cell numbers
-    count scenarios; the diagonal (the effect's own candidates) is outlined.
+    Single-effect scenarios give one row per effect class, null plants the row ``null``
+    (two-effect scenarios are left out); columns are the candidates named first (``none``
+    when nothing was named), ordered by :func:`confusion_columns` so that the right answers
+    (the effect's own candidates, outlined) run down the diagonal. Cell numbers count
+    scenarios.
 
     Args:
         report: The report of :func:`run_diagnosis_benchmark`.
@@ -555,7 +558,7 @@ def plot_benchmark(report: dict[str, Any], path: str | Path) -> Path:
         axes, ("msarm", "sindy"), ("msarm diagnosis", "PySINDy"), strict=True
     ):
         named = [r[method]["names"][0] if r[method]["names"] else "none" for r in rows]
-        columns = sorted(set(named), key=lambda n: (n == "none", n))
+        columns = confusion_columns(truths, named)
         counts = np.zeros((len(truths), len(columns)), dtype=int)
         for r, first in zip(rows, named, strict=True):
             truth = r["effects"][0] if r["effects"] else "null"
@@ -563,10 +566,7 @@ def plot_benchmark(report: dict[str, Any], path: str | Path) -> Path:
         ax.imshow(counts, cmap="Blues", aspect="auto")
         for i, truth in enumerate(truths):
             for j, column in enumerate(columns):
-                right = column in EFFECT_CANDIDATES.get(truth, ()) or (
-                    truth == "null" and column == "none"
-                )
-                if right:
+                if column in _right_answers(truth):
                     ax.add_patch(
                         plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=2, ec="tab:green")
                     )
@@ -583,8 +583,42 @@ def plot_benchmark(report: dict[str, Any], path: str | Path) -> Path:
             f"{title}: top-1 {'n/a' if accuracy is None else f'{accuracy:.0%}'}, "
             f"false alarms {summary['false_alarms']}/{summary['null_scenarios']}"
         )
-    fig.suptitle("Withheld-effect benchmark: which term each method names first")
+    left_out = len(report["scenarios"]) - len(rows)
+    fig.suptitle(
+        "Withheld-effect benchmark: which term each method names first, on the "
+        f"{len(rows)} single-effect and null scenarios"
+        + (f" (two-effect scenarios left out: {left_out})" if left_out else "")
+    )
     return save_figure(fig, path)
+
+
+def _right_answers(truth: str) -> tuple[str, ...]:
+    """The first terms that count as right in a row: its effect's candidates (null: ``none``)."""
+    return ("none",) if truth == "null" else EFFECT_CANDIDATES.get(truth, ())
+
+
+def confusion_columns(truths: list[str], named: list[str]) -> list[str]:
+    """The confusion matrix's columns, so that the right answers form its diagonal.
+
+    For each row in turn, its right answers (:func:`_right_answers`) that some scenario
+    named first, or its first right answer when none did (an empty column: the row's misses
+    then lie off the diagonal); then the other names named, alphabetically, ``none`` last.
+
+    Args:
+        truths: The rows, in display order.
+        named: The first term named in each scenario (``none`` when nothing was).
+
+    Returns:
+        The columns, each once.
+    """
+    seen = set(named)
+    columns: list[str] = []
+    for truth in truths:
+        right = _right_answers(truth)
+        chosen = [c for c in right if c in seen] or list(right[:1])
+        columns += [c for c in chosen if c not in columns]
+    columns += sorted((n for n in seen if n not in columns), key=lambda n: (n == "none", n))
+    return columns
 
 
 def _row_order(name: str) -> tuple[int, str]:

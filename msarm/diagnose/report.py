@@ -53,6 +53,10 @@ REPORT_FILES = {
 
 _KIND = re.compile(r"^[A-Za-z0-9_.-]+$")
 _COLOURS = {"nominal": "0.55", "kept": "tab:blue", "drop": "tab:green", "rise": "tab:red"}
+#: Colour of a waterfall bar after an effect that acts on other groups only.
+_OTHER_GROUPS = "0.8"
+#: Width the waterfall's legend adds to the figure [in].
+_LEGEND_WIDTH = 3.0
 
 
 def _check_diagnosis(diagnosis: Diagnosis) -> None:
@@ -86,7 +90,8 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
     shaded (green, red for a rise) and labelled with the RMSE and the drop's size in % of the
     nominal RMSE (a grey bar, an effect on other groups that leaves this one unchanged, is not
     labelled). The panel title gives the group's total shrink ``1 - RMSE_after /
-    RMSE_nominal``. With nothing selected, each panel has the nominal bar only.
+    RMSE_nominal``. With nothing selected, each panel has the nominal bar only. A legend
+    (:func:`_waterfall_legend`) names the colours that the figure uses.
 
     Args:
         diagnosis: The diagnosis.
@@ -105,9 +110,14 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
     groups = diagnosis.groups
     width = max(4.2, 1.0 + 0.9 * len(labels))
     fig, axes = plt.subplots(
-        1, len(groups), figsize=(width * len(groups), 4.4), squeeze=False, layout="constrained"
+        1,
+        len(groups),
+        figsize=(width * len(groups) + _LEGEND_WIDTH, 4.6),
+        squeeze=False,
+        layout="constrained",
     )
     x = np.arange(len(labels))
+    used: set[str] = {"nominal"}  # the legend's entries: the colours drawn
     for ax, g in zip(axes[0], groups, strict=True):
         unit = GROUP_UNITS[g]
         values = np.array([step[g] for step in diagnosis.waterfall], dtype=float)
@@ -115,11 +125,14 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
         acts = [True] + [g in s.groups for s in diagnosis.selected]
         acts += [True] * (len(values) - len(acts))
         colours = [_COLOURS["nominal"]] + [
-            _COLOURS["kept"] if a else "0.8" for a in acts[1 : len(values)]
+            _COLOURS["kept"] if a else _OTHER_GROUPS for a in acts[1 : len(values)]
         ]
         ax.bar(x, values, color=colours, width=0.6, zorder=2)
+        used.update("kept" if a else "other" for a in acts[1 : len(values)])
         for k in range(1, len(values)):
             drop = values[k - 1] - values[k]
+            if drop != 0:
+                used.add("drop" if drop > 0 else "rise")
             ax.bar(
                 x[k],
                 abs(drop),
@@ -156,6 +169,7 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
         )
         if len(values) > 1:
             ax.axhline(values[-1], color="k", lw=0.8, ls="--", zorder=1)
+            used.add("final")
         ax.set_xticks(x, labels, rotation=25, ha="right")
         ax.set_ylabel(f"pooled held-out RMSE [{unit}]")
         ax.set_ylim(0.0, 1.22 * max(float(values.max()), 1e-300))  # room for two-line labels
@@ -163,17 +177,40 @@ def plot_waterfall(diagnosis: Diagnosis, path: str | Path) -> Path:
         ax.set_title(f"{g}: shrink {100 * shrink:.1f} %")
         ax.set_xlim(-0.6 if len(x) > 1 else -1.5, x[-1] + (0.6 if len(x) > 1 else 1.5))
         ax.grid(axis="y", alpha=0.3, zorder=0)
+    fig.legend(
+        handles=_waterfall_legend(used), loc="outside right center", fontsize=8, frameon=False
+    )
     fig.suptitle(
-        "held-out gap after each selected effect: the final model, its terms added in "
+        "held-out gap after each selected effect:\nthe final model, its terms added in "
         "selection order" + ("" if diagnosis.selected else " (nothing selected)")
     )
     fig.supxlabel(
-        "bars: pooled held-out RMSE of the residual; labels: RMSE and the step's change as a "
-        "share of the nominal model's RMSE (not the gain when selected, an explained-energy "
-        "share from the fit at that step)",
+        "bars: pooled held-out RMSE of the residual; labels: RMSE and the step's change\n"
+        "as a share of the nominal model's RMSE (not the gain when selected,\n"
+        "an explained-energy share from the fit at that step)",
         fontsize=8,
     )
     return save_figure(fig, path)
+
+
+def _waterfall_legend(used: set[str]) -> list:
+    """Proxy artists for the waterfall's colours, those in ``used`` (in a fixed order)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    def shaded(kind: str, label: str) -> Patch:
+        colour = _COLOURS[kind]
+        return Patch(facecolor=colour, alpha=0.3, hatch="//", edgecolor=colour, label=label)
+
+    entries = {
+        "nominal": Patch(facecolor=_COLOURS["nominal"], label="nominal model"),
+        "kept": Patch(facecolor=_COLOURS["kept"], label="after an effect acting on this group"),
+        "other": Patch(facecolor=_OTHER_GROUPS, label="after an effect on other groups only"),
+        "drop": shaded("drop", "the step's drop"),
+        "rise": shaded("rise", "the step's rise"),
+        "final": Line2D([], [], color="k", lw=0.8, ls="--", label="final RMSE"),
+    }
+    return [artist for kind, artist in entries.items() if kind in used]
 
 
 def plot_gap(diagnosis: Diagnosis, path: str | Path) -> Path:

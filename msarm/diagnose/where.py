@@ -71,6 +71,7 @@ __all__ = [
     "HOT_SPOT_SAMPLES",
     "LOAD_PHASES",
     "MOTION_PHASES",
+    "PLOT_UNITS",
     "BreakdownRow",
     "GapBreakdown",
     "PhaseSettings",
@@ -563,8 +564,17 @@ def diagnose_where(
     return break_down(runs, kind, settings, posture_joints, bins, model)
 
 
+#: Residual unit -> (the unit a plot shows it in, the factor from SI): joint angles in
+#: degrees, cable lengths in mm (the breakdown and its JSON stay in SI units).
+PLOT_UNITS = {"rad": ("deg", 180.0 / np.pi), "m": ("mm", 1000.0)}
+
+
 def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
     """Plot the residual RMS over the posture grid and the channel and phase shares.
+
+    The posture grid's joints are drawn in degrees and a residual in rad or m in deg or mm
+    (:data:`PLOT_UNITS`); the channel panel's dashed line is the even share, 100 % over the
+    number of channels.
 
     Args:
         breakdown: The breakdown.
@@ -577,15 +587,18 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), layout="constrained")
     ax = axes[0]
-    ea, eb = breakdown.posture_edges
-    grid = np.ma.masked_invalid(breakdown.posture_rms)
+    angle_unit, to_angle = PLOT_UNITS["rad"]  # the grid's joints are hinges (rad)
+    ea, eb = (to_angle * np.asarray(e) for e in breakdown.posture_edges)
+    unit, scale = PLOT_UNITS.get(breakdown.unit, (breakdown.unit, 1.0))
+    rms = scale * np.asarray(breakdown.posture_rms)
+    grid = np.ma.masked_invalid(rms)
     mesh = ax.pcolormesh(eb, ea, grid, cmap="magma", shading="flat")
-    fig.colorbar(mesh, ax=ax, label=f"{breakdown.kind} RMS [{breakdown.unit}]")
+    fig.colorbar(mesh, ax=ax, label=f"{breakdown.kind} RMS [{unit}]")
     for i in range(len(ea) - 1):
         for k in range(len(eb) - 1):
             count = breakdown.posture_samples[i, k]
             if count:
-                value = breakdown.posture_rms[i, k]
+                value = rms[i, k]
                 # dark text on magma's light end, light text on its dark end
                 light = np.isfinite(value) and mesh.norm(value) > 0.6
                 ax.text(
@@ -597,8 +610,8 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
                     fontsize=7,
                     color="black" if light else "white",
                 )
-    ax.set_xlabel(f"{breakdown.posture_joints[1]} [rad]")
-    ax.set_ylabel(f"{breakdown.posture_joints[0]} [rad]")
+    ax.set_xlabel(f"{breakdown.posture_joints[1]} [{angle_unit}]")
+    ax.set_ylabel(f"{breakdown.posture_joints[0]} [{angle_unit}]")
     ax.set_title("residual RMS over posture (numbers: samples)")
 
     for ax, groups, title in (
@@ -613,13 +626,15 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
             ax.plot([r.time_share for r in rows], y, "k.", label="time share")
             ax.legend(loc="lower right")
         else:
-            ax.axvline(100.0 / max(1, len(rows)), color="k", lw=0.8, ls="--")
+            even = 100.0 / max(1, len(rows))
+            ax.axvline(even, color="k", lw=0.8, ls="--", label=f"even share (100 % / {len(rows)})")
+            ax.legend(loc="lower right")
         ax.set_yticks(y, [f"{r.where} ({r.group})" if len(groups) > 1 else r.where for r in rows])
         ax.invert_yaxis()
         ax.set_xlabel("%")
         ax.set_title(title)
     fig.suptitle(
         f"Where the gap lies: {breakdown.kind} residual, {len(breakdown.sources)} log(s), "
-        f"{breakdown.samples} samples, RMS {breakdown.rms:.3g} {breakdown.unit}"
+        f"{breakdown.samples} samples, RMS {scale * breakdown.rms:.3g} {unit}"
     )
     return save_figure(fig, path)
