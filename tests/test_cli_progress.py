@@ -316,10 +316,15 @@ def test_a_write_removes_stale_temp_files_of_its_own_target_only(tmp_path):
 
 
 def test_sigterm_unwinds_the_command_and_removes_its_temp_file(monkeypatch, tmp_path, capsys):
+    import warnings
+
+    import mujoco
+
     import msarm.cli
     from msarm.io.atomic import atomic_path
 
     before = signal.getsignal(signal.SIGTERM)
+    shown_before, mujoco_before = warnings.showwarning, mujoco.get_mju_user_warning()
 
     def killed(**kwargs):
         with atomic_path(tmp_path / "checkpoint.pt") as tmp:
@@ -338,6 +343,9 @@ def test_sigterm_unwinds_the_command_and_removes_its_temp_file(monkeypatch, tmp_
     assert capsys.readouterr().err == "msarm: terminated\n"
     assert list(tmp_path.iterdir()) == []  # neither the target nor its temporary file
     assert signal.getsignal(signal.SIGTERM) == before  # the handler is given back
+    # and so are the warnings' and MuJoCo's (msarm's stayed installed after main returned)
+    assert warnings.showwarning is shown_before
+    assert mujoco.get_mju_user_warning() is mujoco_before
 
 
 def test_a_sigterm_that_ipopt_swallows_still_ends_the_fit(monkeypatch):

@@ -207,3 +207,4 @@ def main() -> None:
         mujoco.set_mju_user_warning(previous_mujoco_warning)
         for text in repeats.summary():
             print(f"msarm: warning: {text}", file=sys.stderr)
+        warnings.showwarning = default_show  # as it was, for code that runs after the command

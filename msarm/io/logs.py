@@ -82,6 +82,7 @@ __all__ = [
     "check_increasing_time",
     "check_standard_units",
     "nominal_step",
+    "regular_steps",
     "read_log",
     "read_log_with_missing_values",
     "read_model_sha256",
@@ -107,7 +108,7 @@ _TRUTH_PREFIX = "msarm_truth."
 _SIDECAR_SUFFIX = ".truth.parquet"
 #: Name of the time column.
 TIME = "t"
-#: A time step longer than this many median steps is a gap, left out of the nominal step.
+#: A time step longer than this many nominal steps is a gap, left out of the nominal step.
 NOMINAL_STEP_GAP = 1.5
 _QUANTITY_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -611,13 +612,37 @@ def check_increasing_time(
         )
 
 
+def regular_steps(t: FloatArray) -> FloatArray:
+    """The steps of sample times that are not gaps, in the unit of ``t``.
+
+    A first estimate of the step is the mean of the steps up to twice the median (so that
+    time stamps rounded to a coarser unit than the step keep both of their roundings: at
+    700 Hz in whole milliseconds the steps are 1 and 2 ms, the median 1 ms); then the steps
+    shorter than :data:`NOMINAL_STEP_GAP` times the estimate are kept and averaged again,
+    until that settles (a dropped sample, a step of twice the estimate, is left out).
+
+    Args:
+        t: Sample times, shape ``(T,)`` with ``T >= 2``, strictly increasing.
+
+    Returns:
+        The regular steps, shape ``(k,)``, ``k >= 1``.
+    """
+    steps = np.diff(np.asarray(t, dtype=float))
+    regular = steps[steps <= 2.0 * np.median(steps)]
+    for _ in range(20):
+        kept = steps[steps < NOMINAL_STEP_GAP * float(np.mean(regular))]
+        if kept.size == regular.size:
+            break
+        regular = kept
+    return regular
+
+
 def nominal_step(t: FloatArray) -> float:
     """The nominal time step of sample times: the mean of the steps between gaps.
 
-    The steps shorter than :data:`NOMINAL_STEP_GAP` times the median step (a longer one is a
-    gap) are averaged: time stamps rounded to a coarser unit than the step (300 Hz in whole
-    milliseconds: steps of 3, 3, 4 ms) have the median of one rounding, but their mean is
-    the step.
+    The mean of :func:`regular_steps`: time stamps rounded to a coarser unit than the step
+    (300 Hz in whole milliseconds: steps of 3, 3, 4 ms; 700 Hz: 1 and 2 ms) have the median
+    of one rounding, but their mean is the step.
 
     Args:
         t: Sample times, shape ``(T,)`` with ``T >= 2``, strictly increasing.
@@ -625,8 +650,7 @@ def nominal_step(t: FloatArray) -> float:
     Returns:
         The nominal step, in the unit of ``t``.
     """
-    steps = np.diff(np.asarray(t, dtype=float))
-    return float(np.mean(steps[steps < NOMINAL_STEP_GAP * np.median(steps)]))
+    return float(np.mean(regular_steps(t)))
 
 
 def same_unit(a: str, b: str) -> bool:

@@ -46,13 +46,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError, LogError, MsarmWarning
 from msarm.io.logs import (
-    NOMINAL_STEP_GAP,
     STANDARD_UNITS,
     TIME,
     LogMetadata,
     RunLog,
     check_increasing_time,
     nominal_step,
+    regular_steps,
     same_unit,
     split_channel,
 )
@@ -325,14 +325,18 @@ def _header(path: Path, source: str) -> list[str]:
 
     import pyarrow as pa
 
-    line = b""
+    text = b""
     try:
         with pa.input_stream(path, compression="detect") as stream:
-            while b"\n" not in line and (chunk := stream.read(1 << 16)):
-                line += chunk
+            # the first line with something on it: pyarrow skips empty lines before the header
+            while not text.lstrip(b"\xef\xbb\xbf\r\n").count(b"\n") and (
+                chunk := stream.read(1 << 16)
+            ):
+                text += chunk
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{source}: not a readable CSV file: {exc}") from None
-    first = line.split(b"\n", 1)[0].decode("utf-8", errors="replace").removeprefix("\ufeff")
+    lines = text.decode("utf-8", errors="replace").removeprefix("\ufeff").split("\n")
+    first = next((line for line in lines if line.strip("\r")), "")
     return next(csv.reader([first.rstrip("\r")]), [])
 
 
@@ -566,6 +570,25 @@ def _check_step_kept(t: FloatArray, rate: float, source: str) -> None:
         )
 
 
+def _roundest_rate(rate: float, regular: FloatArray, n_gaps: int) -> float:
+    """The rate [Hz] with the fewest digits that the time stamps cannot tell from ``rate``.
+
+    Time stamps rounded to a unit ``q`` (the spread of the regular steps) give a mean step
+    that is off by up to about ``q (1 + n_gaps) / (sum of the regular steps)`` relative (the
+    roundings of the ends of the stretches): so two logs of one robot, of other lengths,
+    would get rates that differ in their fifth digit (300 and 300.03 Hz) and could not be
+    diagnosed together. The rate is rounded to the fewest decimals within that uncertainty,
+    and to six significant digits at most (evenly stamped times: no uncertainty to speak of).
+    """
+    quantum = float(regular.max() - regular.min())
+    uncertainty = rate * quantum * (1 + n_gaps) / float(regular.sum())
+    for decimals in range(-3, 7):
+        candidate = round(rate, decimals)
+        if candidate > 0 and abs(candidate - rate) <= uncertainty:
+            return float(f"{candidate:.{_RATE_DIGITS}g}")
+    return float(f"{rate:.{_RATE_DIGITS}g}")
+
+
 def _sample_rate(
     t: FloatArray, given: float | None, time_column: str, time_unit: str, source: str
 ) -> float:
@@ -588,8 +611,9 @@ def _sample_rate(
                 f"{source}: the sample rate cannot be taken from one sample; give it (--rate)"
             )
         return float(given)
-    step = nominal_step(t)
-    measured = float(f"{1.0 / step:.{_RATE_DIGITS}g}")
+    regular = regular_steps(t)
+    step = float(np.mean(regular))
+    measured = _roundest_rate(1.0 / step, regular, len(t) - 1 - regular.size)
     rate = measured if given is None else float(given)
     low, high = RATE_RANGE_HZ
     if not low <= rate <= high:
@@ -605,8 +629,6 @@ def _sample_rate(
             f"mean step of {step:.6g} s ({measured:g} Hz; gaps left out); give the rate the "
             "file was logged at, or leave --rate out to take it from the time"
         )
-    steps = np.diff(t)
-    regular = steps[steps < NOMINAL_STEP_GAP * np.median(steps)]
     spread = float(np.std(regular)) / step
     if spread > _JITTER_WARNING:
         scale = TIME_UNITS[time_unit]
