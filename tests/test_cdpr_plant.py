@@ -492,7 +492,7 @@ def test_a_plant_file_that_is_not_yaml_gives_one_line(tmp_path):
     assert message.startswith(f"{path}: not valid YAML: line 3, column ")
 
 
-@pytest.mark.parametrize("name", ["a/b", "../../x", "", ".hidden", "-x", "a b"])
+@pytest.mark.parametrize("name", ["a/b", "../../x", "", ".hidden", "-x", "a b", "lab-delta=0.5"])
 def test_plant_names_must_be_simple_identifiers(name):
     with pytest.raises(ValueError, match="name must be a simple identifier"):
         CdprPlantConfig(name=name)

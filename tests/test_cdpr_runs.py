@@ -173,6 +173,56 @@ def test_cdpr_run_command(tmp_path):
     assert payload["force_rms_error"] is None  # NC keeps its own mean force, not the distribution
 
 
+@pytest.mark.usefixtures("short_cdpr_trajectories")
+def test_a_cdpr_run_cut_off_leaves_no_mix_of_two_runs_nor_an_empty_folder(
+    monkeypatch, tmp_path, capsys
+):
+    """A SIGTERM while the plot was drawn (about 5 s after the other files) left the new
+    log, metrics and config beside the old run's forces.png; one during the simulation left
+    an empty run folder behind."""
+    import os
+    import signal
+    import sys
+    import time
+
+    import msarm.cli
+    import msarm.tasks.cdpr_compare as cdpr_compare
+    import msarm.tasks.cdpr_runner as cdpr_runner
+    from msarm.cli import common
+
+    def killed(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(10)  # interrupted by the handler
+        raise AssertionError("not terminated")
+
+    def cut_off(folder, where):
+        with monkeypatch.context() as patch:
+            patch.setattr(*where, killed)
+            patch.setattr(sys, "argv", ["msarm", "cdpr", "run", "--controller", "ikc", "--out"])
+            sys.argv.append(str(folder))
+            with pytest.raises(SystemExit) as exit_:
+                msarm.cli.main()
+        assert exit_.value.code == 128 + signal.SIGTERM
+        assert capsys.readouterr().err.endswith("msarm: terminated\n")
+
+    folder = tmp_path / "run"
+    old = CliRunner().invoke(app, ["cdpr", "run", "--controller", "ikc", "--out", str(folder)])
+    assert old.exit_code == 0, old.output
+    written = {p.name for p in folder.iterdir()}
+    assert {"metrics.json", "forces.png", "log.parquet"} <= written
+    cut_off(folder, (cdpr_compare, "plot_forces"))  # the last file before metrics.json
+    left = sorted(p.name for p in folder.iterdir())
+    assert "metrics.json" not in left and "forces.png" not in left  # no whole run, no old plot
+    assert (folder / "log.parquet").is_file()  # the new run's
+    monkeypatch.setattr(common, "CREATED_FOLDERS", [])
+    fresh = tmp_path / "new" / "run"
+    cut_off(fresh, (cdpr_runner, "run_cdpr"))  # during the simulation
+    assert not (tmp_path / "new").exists()
+    from msarm.cli.cdpr import RUN_FILES  # what a run removes first: all it writes
+
+    assert set(RUN_FILES) == written and RUN_FILES[0] == "metrics.json"
+
+
 def test_sensitivity_map_shows_each_pair_good_on_its_side(robot, tmp_path):
     from msarm.cdpr.sensitivity import sensitivity_map
     from msarm.tasks.cdpr_compare import MAP_HEIGHT, plot_sensitivity
@@ -265,7 +315,8 @@ def test_a_controller_modelling_other_winches_than_the_plants_is_warned_about(ro
     for controller in ("hc-tau", "hc-e"):
         with pytest.warns(
             MsarmWarning,
-            match=rf"'{controller}'.*drum radius \[m\] 0.02 \(the plant's 0.03\) on plant 'big'",
+            match=rf"'{controller}'.*drum radius r_D \[m\] 0.02 \(the plant's winch.drum_radius: "
+            r"0.03\) on plant 'big'",
         ):
             check_cdpr_run(robot, big, controller, trajectory)
     with warnings.catch_warnings():
@@ -274,6 +325,94 @@ def test_a_controller_modelling_other_winches_than_the_plants_is_warned_about(ro
         check_cdpr_run(robot, big, "ikc", trajectory)
         check_cdpr_run(robot, DEFAULT_CDPR_PLANT, "hc-e", trajectory)  # the same winches
         check_cdpr_run(robot, big, "hc-e", trajectory, {"winch": WinchParameters(drum_radius=0.03)})
+
+
+def test_a_controller_modelling_other_drives_or_friction_than_the_plants_is_warned_about(robot):
+    """A plant file with drive.fe_compliance -5e-3 ran HC-e without a word (0.1 % of the run
+    in [5, 35] N, force RMS 5.95 N): the FE law, c_v and friction feed eq. 3, 7 and 9 too."""
+    import warnings
+
+    from msarm.cdpr.following_error import FollowingErrorModel
+    from msarm.cdpr.winch_friction import WinchFrictionModel
+    from msarm.control.cdpr_controllers import WinchParameters
+    from msarm.errors import MsarmWarning
+    from msarm.tasks.cdpr_runner import check_cdpr_run
+
+    trajectory = get_cdpr_trajectory("triangle-12")
+    plant = DEFAULT_CDPR_PLANT
+
+    def warned(config, controller, options=None):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MsarmWarning)
+            check_cdpr_run(robot, config, controller, trajectory, options)
+        return " | ".join(str(w.message) for w in caught if w.category is MsarmWarning)
+
+    soft = replace(plant, name="softfe", drive=replace(plant.drive, fe_compliance=-5.0e-3))
+    for controller in ("hc-e", "hc-e-all"):
+        text = warned(soft, controller)
+        assert "c_f / K_p [m/(N m)] -0.002555 (the plant's drive.fe_compliance: -0.005)" in text
+        assert "plant 'softfe'" in text and "command line has no option" in text
+    assert warned(soft, "hc-tau") == warned(soft, "hc-f") == ""  # no FE in their set values
+    matched = WinchParameters(following_error=FollowingErrorModel(c_f=-1.0, k_p=200.0))
+    assert warned(soft, "hc-e", {"winch": matched}) == ""
+    # c_v enters only without velocity feed-forward (the P loop then lags by c_v v)
+    slow = replace(plant, name="slow", drive=replace(plant.drive, position_gain=100.0))
+    assert warned(slow, "hc-e") == ""
+    text = warned(slow, "hc-e", {"velocity_feedforward": False})
+    assert "c_v [s] 0.005336 (the plant's 1 / drive.position_gain: 0.01)" in text
+    # friction: the torque's coefficients for HC-tau and HC-e, the load cell's for HC-f and NC
+    torque = (-5.97e-3, -2.31e-4, 6.0e-3, 2.52e-2)
+    rough = replace(plant, name="rough", friction=replace(plant.friction, torque_negative=torque))
+    for controller in ("hc-tau", "hc-e"):
+        text = warned(rough, controller)
+        assert "(the plant's friction.torque_negative: [-0.00597, -0.000231, 0.006, 0.0252])" in (
+            text
+        )
+        assert "--option friction_model=false" in text
+        assert warned(rough, controller, {"friction_model": False}) == ""
+    assert warned(rough, "hc-f") == warned(rough, "nc") == warned(rough, "ikc") == ""
+    force = (-1.73e-1, 1.62e-2, -2.51e-2, 0.5)
+    sticky = replace(plant, name="sticky", friction=replace(plant.friction, force_positive=force))
+    for controller in ("hc-f", "nc"):
+        assert "friction.force_positive: [-0.173, 0.0162, -0.0251, 0.5]" in warned(
+            sticky, controller
+        )
+    assert warned(sticky, "hc-e") == ""
+    same = WinchParameters(friction=WinchFrictionModel.from_paper_units(force_positive=force))
+    assert warned(sticky, "hc-f", {"winch": same}) == ""
+    smooth = replace(plant, name="smooth", friction=replace(plant.friction, enabled=False))
+    assert "the plant has none: friction.enabled false" in warned(smooth, "hc-e")
+    assert warned(smooth, "hc-e", {"friction_model": False}) == ""
+    assert warned(plant, "hc-e") == warned(plant, "hc-f") == warned(plant, "nc") == ""
+
+
+def test_drives_too_weak_for_the_controllers_forces_are_warned_about_and_counted(robot, triangle):
+    """winch.torque_limit 0.15 N m (7.5 N at the drum, below the controllers' 8 N) ran with
+    exit 0, 10.98 mm mean error and 4 % of the run in bounds, without a word."""
+    import warnings
+
+    from msarm.errors import MsarmWarning
+    from msarm.tasks.cdpr_runner import check_cdpr_run
+
+    weak = replace(
+        DEFAULT_CDPR_PLANT, name="weak", winch=replace(DEFAULT_CDPR_PLANT.winch, torque_limit=0.15)
+    )
+    short = trajectory_head(triangle, 100)
+    for controller in ("hc-e", "ikc"):
+        with pytest.warns(
+            MsarmWarning,
+            match=rf"plant 'weak': winch.torque_limit 0.15 N m gives at most 7.5 N at the drum "
+            rf".*below the 8 N lower bound of the force distribution of controller '{controller}'",
+        ):
+            check_cdpr_run(robot, weak, controller, short)
+    with pytest.warns(MsarmWarning, match="torque_limit"):
+        saturated = run_cdpr(robot, weak, "hc-e", short).metrics
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MsarmWarning)
+        fine = run_cdpr(robot, DEFAULT_CDPR_PLANT, "hc-e", short).metrics
+    assert fine.drive_saturated_samples == 0
+    assert 0 < saturated.drive_saturated_samples <= len(short)
+    assert saturated.as_dict()["drive_saturated_samples"] == saturated.drive_saturated_samples
 
 
 def test_cdpr_run_refuses_bad_input_before_creating_its_folder(tmp_path):
@@ -296,6 +435,7 @@ def test_cdpr_run_refuses_bad_input_before_creating_its_folder(tmp_path):
         ("''", "simple identifier"),
         ("default", "name of a preset"),
         ("ideal", "name of a preset"),
+        ("lab-delta=0.5", "without '='"),  # the folder of plant lab with --option delta=0.5
     ],
 )
 def test_plant_names_that_would_misplace_the_run_folder_are_refused(tmp_path, name, match):

@@ -353,6 +353,14 @@ def test_a_plant_file_without_a_name_is_named_after_it(tmp_path):
     spaced.write_text("effects: {cogging: {enabled: true}}")
     with pytest.raises(InputError, match="give the file a 'name' key or rename the file"):
         resolve_plant(str(spaced))
+    # '=': cdpr run folders end in -KEY=VALUE per option (lab-delta=0.5 is lab's delta=0.5)
+    equals = tmp_path / "lab-delta=0.5.yaml"
+    equals.write_text("effects: {cogging: {enabled: true}}")
+    with pytest.raises(InputError, match=r"without '=', got 'lab-delta=0.5'.*rename the file"):
+        resolve_plant(str(equals))
+    path.write_text("name: lab-delta=0.5")
+    with pytest.raises(ConfigError, match=r"without '='.*--option delta=0.5"):
+        resolve_plant(str(path))
 
 
 def test_a_runs_config_gives_its_plant_back(tmp_path):

@@ -132,7 +132,8 @@ def main() -> None:
     (an unknown option, a value out of an option's range, ...) are printed as one line
     naming the problem, with exit code 2; anything else keeps its traceback (a bug). SIGTERM
     ends the command as an exception would (temporary files removed, see
-    :mod:`msarm.io.atomic`), with ``msarm: terminated`` and exit code 143.
+    :mod:`msarm.io.atomic`, and the output folders it created and left empty), with
+    ``msarm: terminated`` and exit code 143.
     """
     import signal
     import sys
@@ -192,9 +193,15 @@ def main() -> None:
         print(f"msarm: error: {exc.format_message()}", file=sys.stderr)
         raise SystemExit(exc.exit_code) from None
     except Abort:
+        from msarm.cli.common import remove_empty_created_folders
+
+        remove_empty_created_folders()  # an --out made for a run cut off: not left behind
         print("msarm: aborted", file=sys.stderr)
         raise SystemExit(1) from None
     except interrupts.Terminated as exc:
+        from msarm.cli.common import remove_empty_created_folders
+
+        remove_empty_created_folders()  # an --out made for a run cut off: not left behind
         print("msarm: terminated", file=sys.stderr)
         raise SystemExit(exc.code) from None
     else:

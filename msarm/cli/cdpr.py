@@ -82,6 +82,10 @@ def _metric_cells(m) -> list[str]:
     ]
 
 
+#: The files ``msarm cdpr run`` writes to its folder, ``metrics.json`` (written last) first:
+#: a run removes an older run's, in this order, before it writes its own.
+RUN_FILES = ("metrics.json", "forces.png", "config.yaml", "log.truth.parquet", "log.parquet")
+
 _METRIC_COLUMNS = (
     "max error [mm]",
     "mean error [mm]",
@@ -227,6 +231,10 @@ def run_command(
             options,
             progress=lambda done: bar.update(job, completed=done),
         )
+    # metrics.json is written last and marks a whole run: an older run's goes first, then its
+    # other files, so that a run cut off between two writes leaves no mix of the two runs
+    for name in RUN_FILES:
+        (folder / name).unlink(missing_ok=True)
     files = {"log": write_log(folder / "log.parquet", RunLog(run.columns, metadata))}
     files["sidecar"] = write_sidecar(
         files["log"], run.truth, {"plant": plant_config.name}, {"tension": "N"}
@@ -234,7 +242,6 @@ def run_command(
     payload = {"controller": controller, "trajectory": trajectory, **run.metrics.as_dict()}
     if run.error is not None:
         payload["diverged"] = str(run.error)
-    files["metrics"] = write_json_atomic(folder / "metrics.json", payload)
     files["config"] = write_config(
         {
             "controller": controller,
@@ -248,6 +255,7 @@ def run_command(
     files["forces_plot"] = plot_forces(
         run, model, folder / "forces.png", plant=plant_config.name, seed=seed, options=options
     )
+    files["metrics"] = write_json_atomic(folder / "metrics.json", payload)
     payload["files"] = {k: str(v) for k, v in files.items()}
     if json_output:
         typer.echo(json.dumps(payload, indent=2))

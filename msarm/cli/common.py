@@ -310,7 +310,8 @@ def output_folder(path: Path, option: str = "--out") -> Path:
     """Create the output folder ``path`` up front, before any long run writes into it.
 
     The folders it creates are remembered (:data:`CREATED_FOLDERS`): a command that then
-    fails on its input leaves none of them behind empty (:func:`remove_empty_created_folders`).
+    fails on its input, or is interrupted (SIGTERM, Ctrl-C), leaves none of them behind empty
+    (:func:`remove_empty_created_folders`).
 
     Raises:
         InputError: ``path`` is an existing file, or the folder cannot be created (the reason

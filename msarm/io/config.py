@@ -147,22 +147,31 @@ def folder_instead_of_file(path: str | Path, expected: str) -> str | None:
     return None
 
 
-_PLANT_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+=-]*")
+_PLANT_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
 
 
 def check_plant_name(name: object) -> None:
     """Refuse a plant name that cannot be one part of an output folder's name.
 
     Args:
-        name: The plant's name: letters, digits, ``_``, ``-``, ``+``, ``=`` and ``.``, not
-            starting with ``.`` or ``-`` (no ``/``, no ``..``, not empty).
+        name: The plant's name: letters, digits, ``_``, ``-``, ``+`` and ``.``, not starting
+            with ``.`` or ``-`` (no ``/``, no ``..``, not empty). No ``=``: a cable-robot run
+            folder names each controller option ``-KEY=VALUE`` after the plant, so a plant
+            ``lab-delta=0.5`` would share its folder with plant ``lab`` and ``delta=0.5``.
 
     Raises:
         ValueError: Naming the name and what was expected.
     """
+    if isinstance(name, str) and "=" in name:
+        raise ValueError(
+            f"name must be a simple identifier without '=', got {name!r}: run folders end in "
+            "-KEY=VALUE for each controller option, so its runs could overwrite another "
+            "plant's (a plant 'lab-delta=0.5' writes where plant 'lab' with --option "
+            "delta=0.5 does); expected another name"
+        )
     if not (isinstance(name, str) and _PLANT_NAME.fullmatch(name)):
         raise ValueError(
-            "name must be a simple identifier (letters, digits, '_', '-', '+', '=', '.', not "
+            "name must be a simple identifier (letters, digits, '_', '-', '+', '.', not "
             f"starting with '.' or '-'; it names the run folder), got {name!r}"
         )
 

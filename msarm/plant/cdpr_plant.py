@@ -722,6 +722,14 @@ class CdprPlant:
         """
         return self._st[_S_TENSION].copy()
 
+    @property
+    def drive_saturated(self) -> NDArray[np.bool_]:
+        """Simulation-only truth: drives at their torque limit in the last step, shape (m,).
+
+        The ``drive_saturated`` of :meth:`ground_truth`, without building the rest.
+        """
+        return self._st[_S_SAT] != 0.0
+
     def ground_truth(self) -> dict[str, Any]:
         """Simulation-only truth at the current step (never available to a controller).
 

@@ -18,7 +18,8 @@ the platform position: here the simulated platform position) against the referen
 maximum and mean over the whole motion (Table 4); the share of time every cable force stays
 within ``[f_min, f_max]`` (platform-side forces, Fig. 11); the RMS force-tracking error of the
 force-controlled cables against the force distribution (not for IKC, which controls no force,
-nor NC, which keeps forces near its own mean force rather than at the distribution).
+nor NC, which keeps forces near its own mean force rather than at the distribution); and how
+many samples found a drive at its torque limit (``drive_saturated_samples``, msarm's addition).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from numpy.typing import NDArray
 
 from msarm.cdpr.forward_kinematics import platform_wrench
 from msarm.cdpr.robot_model import CableRobotModel
+from msarm.cdpr.winch_friction import BranchCoefficients
 from msarm.control.cdpr_controllers import CdprController, make_cdpr_controller
 from msarm.errors import InputError, MsarmWarning
 from msarm.io.logs import columns_from_quantities
@@ -61,6 +63,9 @@ class CdprMetrics:
             distribution [N] (NaN for a controller without force control, IKC, or one that
             does not track the distribution, NC: see ``CdprController.tracks_distribution``).
         completed: Whether the run reached the end of the trajectory.
+        drive_saturated_samples: Samples at which at least one drive was at the plant's
+            ``winch.torque_limit`` (in the plant step just before the sample, whose forces
+            it logs); None where not recorded (the metrics of a hand-made run).
     """
 
     max_position_error_mm: float
@@ -70,6 +75,7 @@ class CdprMetrics:
     max_force: float
     force_rms_error: float
     completed: bool
+    drive_saturated_samples: int | None = None
 
     def as_dict(self) -> dict:
         """A JSON-ready dict (strict JSON: a NaN, a metric that does not apply, is None)."""
@@ -158,32 +164,134 @@ def _substeps(plant_config: CdprPlantConfig, cycle: float) -> int:
     return n
 
 
+def _paper_units(branch: BranchCoefficients) -> tuple[float, float, float, float]:
+    """Eq. 4 coefficients back in Table 1's units (v in m/min), as a plant file gives them."""
+    return (branch.c1 / 60.0, branch.c2 / 3600.0, branch.c3, branch.c4)
+
+
+def _text(value: float | tuple[float, ...]) -> str:
+    if isinstance(value, tuple):
+        return "[" + ", ".join(f"{v:.4g}" for v in value) + "]"
+    return f"{value:.4g}"
+
+
+def _same(own: float | tuple[float, ...], theirs: float | tuple[float, ...]) -> bool:
+    pairs = zip(own, theirs, strict=True) if isinstance(own, tuple) else [(own, theirs)]
+    return all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-15) for a, b in pairs)
+
+
+def _winch_model_differences(ctrl: CdprController, plant_config: CdprPlantConfig) -> list[str]:
+    """What of the plant's winches, drives and friction the controller models otherwise.
+
+    Only what the controller's set values use: r_D and J_D (eq. 3: HC-tau, HC-e), c_f / K_p
+    (eq. 8-9: HC-e), c_v (eq. 9: HC-e without velocity feed-forward), the friction torque's
+    coefficients (eq. 5: HC-tau, HC-e) or the friction force's (eq. 7: HC-f, NC, which read
+    load cells), with v_L and v_H, when the controller uses its friction model.
+    """
+    feedback = getattr(ctrl, "feedback", None)
+    torque = feedback in ("torque", "following_error")
+    force = feedback == "force" or ctrl.name == "nc"
+    mine, plant = ctrl.winch, plant_config
+    pairs: list[tuple[str, str, float | tuple[float, ...], float | tuple[float, ...]]] = []
+    if torque:
+        pairs += [
+            ("drum radius r_D [m]", "winch.drum_radius", mine.drum_radius, plant.winch.drum_radius),
+            ("inertia J_D [kg m^2]", "winch.inertia", mine.drum_inertia, plant.winch.inertia),
+        ]
+    if feedback == "following_error":
+        fe = mine.following_error
+        pairs.append(
+            ("c_f / K_p [m/(N m)]", "drive.fe_compliance", fe.compliance, plant.drive.fe_compliance)
+        )
+        if not ctrl.velocity_feedforward:  # with v_ff the position loop does not lag: no c_v
+            pairs.append(
+                ("c_v [s]", "1 / drive.position_gain", fe.c_v, 1.0 / plant.drive.position_gain)
+            )
+    if getattr(ctrl, "friction_model", False) and (torque or force):
+        if not plant.friction.enabled:
+            return [
+                *_differences(pairs),
+                "a winch friction model (the plant has none: friction.enabled false)",
+            ]
+        kind = "torque" if torque else "force"
+        branches = mine.friction.torque_branches if torque else mine.friction.force_branches
+        for sign in ("negative", "positive"):
+            key = f"{kind}_{sign}"
+            pairs.append(
+                (
+                    f"{kind} friction c1..c4 (Table 1 units)",
+                    f"friction.{key}",
+                    _paper_units(getattr(branches, sign)),
+                    tuple(getattr(plant.friction, key)),
+                )
+            )
+        pairs += [
+            ("v_L [m/min]", "friction.v_low", 60.0 * mine.friction.v_low, plant.friction.v_low),
+            ("v_H [m/min]", "friction.v_high", 60.0 * mine.friction.v_high, plant.friction.v_high),
+        ]
+    return _differences(pairs)
+
+
+def _differences(pairs: list) -> list[str]:
+    """``<what> <own> (the plant's <key>: <theirs>)`` for each pair whose values differ."""
+    return [
+        f"{what} {_text(own)} (the plant's {key}: {_text(theirs)})"
+        for what, key, own, theirs in pairs
+        if not _same(own, theirs)
+    ]
+
+
 def _warn_other_winch(ctrl: CdprController, name: str, plant_config: CdprPlantConfig) -> None:
-    """Warn when a torque or following-error controller models other winches than the plant's.
+    """Warn when a controller models other winches, drives or friction than the plant's.
 
     HC-tau and HC-e turn force set values into motor torques and following errors through
-    their own :class:`~msarm.control.cdpr_controllers.WinchParameters` (eq. 3 and 9: drum
-    radius and inertia); a plant file with other drums would otherwise leave them mis-modelled
-    without a word (a deliberate mismatch, to study it, is a use too: hence a warning).
+    their own :class:`~msarm.control.cdpr_controllers.WinchParameters` (eq. 3: drum radius,
+    inertia, friction torque; eq. 8-9: c_f / K_p, and c_v without velocity feed-forward);
+    HC-f and NC take the load cell's friction force (eq. 7) out of its reading. A plant file
+    with other winches, drives or friction would otherwise leave them mis-modelled without a
+    word (a deliberate mismatch, to study it, is a use too: hence a warning). The command
+    line cannot give a controller another winch model (``winch`` is an object option).
     """
-    if getattr(ctrl, "feedback", None) not in ("torque", "following_error"):
-        return
-    mine, plant = ctrl.winch, plant_config.winch
-    differ = [
-        f"{label} {own:g} (the plant's {theirs:g})"
-        for label, own, theirs in (
-            ("drum radius [m]", mine.drum_radius, plant.drum_radius),
-            ("inertia [kg m^2]", mine.drum_inertia, plant.inertia),
-        )
-        if not math.isclose(own, theirs, rel_tol=1e-9)
-    ]
+    differ = _winch_model_differences(ctrl, plant_config)
     if differ:
+        friction_only = all("friction" in d for d in differ)
         warnings.warn(
-            f"controller {name!r} models the winches with {', '.join(differ)} on plant "
-            f"{plant_config.name!r}: its torque and following-error set values (paper 000 eq. "
-            "3, 9) use its own; give it the robot's winch (Python: make_cdpr_controller(..., "
-            "winch=WinchParameters(drum_radius=..., drum_inertia=...))) unless the mismatch is "
-            "what you study",
+            f"controller {name!r} models the winches with {'; '.join(differ)} on plant "
+            f"{plant_config.name!r}: its set values (paper 000 eq. 3, 7, 9) use its own model; "
+            "give it the robot's (Python only, the command line has no option for it: "
+            "make_cdpr_controller(..., winch=WinchParameters(drum_radius=..., drum_inertia=..., "
+            "friction=WinchFrictionModel.from_paper_units(...), "
+            "following_error=FollowingErrorModel(c_f=..., c_v=..., k_p=...))))"
+            + (
+                ", or leave its friction model out (--option friction_model=false)"
+                if friction_only
+                else ""
+            )
+            + " unless the mismatch is what you study",
+            MsarmWarning,
+            stacklevel=3,
+        )
+
+
+def _warn_weak_drives(ctrl: CdprController, name: str, plant_config: CdprPlantConfig) -> None:
+    """Warn when the drives cannot hold the controller's least desired force at the drum.
+
+    Every force of the controller's distribution is at least ``f_min`` (8 N): with
+    ``torque_limit / r_D`` below it the drives saturate whenever a cable is to hold its least
+    force (friction and inertia need more still), and the run's forces and positions are
+    not what the controller commands (``drive_saturated_samples`` of the metrics counts the
+    cycles). The plant itself warns only below the model file's lower bound (5 N).
+    """
+    winch = plant_config.winch
+    most = winch.torque_limit / winch.drum_radius
+    if most < ctrl.f_min:
+        warnings.warn(
+            f"plant {plant_config.name!r}: winch.torque_limit {winch.torque_limit:g} N m gives "
+            f"at most {most:.4g} N at the drum (drum_radius {winch.drum_radius:g} m), below "
+            f"the {ctrl.f_min:g} N lower bound of the force distribution of controller {name!r}: "
+            "the drives saturate and the cables do not get the forces the controller commands "
+            "(metrics: drive_saturated_samples); expected a torque_limit of at least "
+            f"{ctrl.f_min * winch.drum_radius:g} N m",
             MsarmWarning,
             stacklevel=3,
         )
@@ -238,6 +346,11 @@ def check_cdpr_run(
             controller's cycle; the plant time step does not divide the cycle; the trajectory
             leaves the wrench-feasible workspace of the controller's force bounds; or it
             moves a cable faster than the controller's winch friction model was fitted for.
+
+    Warns:
+        MsarmWarning: The controller models other winches, drives or friction than the
+            plant's (what its set values use, each named with both values); or the plant's
+            ``torque_limit / drum_radius`` is below the controller's lower force bound.
     """
     ctrl = make_cdpr_controller(controller, model, **(controller_options or {}))
     if abs(trajectory.dt - ctrl.dt) > 1e-12 * ctrl.dt:
@@ -250,6 +363,7 @@ def check_cdpr_run(
     check_feasible(model, trajectory, ctrl.f_min, ctrl.f_max)
     _check_cable_speeds(model, ctrl, controller, trajectory)
     _warn_other_winch(ctrl, controller, plant_config)
+    _warn_weak_drives(ctrl, controller, plant_config)
     ctrl.reset()
     return ctrl
 
@@ -319,6 +433,7 @@ def run_cdpr(
     marker = np.full((n_samples, 3), np.nan)
     force = np.full((n_samples, m), np.nan)
     controlled = np.zeros((n_samples, m), dtype=bool)
+    saturated = np.zeros(n_samples, dtype=bool)
     error = None
     done = n_samples
     report = max(1, n_samples // 50)
@@ -338,6 +453,7 @@ def run_cdpr(
         controlled[k] = (command.h > 0.5) & ctrl.tracks_distribution
         marker[k] = plant.true_platform_position
         force[k] = plant.true_cable_tension
+        saturated[k] = plant.drive_saturated.any()
         try:
             plant.step(substeps)
         except SimulationDivergedError as exc:
@@ -364,6 +480,7 @@ def run_cdpr(
         log["f_desired"][:done],
         controlled[:done],
         error is None,
+        saturated=saturated[:done],
     )
     return CdprRun(controller, trajectory.name, columns, truth_columns, metrics, error)
 
@@ -376,6 +493,7 @@ def _metrics(
     desired: FloatArray,
     controlled: NDArray[np.bool_],
     completed: bool,
+    saturated: NDArray[np.bool_] | None = None,
 ) -> CdprMetrics:
     error = np.linalg.norm(marker - trajectory.position[: len(marker)], axis=1)
     lower, upper = np.asarray(model.f_min), np.asarray(model.f_max)
@@ -389,4 +507,5 @@ def _metrics(
         max_force=float(force.max()),
         force_rms_error=float(np.sqrt(np.mean(tracked**2))) if tracked.size else float("nan"),
         completed=completed,
+        drive_saturated_samples=None if saturated is None else int(saturated.sum()),
     )
