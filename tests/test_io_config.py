@@ -474,3 +474,31 @@ def test_an_integer_too_large_for_a_float_is_named(tmp_path):
     path.write_text("name: huge\neffects:\n  elasticity: {stiffness: 1" + "0" * 400 + "}\n")
     with pytest.raises(ConfigError, match=r"key 'effects.elasticity.stiffness' expects a finite"):
         load_config(path, PlantConfig)
+
+
+@dataclass(frozen=True)
+class _Gains:
+    kp: float = 1.0
+    ki: float = 2.0
+
+
+@dataclass(frozen=True)
+class _Tuned:
+    gains: _Gains = field(default_factory=lambda: _Gains(kp=90.0, ki=640.0))
+
+
+def test_a_block_given_in_part_keeps_the_rest_of_its_enclosing_default(tmp_path):
+    """A recipe that set one gain of its controller ran the others at the controller class's
+    untuned defaults (kp 60, ki 40) instead of the recipe's (90, 640), without a word."""
+    from msarm.compensation.pipeline import TUNED_CONTROLLER, CompensatorRecipe
+
+    path = tmp_path / "c.yaml"
+    path.write_text("gains: {kp: 5}\n")
+    assert load_config(path, _Tuned) == _Tuned(_Gains(kp=5.0, ki=640.0))
+    path.write_text("network: {max_epochs: 100}\ncontroller: {kd: [4.0, 4.0, 1.5, 1.5]}\n")
+    recipe = load_config(path, CompensatorRecipe)
+    assert recipe.controller.kp == TUNED_CONTROLLER.kp
+    assert recipe.controller.ki == TUNED_CONTROLLER.ki
+    assert recipe.controller.integral_limit == TUNED_CONTROLLER.integral_limit
+    assert recipe.network.patience == CompensatorRecipe().network.patience
+    assert recipe.network.max_epochs == 100

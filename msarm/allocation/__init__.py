@@ -10,7 +10,8 @@ One problem serves the arm and the cable robots (see ``msarm.allocation.problem`
 - cable robot (papers 000, 001): ``M = A^T`` (6 x 8, ``msarm.cdpr``), ``b = -w``;
   ``f_ref = None`` is the minimum 2-norm distribution, ``f_ref="midpoint"`` Pott's.
 
-Build an allocator once per robot and call ``solve`` every tick::
+Build an allocator once per robot and call ``solve`` every tick (``At`` the structure
+matrix, ``w`` the wrench, ``f_min``, ``f_max`` the force bounds of the tick)::
 
     alloc = make_allocator(n_actuators=8, n_dof=6, solver="fast", f_ref="midpoint")
     result = alloc.solve(At, -w, f_min, f_max)   # result.f, .feasible, .status, .residual

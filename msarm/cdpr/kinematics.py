@@ -104,8 +104,10 @@ class CableRobot:
         InputError: If the anchors have the wrong shape, differ in count or are not finite.
 
     Example:
-        >>> robot = CableRobot(a, b)
-        >>> At = robot.structure_matrix(np.array([0.0, 0.0, 1.0]), np.eye(3))  # (6, m)
+        >>> corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (0, 2)])
+        >>> robot = CableRobot(corners, 0.1 * corners)  # frame and platform anchors [m]
+        >>> robot.structure_matrix(np.array([0.0, 0.0, 1.0]), np.eye(3)).shape  # A^T, (6, m)
+        (6, 8)
     """
 
     def __init__(self, frame_anchors: ArrayLike, platform_anchors: ArrayLike) -> None:

@@ -21,7 +21,7 @@ def allocation(
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of the problem generator."),
     json_output: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
-    """Allocation solvers on the arm (9 x 4) and an 8-cable CDPR (8 x 6), against cvxpy."""
+    """Allocation solvers on the arm (M 4 x 9) and an 8-cable CDPR (M 6 x 8), against cvxpy."""
     import json
 
     from msarm.allocation.benchmark import run_benchmark
@@ -49,13 +49,13 @@ def allocation(
         table.add_column(name, justify=justify, no_wrap=True)
     table.caption = (
         "median wall time of one solve (validation included); batched: one call for all "
-        "problems, per problem; fallback: problems the method could not solve itself and "
-        "handed to its fallback (timed with it); obj. diff: largest relative difference of "
-        "the objective from cvxpy's (exact methods)"
+        "problems, per problem, the best of 5 calls (not a median); fallback: problems the "
+        "method could not solve itself and handed to its fallback (timed with it); obj. "
+        "diff: largest relative difference of the objective from cvxpy's (exact methods)"
     )
     for robot, entry in report["robots"].items():
-        n, m = entry["shape"]
-        label = f"{robot} {m}x{n}"
+        n, m = entry["shape"]  # M's shape: DOF x actuators
+        label = f"{robot} (M {n}x{m})"
         for method, row in entry["methods"].items():
             diff = row.get("max_rel_objective_diff_vs_cvxpy")
             table.add_row(
@@ -66,7 +66,7 @@ def allocation(
                 f"{row['solves_per_s']:,.0f}" if "solves_per_s" in row else "",
                 f"{row['feasible']}/{entry['n_problems']}",
                 f"{row.get('statuses', {}).get('fallback', 0)}",
-                "" if diff is None else f"{diff:.1e}",
+                "" if diff is None or method == "cvxpy" else f"{diff:.1e}",  # not itself
             )
             label = ""
         table.add_section()

@@ -216,7 +216,8 @@ def compare_command(
             min=0,
             help=f"More held-out random tasks, random-{EXTRA_FIRST_SEED} on (never trained on): "
             "a steadier mean than the two test runs alone. They are in the table, the means and "
-            "error_statistics.png; trajectory plots are drawn for Table I and the two test runs.",
+            "error_statistics.png; trajectory plots are drawn for Table I and the first two "
+            "held-out tasks (the test runs, then these).",
         ),
     ] = 0,
     parts: Annotated[

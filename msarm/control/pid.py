@@ -149,7 +149,9 @@ class DiscretePID:
 
     Example:
         >>> pid = DiscretePID(HC_F_GAINS, n=8)
-        >>> delta_l = pid.step(f_measured - f_set)  # [m], shape (8,)
+        >>> f_set, f_measured = np.full(8, 20.0), np.full(8, 19.5)  # [N]
+        >>> pid.step(f_measured - f_set).shape  # the cable length change delta_l [m]
+        (8,)
     """
 
     def __init__(

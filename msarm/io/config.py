@@ -7,7 +7,10 @@ A config class is a (frozen) dataclass whose field types are among:
 - nested dataclasses (a YAML mapping), ``dict[str, X]`` (a mapping of any keys to ``X``);
 - ``X | None`` / ``Optional[X]`` (YAML ``null``), ``Literal[...]``, and ``Any`` (kept as is).
 
-Every key of the YAML mapping must name a field; a field without a default must be given. Every
+Every key of the YAML mapping must name a field; a field without a default must be given. A
+key a nested mapping omits takes the value of the block the enclosing class gives by default
+(a recipe's ``controller`` defaults to tuned gains: ``controller: {kd: ...}`` keeps its
+``kp`` and ``ki``), else the nested class's own default. Every
 mistake raises :class:`msarm.errors.ConfigError` naming the source (file path, or
 ``<mapping>``), the dotted key path (``effects.sheath_friction.mu``) and what was expected:
 the valid keys for an unknown one, the type for a mistyped one. A ``ValueError`` or
@@ -447,7 +450,25 @@ def _type_name(tp: Any) -> str:
     return str(tp).replace("typing.", "")
 
 
-def _build_dataclass(data: Any, cls: type[T], label: str, key: str) -> T:
+def _field_default(f: dataclasses.Field) -> Any:
+    """A dataclass field's default value (``None`` when it has none)."""
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def _build_dataclass(
+    data: Any, cls: type[T], label: str, key: str, base: object | None = None
+) -> T:
+    """``cls`` from a mapping; a key it omits takes ``base``'s value, else the field default.
+
+    ``base`` is the value the enclosing config gives the block when the file omits it (a
+    recipe's ``controller: TUNED_CONTROLLER``), so that a block given in part keeps the rest
+    of that value, not the block class's own defaults (a recipe that set one gain ran the
+    other gains at ``ArmControllerConfig``'s untuned defaults until 2026-11-29).
+    """
     if not isinstance(data, Mapping):
         raise ConfigError(
             f"{_where(label, key)}: expected a mapping for {cls.__name__}, "
@@ -474,7 +495,10 @@ def _build_dataclass(data: Any, cls: type[T], label: str, key: str) -> T:
     for name, f in fields.items():
         sub = _join(key, name)
         if name in data:
-            kwargs[name] = _convert(data[name], hints[name], label, sub)
+            inner = getattr(base, name) if base is not None else _field_default(f)
+            kwargs[name] = _convert(data[name], hints[name], label, sub, inner)
+        elif base is not None:
+            kwargs[name] = getattr(base, name)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise ConfigError(
                 f"{label}: missing key '{sub}' ({_type_name(hints[name])}, no default)"
@@ -485,7 +509,7 @@ def _build_dataclass(data: Any, cls: type[T], label: str, key: str) -> T:
         raise ConfigError(f"{_where(label, key)}: invalid {cls.__name__}: {exc}") from exc
 
 
-def _convert(value: Any, tp: Any, label: str, key: str) -> Any:
+def _convert(value: Any, tp: Any, label: str, key: str, base: Any = None) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
 
@@ -505,7 +529,7 @@ def _convert(value: Any, tp: Any, label: str, key: str) -> Any:
         errors = []
         for member in members:
             try:
-                return _convert(value, member, label, key)
+                return _convert(value, member, label, key, base)
             except ConfigError as exc:
                 errors.append(exc)
         if len(errors) == 1:
@@ -516,7 +540,7 @@ def _convert(value: Any, tp: Any, label: str, key: str) -> Any:
             return value
         raise wrong("one of " + ", ".join(repr(a) for a in args))
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
-        return _build_dataclass(value, tp, label, key)
+        return _build_dataclass(value, tp, label, key, base if isinstance(base, tp) else None)
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise wrong("a number (float)")
