@@ -194,8 +194,8 @@ def train_command(
     )
     out.print(
         f"collected in {report.collect_time_s:.1f} s, trained in {report.train_time_s:.1f} s "
-        f"(summed over the sessions that trained it; {report.epochs[0]} epochs, "
-        f"best {report.epochs[1]})"
+        f"(summed over the sessions that trained it; the last network: {report.epochs[0]} "
+        f"epochs, the best at epoch {report.epochs[1]})"
     )
     out.print(f"checkpoint: {report.checkpoint}")
 
