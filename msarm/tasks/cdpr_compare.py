@@ -565,23 +565,11 @@ def plot_switching(runs: dict[float, CdprRun], path: Path) -> Path:
                         label="switch starts / ends" if k == 0 and moment == min(ends) else None,
                     )
         if after:
-            force_ax.plot(
-                after["min_force_time_s"],
-                after["min_force_N"],
-                "ko",
-                ms=8,
-                mfc="none",
-                zorder=4,
-                label="extreme after start-up",
-            )
-            error_ax.plot(
-                after["max_position_error_time_s"],
-                after["max_position_error_mm"],
-                "ko",
-                ms=8,
-                mfc="none",
-                zorder=4,
-            )
+            for ax, at, value, label in (
+                (force_ax, "min_force_time_s", "min_force_N", "extreme after start-up"),
+                (error_ax, "max_position_error_time_s", "max_position_error_mm", None),
+            ):
+                ax.plot(after[at], after[value], "ko", ms=8, mfc="none", zorder=4, label=label)
             error_ax.set_ylim(0.0, top)
             if whole["max_position_error_mm"] > top:
                 error_ax.annotate(
