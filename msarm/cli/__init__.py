@@ -147,6 +147,7 @@ def main() -> None:
     from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError
 
     from msarm import interrupts
+    from msarm.cli.common import remove_empty_created_folders
     from msarm.errors import MsarmError, MsarmWarning
 
     default_show = warnings.showwarning
@@ -174,8 +175,6 @@ def main() -> None:
             args=spread_multi_value_options(sys.argv[1:]), prog_name="msarm", standalone_mode=False
         )
     except MsarmError as exc:
-        from msarm.cli.common import remove_empty_created_folders
-
         remove_empty_created_folders()  # an --out made for a command refused: not left behind
         print(f"msarm: error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -193,14 +192,10 @@ def main() -> None:
         print(f"msarm: error: {exc.format_message()}", file=sys.stderr)
         raise SystemExit(exc.exit_code) from None
     except Abort:
-        from msarm.cli.common import remove_empty_created_folders
-
         remove_empty_created_folders()  # an --out made for a run cut off: not left behind
         print("msarm: aborted", file=sys.stderr)
         raise SystemExit(1) from None
     except interrupts.Terminated as exc:
-        from msarm.cli.common import remove_empty_created_folders
-
         remove_empty_created_folders()  # an --out made for a run cut off: not left behind
         print("msarm: terminated", file=sys.stderr)
         raise SystemExit(exc.code) from None

@@ -218,13 +218,12 @@ class Allocator(ABC):
         if f is None:
             f, extra = self._fallback(M, b, f_min, f_max, ref)
             iterations += extra
-            if not np.maximum(f_min - f, f - f_max).max() <= 0.0:  # NaN too
+            residual = bounded_residual(f, f_min, f_max, 0.0, M, b)  # NaN: past a bound
+            if not residual >= 0.0:
                 raise RuntimeError(  # pragma: no cover - the fallback clips to finite bounds
                     f"{self.name}: the bounded least-squares fallback returned forces outside "
                     f"[f_min, f_max] or not finite: {f}"
                 )
-            r = M @ f - b
-            residual = math.sqrt(r @ r)
             status = FALLBACK if residual <= limit else INFEASIBLE
             active = None
         if active is None:
