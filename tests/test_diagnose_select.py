@@ -344,8 +344,23 @@ def test_a_candidate_the_data_cannot_tell_apart_is_not_selected(arm, friction_lo
     assert other in result.to_markdown()
     payload = json.loads(json.dumps(result.as_dict(), allow_nan=False))  # strict JSON
     assert payload["confounded"] == result.confounded
-    with pytest.raises(InputError, match=r"names must be unique; 'coulomb' given more than once"):
+    with pytest.raises(InputError, match=r"'coulomb' is also the name of a default candidate"):
         diagnose(arm, friction_logs[:1], friction_logs[1:2], extra_candidates=[CoulombFriction()])
+    with pytest.raises(InputError, match=r"'coulomb' is also the name of a candidate given in"):
+        diagnose(
+            arm,
+            friction_logs[:1],
+            friction_logs[1:2],
+            candidates=["coulomb"],
+            extra_candidates=[CoulombFriction()],
+        )
+    with pytest.raises(InputError, match=r"names must be unique; 'coulomb_copy' given more"):
+        diagnose(
+            arm,
+            friction_logs[:1],
+            friction_logs[1:2],
+            extra_candidates=[CoulombCopy(), CoulombCopy()],
+        )
 
 
 def test_cli_takes_the_nominal_model(arm, noise_logs, capsys):

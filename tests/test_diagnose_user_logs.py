@@ -15,6 +15,7 @@ from msarm.diagnose.builder import channels_from_logs
 from msarm.diagnose.cable_effects import CableElasticity, WinchFriction
 from msarm.diagnose.effects import (
     CANDIDATES,
+    NUMPY_OPS,
     CableCapstanFriction,
     CandidateEffect,
     CoulombFriction,
@@ -543,6 +544,106 @@ def test_a_user_candidate_with_a_bad_interface_is_refused_before_any_fit(logs, a
     with pytest.raises(InputError, match="NoName: a candidate needs a non-empty class attribute"):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[NoName()])
     assert not fitted
+
+
+class _Scaled(CandidateEffect):
+    """A nonlinear user term, r_j = a^2 (one parameter), correct as written."""
+
+    name = "test_scaled"
+    linear = False
+
+    def __init__(self) -> None:
+        self.channels = (0, 1, 2, 3)
+        self.parameter_names = ("a",)
+
+    def torque(self, signals, theta, ops=NUMPY_OPS):
+        return ops.const(np.ones((signals.n_samples, signals.n_joints))) * (theta[0] * theta[0])
+
+    def initial_guess(self, signals, residual=None):
+        return np.array([0.1])
+
+    def bounds(self):
+        return np.array([0.0]), np.array([1.0])
+
+
+def test_a_user_nonlinear_term_is_checked_before_any_fit(logs, arm, monkeypatch):
+    """A nonlinear term's torque() is evaluated at its start, with numpy and casadi, on a few
+    samples: a too-wide output was cut to the joint columns and could be named (cable tensions
+    read as joint torques), a NaN made IPOPT give up with the term quietly not named, and a
+    numpy function or an if on a parameter failed deep in casadi with no term named."""
+    import msarm.diagnose.select as select
+
+    fitted = []
+
+    class SelectionReachedError(Exception):
+        pass
+
+    def selection(*args, **kwargs):
+        fitted.append(1)
+        raise SelectionReachedError
+
+    monkeypatch.setattr(select, "select_effects", selection)
+
+    def refused(term, match):
+        with pytest.raises(InputError, match=match):
+            diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[term])
+        assert not fitted
+
+    class Wide(_Scaled):  # the tensions (T, 9) for joint torques (T, 4)
+        def torque(self, signals, theta, ops=NUMPY_OPS):
+            return ops.const(signals.tension) * theta[0]
+
+    refused(
+        Wide(), r"test_scaled: torque\(\) returned shape \(8, 9\), expected \(T, W\) = \(8, 4\)"
+    )
+
+    class NotANumber(_Scaled):
+        def torque(self, signals, theta, ops=NUMPY_OPS):
+            with np.errstate(invalid="ignore"):
+                return ops.const(signals.q - 10.0) ** 0.5 * theta[0]
+
+    refused(NotANumber(), r"test_scaled: torque\(\) has a non-finite value .* starting parameters")
+
+    class Branching(_Scaled):  # fine with numpy, not as a casadi expression
+        def torque(self, signals, theta, ops=NUMPY_OPS):
+            gain = theta[0] if theta[0] > 0.05 else 0.0
+            return ops.const(np.ones((signals.n_samples, 4))) * gain
+
+    refused(Branching(), r"test_scaled: torque\(\) with casadi ops raised .*written with the ops")
+
+    class ShortGuess(_Scaled):
+        def initial_guess(self, signals, residual=None):
+            return np.zeros(2)
+
+    refused(ShortGuess(), r"test_scaled: initial_guess\(\) returned shape \(2,\), expected \(1,\)")
+
+    class Misspelt(_Scaled):
+        groups = ("joints",)
+
+    refused(Misspelt(), r"test_scaled: groups must be .* from joint, drive, length")
+
+    class Unnamed(_Scaled):
+        def __init__(self) -> None:
+            self.channels = (0, 1, 2, 3)
+
+    refused(Unnamed(), r"test_scaled: parameter_names is not set")
+
+    class Twice(_Scaled):
+        def __init__(self) -> None:
+            self.channels = (0, 1, 2, 3)
+            self.parameter_names = ("a", "a")
+
+        def initial_guess(self, signals, residual=None):
+            return np.zeros(2)
+
+        def bounds(self):
+            return np.zeros(2), np.ones(2)
+
+    refused(Twice(), r"test_scaled: parameter_names must be a tuple of distinct")
+    # the correct term passes the checks and reaches the selection
+    with pytest.raises(SelectionReachedError):
+        diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Scaled()])
+    assert fitted == [1]
 
 
 def test_a_delay_kernel_is_also_given_in_milliseconds():

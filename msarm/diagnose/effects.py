@@ -261,7 +261,8 @@ class CandidateEffect(ABC):
         description: The term's equation in words (class attribute).
         linear: Whether the prediction is linear in the parameters (class attribute).
         parameter_names: Names of the ``p`` parameters, in the order of ``theta``.
-        channels: Indices of the joints the term acts on (its prediction is zero elsewhere).
+        channels: Indices of the joints the term acts on (of the cables, for a term on the
+            drive or length group); its prediction is zero elsewhere.
     """
 
     name: ClassVar[str] = ""
@@ -335,7 +336,7 @@ class CandidateEffect(ABC):
         The channel groups (see :mod:`msarm.diagnose.builder`) are ``"joint"`` (``n``
         joint-torque columns [N m]), ``"drive"`` (``m`` load-cell-minus-command columns [N])
         and ``"length"`` (``m`` cable length error columns [m]); a term's prediction holds the
-        columns of its ``groups`` in that order.
+        columns of its ``groups`` side by side, in the order of its ``groups`` tuple.
 
         Args:
             signals: The signals (for ``n`` and ``m``).
@@ -369,7 +370,16 @@ class CandidateEffect(ABC):
         For a joint-torque term this is ``(T, n)`` [N m]; the name is historical.
 
         Linear terms evaluate ``design @ theta`` (numpy only); nonlinear terms override this
-        with code written in ``ops`` so that it works with numpy and casadi.
+        with code written in ``ops`` so that it works with numpy and casadi (no numpy function
+        of ``theta``, no ``if`` on it: the diagnosis builds the casadi expression on a few
+        samples before any fit and refuses a term it cannot build, or whose output is not
+        ``(T, W)`` and finite at its :meth:`initial_guess`).
+
+        The diagnosis evaluates a nonlinear term on the samples its fits use, which may be
+        every k-th sample of a run (thinned). A term with memory (a state, a delay) computes
+        it on the whole runs, ``whole, rows = signals.origin`` (:meth:`Signals.take`), and
+        then takes ``rows``, as :class:`CableCapstanHysteresis` does; a linear term's
+        :meth:`design` is always computed on the whole runs first.
 
         Args:
             signals: Signals of ``T`` samples.

@@ -20,7 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
-from msarm.diagnose.effects import CandidateEffect, CasadiOps
+from msarm.diagnose.builder import GROUPS
+from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect, CasadiOps
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 from msarm.interrupts import raise_if_terminated
@@ -88,7 +89,7 @@ class FitResult:
 
     def predict(self, signals: Signals) -> FloatArray:
         """The fitted term's predicted residual [N m], shape ``(T, n)``."""
-        return np.asarray(self.effect.torque(signals, self.parameters), dtype=float)
+        return np.asarray(self.effect.torque(signals, self.parameters, NUMPY_OPS), dtype=float)
 
     def explained_variance(
         self,
@@ -352,16 +353,19 @@ def check_name(effect: CandidateEffect) -> None:
 def check_interface(effect: CandidateEffect) -> None:
     """Refuse a candidate whose declared interface is malformed (the term named).
 
-    Checks the :attr:`~CandidateEffect.name` (what the answer calls it), the
-    :attr:`~CandidateEffect.indexed_by`, and :meth:`~CandidateEffect.constraints` and
-    :meth:`~CandidateEffect.bounds` of a nonlinear term (a linear term may state no
-    constraint, since its least squares cannot keep one), and
+    Checks the :attr:`~CandidateEffect.name` (what the answer calls it), its ``groups`` and
+    :attr:`~CandidateEffect.parameter_names`, the :attr:`~CandidateEffect.indexed_by`, and
+    :meth:`~CandidateEffect.constraints` and :meth:`~CandidateEffect.bounds` of a nonlinear
+    term (a linear term may state no constraint, since its least squares cannot keep one),
+    and
     :meth:`~CandidateEffect.parameter_groups`.
 
     Raises:
         InputError: What is wrong and what was expected.
     """
     check_name(effect)
+    check_groups(effect)
+    check_parameter_names(effect)
     if effect.indexed_by not in INDEXED_BY:
         raise InputError(
             f"{effect.name}: indexed_by must be 'joint', 'cable' or None (what a bracketed "
@@ -377,6 +381,36 @@ def check_interface(effect: CandidateEffect) -> None:
     if not effect.linear:
         bounds_of(effect)
     check_parameter_groups(effect)
+
+
+def check_groups(effect: CandidateEffect) -> None:
+    """Refuse ``groups`` that are not distinct residual groups (InputError, term named)."""
+    groups = getattr(effect, "groups", None)
+    if (
+        not isinstance(groups, tuple | list)
+        or not groups
+        or any(g not in GROUPS for g in groups)
+        or len(set(groups)) != len(groups)
+    ):
+        raise InputError(
+            f"{effect.name}: groups must be a non-empty tuple of distinct residual groups from "
+            f"{', '.join(GROUPS)} (those its prediction has columns for, in that tuple's order), "
+            f"got {groups!r}"
+        )
+
+
+def check_parameter_names(effect: CandidateEffect) -> None:
+    """Refuse missing, repeated or non-string ``parameter_names`` (InputError, term named)."""
+    names = getattr(effect, "parameter_names", None)
+    expected = "a tuple of distinct non-empty strings, one a parameter in the order of theta"
+    if names is None:
+        raise InputError(f"{effect.name}: parameter_names is not set; expected {expected}")
+    if (
+        not isinstance(names, tuple | list)
+        or not all(isinstance(n, str) and n.strip() for n in names)
+        or len(set(names)) != len(names)
+    ):
+        raise InputError(f"{effect.name}: parameter_names must be {expected}, got {names!r}")
 
 
 def check_parameter_groups(effect: CandidateEffect) -> None:
@@ -479,7 +513,10 @@ class _NonlinearProblem:
             initial = self.effect.initial_guess(self.signals, r)
         x0 = np.asarray(initial, dtype=float)
         if x0.shape != (p,):
-            raise InputError(f"initial: expected shape ({p},), got {x0.shape}")
+            raise InputError(
+                f"{self.effect.name}: starting parameters (its initial_guess(), or the start "
+                f"given) have shape {x0.shape}, expected ({p},) for {self.effect.parameter_names}"
+            )
         x0 = np.clip(x0, self.lower, self.upper)
         w = np.ones(T) if weights is None else weights
         values = np.concatenate([w, r.reshape(-1, order="F")])
@@ -538,7 +575,7 @@ def fit(
     else:
         train = signals if mask.all() else signals.take(mask)
         parameters, success, message = _NonlinearProblem(effect, train, r).solve(initial)
-    error = r - np.asarray(effect.torque(signals, parameters), dtype=float)[mask]
+    error = r - np.asarray(effect.torque(signals, parameters, NUMPY_OPS), dtype=float)[mask]
     return FitResult(
         effect=effect,
         parameters=parameters,

@@ -70,6 +70,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
+import casadi
 import numpy as np
 from numpy.typing import NDArray
 
@@ -92,9 +93,11 @@ from msarm.diagnose.cable_effects import (
 )
 from msarm.diagnose.effects import (
     CANDIDATES,
+    NUMPY_OPS,
     CableCapstanFriction,
     CableCapstanHysteresis,
     CandidateEffect,
+    CasadiOps,
     CoulombFriction,
     DahlFriction,
     InertiaError,
@@ -106,7 +109,7 @@ from msarm.diagnose.effects import (
     ViscousFriction,
     parameter_kind,
 )
-from msarm.diagnose.fitting import check_interface, check_name, one_blas_thread
+from msarm.diagnose.fitting import bounds_of, check_interface, check_name, one_blas_thread
 from msarm.diagnose.residuals import DiagnosisWarning, ResidualSpec, replay_runs
 from msarm.diagnose.result import Diagnosis, SelectedEffect, label_parameters
 from msarm.diagnose.signals import Signals
@@ -740,6 +743,70 @@ def _check_design(term: CandidateEffect, signals: Signals) -> None:
         raise InputError(f"{term.name}: design() has a non-finite value (NaN or inf) at {bad}")
 
 
+def _check_torque(term: CandidateEffect, signals: Signals) -> None:
+    """Refuse a nonlinear term whose ``torque()`` fails, or is not ``(T, W)`` and finite.
+
+    Evaluated at its starting parameters on ``signals`` (a few samples of the logs), with
+    numpy and as the casadi expression IPOPT fits: an output of the wrong width would
+    otherwise be cut to the term's columns (or fail deep in casadi), a NaN make IPOPT give
+    up without a word, and an ``if`` on a parameter or a numpy function of one fail in
+    casadi with no term named. Raises :class:`InputError` naming the term.
+    """
+    T, W, p = signals.n_samples, term.width(signals), term.n_parameters
+    where = f"checked on the first {T} samples of the logs"
+    expected = f"(T, W) = ({T}, {W}) (samples, the residual columns of its groups)"
+    own = type(term).__module__.split(".")[0] == "msarm"
+
+    hint = (
+        "; a nonlinear term's torque() must be written with the ops it is given (ops.exp, "
+        "ops.tanh, ops.row, ops.const, theta[i]; no numpy function of theta, no if on it) "
+        "for IPOPT to differentiate it"
+    )
+
+    def call(what: str, function: Callable[[], Any], why: str = "") -> Any:
+        try:
+            return function()
+        except InputError:
+            raise
+        except Exception as exc:
+            if own:
+                raise  # a bug of msarm's own: its traceback, not a term skipped
+            raise InputError(  # a user's term: its own error, with the term named
+                f"{term.name}: {what} raised {type(exc).__name__}: {exc}{why} ({where})"
+            ) from exc
+
+    guess = call("initial_guess()", lambda: term.initial_guess(signals, np.zeros((T, W))))
+    start = np.asarray(guess, dtype=float)
+    if start.shape != (p,):
+        raise InputError(
+            f"{term.name}: initial_guess() returned shape {start.shape}, expected ({p},) for "
+            f"{term.parameter_names}"
+        )
+    start = np.clip(start, *bounds_of(term))
+    value = np.asarray(call("torque()", lambda: term.torque(signals, start, NUMPY_OPS)))
+    if value.shape != (T, W):
+        raise InputError(
+            f"{term.name}: torque() returned shape {value.shape}, expected {expected} ({where})"
+        )
+    if not np.all(np.isfinite(value)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(value))[0])
+        at = dict(zip(term.parameter_names, start.tolist(), strict=True))
+        raise InputError(
+            f"{term.name}: torque() has a non-finite value (NaN or inf) at {bad} at its "
+            f"starting parameters {at} ({where})"
+        )
+    theta = casadi.MX.sym("theta", p)
+    expression = call(
+        "torque() with casadi ops", lambda: term.torque(signals, theta, CasadiOps()), hint
+    )
+    shape = tuple(getattr(expression, "shape", ()))
+    if shape != (T, W):
+        raise InputError(
+            f"{term.name}: torque() with casadi ops returned shape {shape}, expected "
+            f"{expected}{hint} ({where})"
+        )
+
+
 def _build_registered(cls: type[CandidateEffect], model: RobotModel) -> CandidateEffect:
     """A user's registered candidate class built for ``model``.
 
@@ -807,8 +874,11 @@ def _usable(
             for which, these in checks:
                 try:
                     term.check(these)
+                    few = these.take(np.arange(min(these.n_samples, 8)))
                     if term.linear:
-                        _check_design(term, these.take(np.arange(min(these.n_samples, 8))))
+                        _check_design(term, few)
+                    else:
+                        _check_torque(term, few)
                 except InputError as exc:
                     reason = f"in the {which} logs: {exc}"
                     break
@@ -1074,7 +1144,15 @@ def load_data(
         if not isinstance(extra, CandidateEffect):
             raise InputError(f"extra_candidates: expected CandidateEffect instances, got {extra!r}")
         check_name(extra)  # before the names are compared
-    _refuse_repeated_names("extra_candidates", [c.name for c in [*pool, *extras]])
+    taken = {c.name for c in pool} & {c.name for c in extras}
+    if taken:
+        which = "a candidate given in candidates" if named else "a default candidate"
+        raise InputError(
+            f"extra_candidates: {', '.join(map(repr, sorted(taken)))} is also the name of "
+            f"{which}; give your term another name (or leave that candidate out of "
+            "candidates)"
+        )
+    _refuse_repeated_names("extra_candidates", [c.name for c in extras])
     for candidate in [*pool, *extras]:
         check_interface(candidate)
     train, g_train, train_names = channels_from_logs(model, train_paths, spec)
@@ -1285,7 +1363,7 @@ def select_effects(
     cumulative = np.zeros_like(r_hold)
     waterfall = [{g: pooled_rmse(v) for g, v in layout.unstack(r_hold).items()}]
     for term, theta in zip(final.terms, final.parameters, strict=True):
-        cumulative = cumulative + np.asarray(term.torque(hold, theta), dtype=float)
+        cumulative = cumulative + np.asarray(term.torque(hold, theta, NUMPY_OPS), dtype=float)
         waterfall.append(
             {g: pooled_rmse(v) for g, v in layout.unstack(r_hold - cumulative).items()}
         )

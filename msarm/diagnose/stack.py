@@ -421,7 +421,7 @@ class Sampled:
         """A term's prediction on the ``"train"`` or ``"hold"`` samples, ``(T, W)``."""
         if term.linear:
             return np.einsum("tnp,p->tn", self.design(term, split), theta)
-        return np.asarray(term.torque(self.signals[split], theta), dtype=float)
+        return np.asarray(term.torque(self.signals[split], theta, NUMPY_OPS), dtype=float)
 
 
 def _even_rows(n: int, limit: int) -> NDArray[np.intp]:
