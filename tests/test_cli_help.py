@@ -247,3 +247,11 @@ def test_a_partial_controller_file_with_ff_keeps_the_trained_gains(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert _over_trained_gains(gains, set(given), trained, path, Path("c.pt")) == trained
+
+
+def test_help_names_no_value_for_a_flag():
+    """`--json <bool>` in the help invited `--json true`, which is refused."""
+    result = CliRunner().invoke(app, ["track", "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    assert "--json" in result.output and "<bool>" not in result.output
+    assert re.search(r"--seed\s+<int", result.output)  # an option with a value keeps its type

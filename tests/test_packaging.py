@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import ast
+import re
 import shutil
 import subprocess
 import sys
 import sysconfig
 import tomllib
 import zipfile
+from importlib.metadata import packages_distributions
 from pathlib import Path
 
 import pytest
@@ -25,6 +28,34 @@ def test_every_package_is_listed_in_pyproject():
     found = {".".join(init.parent.relative_to(ROOT).parts) for init in inits}
     listed = set(settings["packages"])
     assert listed == found | {"msarm.models"}
+
+
+def _normalised(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def test_every_library_msarm_imports_is_a_declared_dependency():
+    """`pip install msarm` must bring what msarm imports: daqp (the allocation's QP solver)
+    was only in requirements.lock, and an install by pip's own resolution failed on the first
+    allocation with ModuleNotFoundError."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = {_normalised(re.split(r"[<>=!~ ;\[]", d)[0]) for d in project["dependencies"]}
+    imported = set()
+    for path in (ROOT / "msarm").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                imported |= {alias.name.split(".")[0] for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                imported.add(node.module.split(".")[0])
+    third_party = imported - set(sys.stdlib_module_names) - {"msarm", "__future__"}
+    distributions = packages_distributions()
+    distributions["pinocchio"] = ["pin"]  # the pin wheel puts it on the path through a .pth
+    undeclared = {
+        name: distributions.get(name)
+        for name in third_party
+        if not {_normalised(d) for d in distributions.get(name, [name])} & declared
+    }
+    assert not undeclared, f"imported but not in [project].dependencies: {undeclared}"
 
 
 def test_the_models_are_found_inside_the_package_or_beside_it(tmp_path):
@@ -47,7 +78,7 @@ def test_a_wheel_carries_the_models_and_loads_them(tmp_path):
     skip = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
     for part in ("msarm", "models"):
         shutil.copytree(ROOT / part, source / part, ignore=skip)
-    for part in ("pyproject.toml", "README.md"):
+    for part in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(ROOT / part, source / part)
     build = [sys.executable, "-m", "pip", "--disable-pip-version-check"]
     wheel_options = ["--no-deps", "--no-build-isolation", "-q", "-w", str(wheels)]

@@ -6,7 +6,10 @@ heavy imports happen inside the commands so that ``msarm --help`` stays fast.
 
 from __future__ import annotations
 
+from typing import Any
+
 import typer
+from typer.core import TyperOption
 
 from msarm.cli.arm import arm_command
 from msarm.cli.bench import bench_app
@@ -17,6 +20,25 @@ from msarm.cli.diagnose import diagnose_command
 from msarm.cli.log import log_app
 from msarm.cli.track import track_command
 from msarm.errors import InputError
+
+
+def _no_value_for_flags() -> None:
+    """Show no value type beside a flag in ``--help`` (typer 0.29 showed ``--json <bool>``).
+
+    A flag takes no value (``--json true`` is refused as an extra argument), so its help row
+    should name none; options that take a value keep their ``<int>``, ``<path>`` ….
+    """
+    shown = TyperOption.display_type_rich
+
+    def display_type_rich(self: TyperOption, ctx: Any) -> str | None:
+        if self.is_flag and not self.count:
+            return None
+        return shown(self, ctx)
+
+    TyperOption.display_type_rich = display_type_rich  # type: ignore[method-assign]
+
+
+_no_value_for_flags()
 
 app = typer.Typer(
     name="msarm",

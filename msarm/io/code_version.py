@@ -41,8 +41,11 @@ __all__ = ["LIBRARIES", "SCOPES", "code_fingerprint", "source_fingerprint"]
 #: msarm's package folder (the sources that are fingerprinted).
 _PACKAGE = Path(__file__).resolve().parent.parent
 
-#: Parts of msarm that never change a number: the command line and the plots.
-_NEVER_COUNTED = ("cli", "plots.py")
+#: Parts of msarm that never change a number: the command line, the plots, and the models
+#: folder an installed wheel carries inside the package (its ``size_muscles.py`` is a
+#: re-sizing script; the model files themselves are checked by their SHA-256), so that a
+#: checkout and a wheel of the same sources have the same fingerprint.
+_NEVER_COUNTED = ("cli", "plots.py", "models")
 
 #: Libraries that compute a simulated run (distribution names, as pip knows them).
 _SIMULATION_LIBRARIES = ("mujoco", "pin", "numpy", "scipy", "numba", "cvxpy", "torch", "pyarrow")
