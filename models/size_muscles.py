@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msarm.model import load_arm
+from msarm.model import load_robot
 from msarm.muscle.geometry import joint_grid
 from msarm.muscle.sizing import size_fibres
 
@@ -29,7 +29,11 @@ def main() -> None:
     parser.add_argument("model", type=Path, help="MJCF file with hill/<cable> numerics")
     parser.add_argument("--points", type=int, default=9, help="grid points per joint")
     args = parser.parse_args()
-    arm = load_arm(args.model)
+    # load_robot, not load_arm: the arm's loader refuses fibres far from their optimal length
+    # at the reference posture, which is what a moved attachment gives before this re-sizing
+    arm = load_robot(args.model)
+    if arm.muscles is None:
+        raise SystemExit(f"{args.model}: no Hill parameters hill/<cable> in <custom> to resize")
     grid = joint_grid(arm.joint_lower, arm.joint_upper, args.points)
     lengths = np.array([arm.geometry(q).lengths for q in grid])
     optimal, slack = size_fibres(lengths, arm.muscles.pennation_at_optimal)

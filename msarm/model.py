@@ -259,7 +259,9 @@ def _check_fibre_lengths(model: RobotModel) -> None:
             f"{model.path}: cable '{name}' is {length[i]:.4g} m long at the reference posture "
             f"(qpos0): its fibre would be {said} (l_M0 {optimal[i]:.4g} m, l_Ts "
             f"{slack[i]:.4g} m); expected {low:g}-{high:g} times its optimal length. Are the "
-            "model's lengths and the Hill parameters in the same unit (metres)?"
+            "model's lengths and the Hill parameters in the same unit (metres)? After moving "
+            "an attachment point or a sheath waypoint, size the muscles again: python "
+            "models/size_muscles.py <model.xml>"
         )
 
 
@@ -303,6 +305,7 @@ def load_robot(path: str | Path) -> RobotModel:
     pin_model.gravity.linear = model_gravity(mj_model)  # the parser ignores <option gravity>
     pin_q_index = np.arange(mj_model.nq, dtype=np.intp)
     _check_engines_agree(mj_model, pin_model, pin_q_index, path)
+    _check_no_passive_forces(mj_model, path)
     cable_names = tuple(mj_model.tendon(i).name for i in range(mj_model.ntendon))
     if any(not name for name in cable_names):
         raise ModelError(f"{path}: every tendon needs a name (the cable's name)")
@@ -540,6 +543,44 @@ def _check_engines_agree(
                 "<inertial> elements (give every body one), joint armature and "
                 "<option gravity>"
             )
+
+
+#: Passive forces an MJCF file may give that MuJoCo applies and the nominal model (Pinocchio's
+#: dynamics, ideal cables) does not have: (what, MjModel field, element kind of its index).
+_PASSIVE_FIELDS = (
+    ("joint stiffness", "jnt_stiffness", "joint"),
+    ("joint damping", "dof_damping", "dof"),
+    ("joint frictionloss", "dof_frictionloss", "dof"),
+    ("gravity compensation (gravcomp)", "body_gravcomp", "body"),
+    ("tendon stiffness", "tendon_stiffness", "tendon"),
+    ("tendon damping", "tendon_damping", "tendon"),
+    ("tendon frictionloss", "tendon_frictionloss", "tendon"),
+)
+
+
+def _check_no_passive_forces(mj_model: mujoco.MjModel, path: Path) -> None:
+    """Refuse springs, damping, friction or gravity compensation set in the model file.
+
+    MuJoCo would apply them in the simulated plant, and the nominal model the controller and
+    the diagnosis use would not have them: the "ideal" plant would no longer be the nominal
+    model. The plant's effects (joint friction, cable elasticity) add such forces on purpose.
+    """
+    for what, attribute, kind in _PASSIVE_FIELDS:
+        values = np.asarray(getattr(mj_model, attribute), dtype=float).reshape(-1)
+        if not np.any(values != 0.0):
+            continue
+        k = int(np.flatnonzero(values != 0.0)[0])
+        index = int(mj_model.dof_jntid[k]) if kind == "dof" else k
+        element = {"dof": mj_model.joint, "joint": mj_model.joint, "body": mj_model.body}.get(
+            kind, mj_model.tendon
+        )(index)
+        raise ModelError(
+            f"{path}: {what} is set ({values[k]:g} on {'joint' if kind == 'dof' else kind} "
+            f"'{element.name}'); the nominal model (Pinocchio's dynamics, ideal cables) has "
+            "none, so the simulated plant would differ from it even with no effect switched "
+            "on: leave it out of the model file (the plant's joint_friction and elasticity "
+            "effects add friction, damping and cable stiffness)"
+        )
 
 
 def _joint_limits(mj_model: mujoco.MjModel) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

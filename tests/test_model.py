@@ -265,3 +265,42 @@ def test_cable_lengths_that_do_not_fit_the_hill_parameters_are_refused(tmp_path,
     mujoco.mj_forward(arm.mj_model, data)
     fibre = arm.muscles.fiber_state(data.ten_length, np.zeros(arm.n_cables)).length_norm
     assert np.all((fibre > 0.7) & (fibre < 1.3))
+
+
+def test_size_muscles_resizes_a_model_load_arm_refuses(tmp_path, monkeypatch, capsys):
+    """After a move that shortens a cable past its tendon slack length, load_arm refuses the
+    model until the muscles are sized again; size_muscles.py used load_arm and could not."""
+    import runpy
+    import sys
+
+    text = ARM_MODEL_PATH.read_text()
+    text = re.sub(r'(name="teres_minor_motor" pos=")[^"]*"', r'\g<1>-0.04 -0.04 0.05"', text)
+    text = re.sub(r'(name="teres_minor_sheath1" pos=")[^"]*"', r'\g<1>-0.10 -0.12 0.16"', text)
+    moved = tmp_path / "moved.xml"
+    moved.write_text(text)
+    with pytest.raises(ModelError, match=r"teres_minor.*size the muscles again"):
+        load_arm(moved)
+    script = ARM_MODEL_PATH.parent / "size_muscles.py"
+    monkeypatch.setattr(sys, "argv", [str(script), str(moved)])
+    runpy.run_path(str(script), run_name="__main__")
+    assert "teres_minor" in capsys.readouterr().out
+    arm = load_arm(moved)  # sized again: the fibres are near their optimal length
+    assert arm.muscles is not None
+
+
+@pytest.mark.parametrize(
+    "attribute, element, expected",
+    [
+        ('damping="0.5"', '<joint name="elbow"', "joint damping is set .* joint 'elbow'"),
+        ('stiffness="2"', '<joint name="elbow"', "joint stiffness is set"),
+        ('gravcomp="1"', '<body name="forearm"', r"gravity compensation \(gravcomp\) is set"),
+    ],
+)
+def test_passive_forces_the_nominal_model_lacks_are_refused(tmp_path, attribute, element, expected):
+    """MuJoCo applied them in the plant and Pinocchio's nominal model did not have them."""
+    text = ARM_MODEL_PATH.read_text()
+    assert element in text
+    path = tmp_path / "passive.xml"
+    path.write_text(text.replace(element, f"{element} {attribute}", 1))
+    with pytest.raises(ModelError, match=expected):
+        load_robot(path)

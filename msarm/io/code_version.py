@@ -48,7 +48,20 @@ _PACKAGE = Path(__file__).resolve().parent.parent
 _NEVER_COUNTED = ("cli", "plots.py", "models")
 
 #: Libraries that compute a simulated run (distribution names, as pip knows them).
-_SIMULATION_LIBRARIES = ("mujoco", "pin", "numpy", "scipy", "numba", "cvxpy", "torch", "pyarrow")
+_SIMULATION_LIBRARIES = (
+    "mujoco",
+    "pin",
+    "numpy",
+    "scipy",
+    "numba",
+    "cvxpy",
+    "torch",
+    "pyarrow",
+    # the allocation's QP solvers: DAQP (the cable robot's default "fast" solver, the arm's
+    # fallback) and Clarabel (under cvxpy)
+    "daqp",
+    "clarabel",
+)
 
 #: Scope -> (msarm parts left out, libraries whose versions count).
 SCOPES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
