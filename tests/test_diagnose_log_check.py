@@ -49,6 +49,27 @@ def test_what_a_log_lacks_is_said_as_the_diagnosis_says_it(arm, logs, tmp_path):
     assert "columns 'tension_cmd.*' are missing (all 9): no drive residual" in check.warnings[0]
 
 
+def test_channels_that_name_no_joint_or_cable_of_the_model_are_warned(arm, logs, tmp_path):
+    """A column ``q.wrist`` or ``tension_motor.wrist_flexor`` in a log: the import refuses it,
+    the diagnosis does not read it; before, the check said nothing (0 warnings)."""
+    log = read_log(logs[0])
+    zeros = np.zeros(len(log))
+    extra = {"q.wrist": zeros, "q_ref.Elbow": zeros, "tension_motor.wrist_flexor": zeros}
+    path = write_log(tmp_path / "wrist.parquet", RunLog({**log.columns, **extra}, log.metadata))
+    check = check_log(arm, path)
+    assert check.ok and check.residuals == dict.fromkeys(RESIDUALS_CHECKED, True)
+    joints, cables = check.warnings
+    assert joints.startswith(
+        f"{path}: columns 'q.wrist', 'q_ref.Elbow' name no joint of the model 'msarm_arm' "
+        "(its joints: shoulder_abduction, "
+    )
+    assert "the diagnosis does not read them (a misspelt name, or a joint" in joints
+    assert cables.startswith(
+        f"{path}: column 'tension_motor.wrist_flexor' names no cable of the model 'msarm_arm'"
+    )
+    assert "the diagnosis does not read it (a misspelt name, or a cable" in cables
+
+
 def test_a_log_the_diagnosis_refuses_keeps_its_error(arm, logs, tmp_path):
     log = read_log(logs[0])
     other = write_log(

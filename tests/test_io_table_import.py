@@ -188,6 +188,74 @@ def test_bad_files_and_times_are_named(arm, tmp_path):
     assert read_csv_log(one, arm, sample_rate_hz=100).metadata.sample_rate_hz == 100
 
 
+@pytest.mark.parametrize("rows", ["", ",\n,\n"], ids=["header only", "empty rows only"])
+def test_a_file_without_samples_is_refused(arm, tmp_path, rows):
+    """Before, an IndexError (in _first_text) for both."""
+    path = tmp_path / "h.csv"
+    path.write_text(f"t,q.elbow\n{rows}")
+    with pytest.raises(InputError, match=r"h\.csv: no samples \(a header and no data rows"):
+        read_csv_log(path, arm)
+
+
+def test_files_that_are_not_csv_text_are_named(arm, tmp_path):
+    """A log (Parquet), binary data, text not in UTF-8 and a header the csv module cannot
+    parse: each an InputError saying what the file is (before, a Parquet log gave a
+    csv.Error, a PNG a UnicodeDecodeError, a Latin-1 value "not a number: b'1' at row 0")."""
+    import gzip
+
+    log = write_log(tmp_path / "log.parquet", _recording(arm))
+    with pytest.raises(InputError, match=r"log\.parquet: a Parquet file .*msarm log check reads"):
+        read_csv_log(log, arm)
+    png = tmp_path / "plot.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x02")
+    with pytest.raises(InputError, match=r"plot\.png: not a readable CSV file: it holds binary"):
+        read_csv_log(png, arm)
+    fake = tmp_path / "fake.csv.gz"
+    fake.write_bytes(b"t,q.elbow\n0,1\n")
+    with pytest.raises(InputError, match=r"fake\.csv\.gz: not a readable CSV file: "):
+        read_csv_log(fake, arm)
+    zipped = tmp_path / "log.csv.gz"
+    zipped.write_bytes(gzip.compress(log.read_bytes()))
+    with pytest.raises(InputError, match=r"log\.csv\.gz: a Parquet file"):
+        read_csv_log(zipped, arm)
+    latin = tmp_path / "latin.csv"
+    latin.write_bytes(b"t,q.elb\xb0\n0,1\n")
+    with pytest.raises(InputError, match=r"its header is not UTF-8 text \(byte 0xb0 at position 7"):
+        read_csv_log(latin, arm)
+    latin.write_bytes(b"t,q.elbow\n0,1\n0.004,\xb0\n")
+    with pytest.raises(
+        InputError,
+        match=r"column 'q\.elbow' holds a value that is not UTF-8 text: b'\\xb0' at row 1",
+    ):
+        read_csv_log(latin, arm)
+    long = tmp_path / "long.csv"
+    long.write_text("x" * 200_000 + "\n")
+    with pytest.raises(InputError, match=r"long\.csv: not a readable CSV file: its header row "):
+        read_csv_log(long, arm)
+    # a line may end in \r alone, as the parser reads it (the header reader refused it)
+    old_mac = tmp_path / "mac.csv"
+    old_mac.write_bytes(b"t,q.elbow\r0,1\r0.004,2\r")
+    np.testing.assert_array_equal(read_csv_log(old_mac, arm).columns["q.elbow"], [1.0, 2.0])
+
+
+def test_msarm_log_import_says_what_is_not_a_csv_file_in_one_line(
+    arm, tmp_path, monkeypatch, capsys
+):
+    """An empty file or a log given to import: exit 2, one line, no --out folder left (an
+    IndexError or a csv.Error before, with an empty --out folder)."""
+    empty = tmp_path / "h.csv"
+    empty.write_text("t,q.elbow\n")
+    log = write_log(tmp_path / "run" / "log.parquet", _recording(arm))
+    out = tmp_path / "out"
+    for path, message in [(empty, "no samples"), (log, "a Parquet file")]:
+        code, _, err = _main(monkeypatch, capsys, "log", "import", str(path), "--out", str(out))
+        assert code == 2 and err.startswith(f"msarm: error: {path}: {message}")
+        assert err.count("\n") == 1 and not out.exists()
+    # without --out its log would replace it: said as a log given, not as a CSV file
+    code, _, err = _main(monkeypatch, capsys, "log", "import", str(log))
+    assert code == 2 and err.startswith(f"msarm: error: {log}: a Parquet file")
+
+
 def test_the_sample_rate_is_taken_from_jittered_times_to_six_digits(arm):
     rng = np.random.default_rng(3)
     t = np.arange(400) / 1000.0 + rng.uniform(-2e-6, 2e-6, 400)

@@ -106,9 +106,12 @@ def log_paths(files: list[Path], out: Path | None) -> list[Path]:
         The log path of each file, in order.
 
     Raises:
-        InputError: Two files would write one log, a log would replace one of the CSV files,
-            or a log's path is a folder; all before anything is written.
+        InputError: Two files would write one log, a log would replace one of the CSV files
+            (a log given to import, a Parquet file, is named as such), or a log's path is a
+            folder; all before anything is written.
     """
+    from msarm.io.table_import import check_not_parquet
+
     targets = []
     for path in files:
         bare = path.with_suffix("") if path.suffix.lower() in COMPRESSION_SUFFIXES else path
@@ -124,6 +127,7 @@ def log_paths(files: list[Path], out: Path | None) -> list[Path]:
     inputs = {path.resolve() for path in files}
     for path, target in zip(files, targets, strict=True):
         if target.resolve() in inputs:
+            check_not_parquet(path)  # a log given to import: said as such
             raise InputError(
                 f"{path}: its log {target} would replace a CSV file given; rename the file "
                 "(a CSV file ends in .csv) or give --out"

@@ -4,10 +4,11 @@
 (:func:`msarm.diagnose.residuals.residuals_from_log`, without the replay), so every check the
 diagnosis makes of a log is made here too, by the same code: the model's hash, the units,
 missing channels and values, time gaps and the sample rate, the derivative filter's span, dead
-sensors, channels whose scales disagree, too little motion. What it finds is kept, not
-raised: an error that would stop the diagnosis, the warnings it would give, and which
-residuals the log supports. :func:`check_logs` adds what the diagnosis refuses of logs
-together: one run under two names, and logs of different sample rates.
+sensors, channels whose scales disagree, too little motion, channels that name no joint or
+cable of the model (not read). What it finds is kept, not raised: an error that would stop
+the diagnosis, the warnings it would give, and which residuals the log supports.
+:func:`check_logs` adds what the diagnosis refuses of logs together: one run under two names,
+and logs of different sample rates.
 """
 
 from __future__ import annotations

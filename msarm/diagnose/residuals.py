@@ -47,7 +47,7 @@ from scipy.signal import savgol_filter
 from msarm.compensation.target import TargetSpec, filtered_motion, torque_error
 from msarm.diagnose.missing_values import read_log_for_diagnosis
 from msarm.errors import LogError, MsarmWarning
-from msarm.io.logs import TIME, RunLog, check_standard_units, nominal_step
+from msarm.io.logs import TIME, RunLog, check_standard_units, nominal_step, split_channel
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
 
@@ -307,6 +307,7 @@ def residuals_from_log(
             "(joint angles and cables, as msarm track writes); a cable-driven parallel robot's "
             "logs are not diagnosed yet"
         )
+    _warn_channels_of_no_joint_or_cable(log, model, source)
     check_standard_units(log, _QUANTITIES_READ, source)
     joints, cables = list(model.joint_names), list(model.cable_names)
     for quantity, names in (("q", joints), ("tension_motor", cables)):
@@ -584,6 +585,44 @@ def _warn_outside_joint_range(
         DiagnosisWarning,
         stacklevel=3,
     )
+
+
+def _warn_channels_of_no_joint_or_cable(log: RunLog, model: RobotModel, source: str) -> None:
+    """Warn of channels of a joint or cable quantity that name none of the model's.
+
+    The quantities are those ``msarm log import`` checks the names of
+    (:data:`~msarm.io.table_import.JOINT_QUANTITIES`, :data:`~msarm.io.table_import.
+    CABLE_QUANTITIES`). The diagnosis reads each quantity by the model's names, so such a
+    column is not read: a misspelt ``q_ref.Elbow`` would otherwise leave ``q_ref.elbow``
+    missing with no word on why. One warning for the joints' channels, one for the cables'.
+    """
+    from msarm.io.table_import import CABLE_QUANTITIES, JOINT_QUANTITIES
+
+    for kind, quantities, known in (
+        ("joint", JOINT_QUANTITIES, list(model.joint_names)),
+        ("cable", CABLE_QUANTITIES, list(model.cable_names)),
+    ):
+        strangers = [
+            column
+            for column in log.columns
+            if column != TIME
+            and split_channel(column)[0] in quantities
+            and split_channel(column)[1] not in known
+        ]
+        if not strangers:
+            continue
+        one = len(strangers) == 1
+        listed = ", ".join(repr(column) for column in strangers[:4])
+        more = f" and {len(strangers) - 4} more" if len(strangers) > 4 else ""
+        warnings.warn(
+            f"{source}: column{'' if one else 's'} {listed}{more} name{'s' if one else ''} no "
+            f"{kind} of the model {model.name!r} (its {kind}s: {', '.join(known)}); the "
+            f"diagnosis does not read {'it' if one else 'them'} (a misspelt name, or a "
+            f"{kind} the model lacks? rename the column to one of the model's {kind}s, or "
+            "leave it out)",
+            DiagnosisWarning,
+            stacklevel=3,
+        )
 
 
 def _has_channels(log: RunLog, quantity: str, names: list[str], source: str, without: str) -> bool:

@@ -35,6 +35,7 @@ What it does, and refuses (each error names the file, the column and what was ex
 from __future__ import annotations
 
 import math
+import re
 import warnings
 from collections.abc import Mapping, Sequence
 from decimal import Decimal
@@ -67,6 +68,7 @@ __all__ = [
     "RATE_RANGE_HZ",
     "TIME_UNITS",
     "LogImportWarning",
+    "check_not_parquet",
     "log_from_columns",
     "read_csv_log",
 ]
@@ -115,6 +117,12 @@ _JITTER_WARNING = 0.02
 _NAMED = 5
 #: How messages count a file's rows.
 _ROWS = "rows count from 0, the header not counted"
+#: The first bytes of a Parquet file (a log).
+_PARQUET_MAGIC = b"PAR1"
+#: The byte order mark a spreadsheet may write at the start of a UTF-8 file.
+_UTF8_BOM = b"\xef\xbb\xbf"
+#: A line's end in a CSV file: ``\r\n``, ``\n`` or ``\r`` alone (the parser takes each).
+_LINE_END = re.compile(rb"\r\n|\n|\r")
 
 
 class LogImportWarning(MsarmWarning):
@@ -263,7 +271,9 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
         The log, its ``msarm.extra`` recording the file's name as ``imported_from``.
 
     Raises:
-        InputError: The file is missing or not CSV, or what :func:`log_from_columns` refuses.
+        InputError: The file is missing or not CSV (a Parquet file, a log already, is said
+            to be one; binary data or text not in UTF-8 is named), has no data rows, or what
+            :func:`log_from_columns` refuses.
     """
     import pyarrow as pa
     import pyarrow.compute as pc
@@ -292,6 +302,11 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
         for column in table.columns[1:]:
             empty = pc.and_(empty, pc.is_null(column))
         table = table.filter(pc.invert(empty))
+    if table.num_rows == 0:
+        raise InputError(
+            f"{source}: no samples (a header and no data rows; rows of empty fields only are "
+            "skipped); expected a row of values for each sample"
+        )
     names = [name.strip() for name in table.column_names]  # "t, q.elbow" as "t,q.elbow"
     columns: dict[str, Any] = {}
     for name, column in zip(names, table.columns, strict=True):
@@ -305,6 +320,12 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
                 )
             columns[name] = np.array(values, dtype=object)  # text, counted exactly
             continue
+        if pa.types.is_binary(column.type):  # what the parser cannot read as UTF-8 text
+            row, value = _first_not_utf8(column.to_pylist())
+            raise InputError(
+                f"{source}: column {name!r} holds a value that is not UTF-8 text: {value!r} at "
+                f"row {row} ({_ROWS}); expected numbers, in a CSV file in UTF-8"
+            )
         if not (pa.types.is_integer(column.type) or pa.types.is_floating(column.type)):
             if column.null_count == len(column):  # an empty column: every value missing
                 columns[name] = np.full(len(column), np.nan)
@@ -320,24 +341,90 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
 
 
 def _header(path: Path, source: str) -> list[str]:
-    """The names of a CSV file's first line, as written (``.csv.gz`` decompressed)."""
+    """The names of a CSV file's first line, as written (``.csv.gz`` decompressed).
+
+    Raises:
+        InputError: The file cannot be read or decompressed, is a Parquet file (a log
+            already), holds binary data, or its first line is not UTF-8 text or not CSV.
+    """
     import csv
 
+    head = _head(path, source)
+    if head.startswith(_PARQUET_MAGIC):
+        raise _parquet_given(source)
+    if b"\0" in head:
+        raise InputError(
+            f"{source}: not a readable CSV file: it holds binary data (a NUL byte near its "
+            "start); expected a CSV file of text (UTF-8; a file saved as UTF-16 has NUL "
+            "bytes too: save it as UTF-8)"
+        )
+    body = head.removeprefix(_UTF8_BOM)
+    # a line ends in \r\n, \n or \r alone, as the parser reads it; blank lines are skipped
+    first = next((line for line in _LINE_END.split(body) if line), b"")
+    try:
+        text = first.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"{source}: not a readable CSV file: its header is not UTF-8 text (byte "
+            f"{first[exc.start]:#04x} at position {exc.start}); expected a CSV file in UTF-8 "
+            "(one saved as Latin-1 or Windows-1252? Save it as UTF-8)"
+        ) from None
+    try:
+        return next(csv.reader([text]), [])
+    except csv.Error as exc:
+        raise InputError(
+            f"{source}: not a readable CSV file: its header row cannot be parsed ({exc}); "
+            "expected a header row of comma-separated column names"
+        ) from None
+
+
+def check_not_parquet(path: str | Path) -> None:
+    """Refuse a Parquet file given as a CSV file: a log already, which needs no import.
+
+    Args:
+        path: The file given as a CSV file (one that cannot be read is left to the reader).
+
+    Raises:
+        InputError: The file starts with Parquet's magic bytes (``PAR1``).
+    """
+    try:
+        with open(path, "rb") as file:
+            start = file.read(len(_PARQUET_MAGIC))
+    except OSError:
+        return
+    if start == _PARQUET_MAGIC:
+        raise _parquet_given(str(path))
+
+
+def _parquet_given(source: str) -> InputError:
+    """The error for a Parquet file given as a CSV file."""
+    return InputError(
+        f"{source}: a Parquet file (it starts with {_PARQUET_MAGIC.decode()}), not a CSV file: "
+        "a log already? A log needs no import: msarm log check reads it (and says whether it "
+        "follows msarm's log schema); msarm log import reads CSV files"
+    )
+
+
+def _head(path: Path, source: str) -> bytes:
+    """The start of a file (decompressed), up to its first line with something on it.
+
+    Reading stops early at what is no text: Parquet's magic bytes or a NUL byte.
+    """
     import pyarrow as pa
 
     text = b""
     try:
         with pa.input_stream(path, compression="detect") as stream:
             # the first line with something on it: pyarrow skips empty lines before the header
-            while not text.lstrip(b"\xef\xbb\xbf\r\n").count(b"\n") and (
-                chunk := stream.read(1 << 16)
-            ):
+            while chunk := stream.read(1 << 16):
                 text += chunk
+                if text.startswith(_PARQUET_MAGIC) or b"\0" in text:
+                    break
+                if _LINE_END.search(text.lstrip(_UTF8_BOM + b"\r\n")):
+                    break
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{source}: not a readable CSV file: {exc}") from None
-    lines = text.decode("utf-8", errors="replace").removeprefix("\ufeff").split("\n")
-    first = next((line for line in lines if line.strip("\r")), "")
-    return next(csv.reader([first.rstrip("\r")]), [])
+    return text
 
 
 def _check_header(names: list[str], source: str) -> None:
@@ -380,6 +467,17 @@ def _first_text(values: list[Any]) -> tuple[int, Any]:
     """The row and value of the first entry that is not a number (nor missing)."""
     for row, value in enumerate(values):
         if value is not None and not _is_number(str(value)):
+            return row, value
+    return 0, values[0]
+
+
+def _first_not_utf8(values: list[bytes | None]) -> tuple[int, bytes | None]:
+    """The row and value of the first entry that is not UTF-8 text (nor missing)."""
+    for row, value in enumerate(values):
+        try:
+            if value is not None:
+                value.decode("utf-8")
+        except UnicodeDecodeError:
             return row, value
     return 0, values[0]
 
