@@ -10,26 +10,46 @@ moment arms over the joint range, the Hill curves and the controllability margin
 from __future__ import annotations
 
 import argparse
+import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pinocchio
 
+from msarm import interrupts
 from msarm.allocation import make_allocator
 from msarm.cli.arm import show_arm
+from msarm.cli.common import output_folder, remove_empty_created_folders
+from msarm.errors import InputError
 from msarm.model import load_arm
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line entry point; returns the exit status (143 on SIGTERM)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("runs/tour"), help="folder for plots")
-    args = parser.parse_args()
-    if args.out.exists() and not args.out.is_dir():
-        parser.error(f"--out: {args.out} is a file; expected a folder (created if missing)")
+    args = parser.parse_args(argv)
+    try:
+        output_folder(args.out)  # up front: a path under a file is refused before any work
+    except InputError as exc:
+        parser.error(str(exc))
+    try:
+        with interrupts.sigterm_raises():  # SIGTERM: a plot's temporary file is removed
+            tour(args.out)
+    except interrupts.Terminated as exc:
+        print(f"{parser.prog}: terminated", file=sys.stderr)
+        return int(exc.code)
+    finally:
+        remove_empty_created_folders()  # --out, if this run made it and wrote nothing there
+    return 0
 
+
+def tour(out: Path) -> None:
+    """Print the arm's tables and a posture held against gravity; write the plots to ``out``."""
     arm = load_arm()
     print(f"model {arm.path} (sha256 {arm.sha256[:12]}…)")
-    show_arm(arm, args.out)
+    show_arm(arm, out)
 
     # The nominal model and the allocation core: the muscle forces that hold a Table I
     # posture against gravity, within each muscle's capacity, minimising squared activations.
@@ -50,4 +70,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

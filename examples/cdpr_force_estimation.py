@@ -10,13 +10,17 @@ numbers come from here.
 
     python examples/cdpr_force_estimation.py [--seconds S] [--controller hc-e]
 
-(``--seconds``: how much of the trajectory to run; the whole of it by default.)
+(``--seconds``: how much of the trajectory to run, at most its 11.347 s; the whole of it by
+default.) The table's ``subset`` column says which samples a row covers: ``moving``, ``slow``
+or ``all``. The following-error rows need cables on pure-P drives (HC-e's first four, every
+cable of HC-e-all); with another controller a note says why they are absent.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -39,11 +43,14 @@ def moving_average(x: np.ndarray, n: int) -> np.ndarray:
     return np.column_stack([np.convolve(c, kernel, mode="same") for c in x.T]) / counts[:, None]
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
+    """Run the example from the command line (``argv``: its arguments, else ``sys.argv``)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=None, help="simulate only this long")
+    parser.add_argument(
+        "--seconds", type=float, default=None, help="simulate only this long (default: all)"
+    )
     parser.add_argument("--controller", default="hc-e", help="hc-e, hc-e-all, hc-tau, ...")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.controller not in CDPR_CONTROLLERS:
         parser.error(
             f"--controller: unknown controller {args.controller!r}; expected one of "
@@ -55,8 +62,14 @@ def main() -> None:
             f"{START_UP:g} s are left out of the errors), got {args.seconds:g}"
         )
 
-    robot = load_cable_robot()
     trajectory = get_cdpr_trajectory("triangle-12")
+    length = float(trajectory.t[-1])
+    if args.seconds is not None and args.seconds > length + trajectory.dt / 2:
+        parser.error(
+            f"--seconds: triangle-12 is {length:.3f} s long; expected at most that, got "
+            f"{args.seconds:g} (omit --seconds to run all of it)"
+        )
+    robot = load_cable_robot()
     if args.seconds is not None:
         n = int(round(args.seconds / trajectory.dt)) + 1
         trajectory = replace(
@@ -108,7 +121,7 @@ def main() -> None:
         f"the platform-side tension ({truth.min():.1f}-{truth.max():.1f} N), t >= {START_UP} s; "
         f"moving: |v| >= v_L = {v_low:.3g} m/s (0.25 m/min), slow: |v| < v_L"
     )
-    print(f"{'estimate':34s} {'cables':7s} {'samples':8s} {'max':>7s} {'rms':>7s} {'mean':>7s}")
+    print(f"{'estimate':34s} {'cables':7s} {'subset':8s} {'max':>7s} {'rms':>7s} {'mean':>7s}")
     for label, (estimate, cables) in estimates.items():
         cables = list(cables)
         error = estimate - truth[:, cables]
@@ -123,6 +136,18 @@ def main() -> None:
                 f"{label:34s} {min(cables)}-{max(cables):<5d} {which:8s} {np.abs(e).max():7.3f} "
                 f"{np.sqrt(np.mean(e**2)):7.3f} {e.mean():7.3f}"
             )
+    if not p_drive:
+        print(no_following_error_note(args.controller, modes))
+
+
+def no_following_error_note(controller: str, modes: tuple[str, ...] | None) -> str:
+    """Why the table has no following-error rows: no cable of ``controller`` on a P drive."""
+    drives = "every cable on a PI drive" if modes else "it states no drive modes"
+    return (
+        f"no following-error estimates: {controller} has no cable on a pure-P drive "
+        f"({drives}); the following error gives the force only there (a PI drive integrates "
+        "it away)"
+    )
 
 
 if __name__ == "__main__":

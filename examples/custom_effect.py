@@ -15,6 +15,7 @@ final error of each.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -43,10 +44,13 @@ class PulleyLoss(Effect):
         return {"loss": self.loss}
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
+    """Run the example from the command line (``argv``: its arguments, else ``sys.argv``)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--loss", type=float, default=0.2, help="share of tension lost")
-    args = parser.parse_args()
+    parser.add_argument(
+        "--loss", type=float, default=0.2, help="share of tension lost (default 0.2)"
+    )
+    args = parser.parse_args(argv)
     if not 0 <= args.loss < 1:
         parser.error(f"--loss: expected a share of the tension in [0, 1), got {args.loss:g}")
     arm = load_arm()

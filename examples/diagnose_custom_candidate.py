@@ -32,7 +32,8 @@ so once ``pulley_loss`` is named, ``inertia`` is not tried with it.
 The script simulates 4 short runs (a hold-then-move task each, 4 s) on the ideal plant with
 sensor noise and ``PulleyLoss(loss)`` added, holds the last one out, and diagnoses them with
 the default candidates plus this one (``extra_candidates``); it prints the named effects and
-the fitted loss (0.1501 for 0.15, 0.0501 for 0.05).
+the fitted loss (0.1501 for 0.15, 0.0501 for 0.05). The logs live in a temporary folder that
+is removed at the end, also on an error, Ctrl-C or SIGTERM (exit code 143).
 
     python examples/diagnose_custom_candidate.py [--loss 0.15] [--out DIR]
 """
@@ -44,15 +45,19 @@ import sys
 import tempfile
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from msarm import interrupts
+from msarm.cli.common import output_folder, remove_empty_created_folders
 from msarm.diagnose.effects import CandidateEffect, register
 from msarm.diagnose.residuals import DiagnosisWarning
 from msarm.diagnose.select import Diagnosis, diagnose
 from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
 from msarm.model import RobotModel, load_arm
 
 HERE = Path(__file__).resolve().parent
@@ -179,18 +184,36 @@ def run_example(
     return result, files
 
 
-def main() -> None:
-    """Run the example from the command line."""
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the example from the command line; returns the exit status (143 on SIGTERM)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--loss", type=float, default=0.15, help="share of tension lost")
+    parser.add_argument(
+        "--loss", type=float, default=0.15, help="share of tension lost (default 0.15)"
+    )
     parser.add_argument("--out", type=Path, default=None, help="folder for the report")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if not 0 <= args.loss < 1:
         parser.error(f"--loss: expected a share of the tension in [0, 1), got {args.loss:g}")
-    if args.out is not None and args.out.exists() and not args.out.is_dir():
-        parser.error(f"--out: {args.out} is a file; expected a folder (created if missing)")
+    if args.out is not None:
+        try:
+            output_folder(args.out)  # up front: a path under a file is refused before any work
+        except InputError as exc:
+            parser.error(str(exc))
+    try:
+        with interrupts.sigterm_raises():  # SIGTERM unwinds: the temporary logs are removed
+            run_and_print(args.loss, args.out)
+    except interrupts.Terminated as exc:
+        print(f"{parser.prog}: terminated", file=sys.stderr)
+        return int(exc.code)
+    finally:
+        remove_empty_created_folders()  # --out, if this run made it and wrote nothing there
+    return 0
+
+
+def run_and_print(loss: float, out: Path | None) -> None:
+    """Run the example and print what the diagnosis named (and the report's files)."""
     started = time.perf_counter()
-    result, files = run_example(args.loss, args.out)
+    result, files = run_example(loss, out)
     print(f"named effects, in order: {', '.join(result.names) or 'none'}")
     for k, effect in enumerate(result.selected, start=1):
         print(f"  {k}. {effect.name}: gain {effect.gain:+.3f}, confidence {effect.confidence:.2f}")
@@ -198,9 +221,9 @@ def main() -> None:
     print("step 1, best candidates: " + ", ".join(f"{n} {g:+.3f}" for n, g in step1))
     pulley = next((s for s in result.selected if s.name == "pulley_loss"), None)
     if pulley is None:
-        print(f"pulley_loss not named (true loss {args.loss:g})")
+        print(f"pulley_loss not named (true loss {loss:g})")
     else:
-        print(f"fitted loss {pulley.parameters[0]:.4f} ± {pulley.std[0]:.2g} (true {args.loss:g})")
+        print(f"fitted loss {pulley.parameters[0]:.4f} ± {pulley.std[0]:.2g} (true {loss:g})")
     for name, why in result.confounded.items():
         print(f"not tried with the named effects: {name} ({why})")
     print(f"held-out joint gap shrink: {100 * result.group_shrink('joint'):.1f} %")
@@ -210,4 +233,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

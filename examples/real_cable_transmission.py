@@ -25,16 +25,27 @@ the load). Every score is the explained variance on files the term was not fitte
     python examples/real_cable_transmission.py [--data DIR] [--out runs/mis-tool] [--seed 0]
 
 The data folder defaults to ``$MSARM_MIS_TOOL_DATA`` or ``../shared/data/mis-tool`` (next to
-the repository); the data are never copied into the repository.
+the repository); the data are never copied into the repository. Every file needs a whole cycle
+of its sine after the first :data:`SETTLE_S` s, each pitch at least 2 files and each family of
+files (torque level, frequency, yaw stop) at least 2 levels, as every fold leaves one level
+out; data that do not are refused (exit code 2) before the analysis.
+
+Output: ``held_out.png``, ``loops_per_pitch.png`` and ``results.json`` in ``--out`` (created
+if missing). A previous run's ``results.json`` there is removed first, and the new one is
+written last (atomically), after the plots: a folder holding ``results.json`` holds one whole
+run; one without it, a run that was cut off (SIGTERM ends the script with exit code 143 and
+no temporary file left behind).
 """
 
 from __future__ import annotations
 
 import argparse
 import gzip
+import math
 import os
 import sys
 import time
+import warnings
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -45,6 +56,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter, sosfiltfilt
 
+from msarm import interrupts
+from msarm.cli.common import output_folder, remove_empty_created_folders
 from msarm.diagnose.effects import (
     NUMPY_OPS,
     CableCapstanFriction,
@@ -60,6 +73,7 @@ from msarm.diagnose.effects import (
 )
 from msarm.diagnose.fitting import FitResult, bootstrap, fit, stacked_constraints
 from msarm.diagnose.signals import Signals
+from msarm.errors import InputError
 from msarm.io.atomic import atomic_path, write_json_atomic
 
 FloatArray = NDArray[np.float64]
@@ -179,9 +193,13 @@ def read_raw(path: Path) -> FloatArray:
     """The 10 data columns of a file as they are stored, shape ``(N, 10)``.
 
     Raises:
-        ValueError: The file does not have 10 columns.
+        ValueError: The file has no data rows, or not 10 columns.
     """
-    data = np.loadtxt(path, comments="%", delimiter=",", ndmin=2)
+    with warnings.catch_warnings():  # numpy's warning about an empty file: the error below
+        warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+        data = np.loadtxt(path, comments="%", delimiter=",", ndmin=2)
+    if data.size == 0:
+        raise ValueError(f"{path}: no data rows; expected 10 comma-separated columns at 1 kHz")
     if data.shape[1] != 10:
         raise ValueError(f"{path}: expected 10 comma-separated columns, got {data.shape[1]}")
     return data
@@ -203,6 +221,15 @@ def to_si(raw: FloatArray) -> dict[str, FloatArray]:
     }
 
 
+def min_samples(freq: float) -> int:
+    """The fewest 1 kHz samples a file of a ``freq`` [Hz] sine needs.
+
+    The first :data:`SETTLE_S` s are dropped, and a whole cycle of the sine must be left
+    after them (the loss is a loop over a cycle; the Dahl state takes a cycle to settle).
+    """
+    return int(round(SETTLE_S / RAW_PERIOD)) + math.ceil(1.0 / (freq * RAW_PERIOD) - 1e-9)
+
+
 def read_run(path: Path, pitch_deg: float) -> Run:
     """Read, convert, low-pass filter, differentiate and thin one file.
 
@@ -215,13 +242,25 @@ def read_run(path: Path, pitch_deg: float) -> Run:
         pitch_deg: The folder's wrist pitch [deg].
 
     Raises:
-        ValueError: The sample period is not 1 ms, or the header lacks a key.
+        ValueError: The header lacks a key or states no positive frequency, the file has no
+            data rows or fewer than :func:`min_samples`, or the sample period is not 1 ms.
     """
     header = read_header(path)
     lacking = [k for k in ("Yaw_rad", "Freq_Hz", "Torque_Pct") if k not in header]
     if lacking:
         raise ValueError(f"{path}: the header has no %{', %'.join(k + '=' for k in lacking)}")
-    si = to_si(read_raw(path))
+    freq = float(header["Freq_Hz"])
+    if not 0.0 < freq < math.inf:
+        raise ValueError(f"{path}: %Freq_Hz={header['Freq_Hz']}; expected a frequency > 0 Hz")
+    raw = read_raw(path)
+    need = min_samples(freq)
+    if raw.shape[0] < need:
+        raise ValueError(
+            f"{path}: {raw.shape[0]} samples ({raw.shape[0] * RAW_PERIOD:g} s); expected at "
+            f"least {need}: the first {SETTLE_S:g} s are dropped (settling), then a whole "
+            f"cycle of the {freq:g} Hz sine is needed"
+        )
+    si = to_si(raw)
     period = float(np.median(np.diff(si["t"])))
     if abs(period - RAW_PERIOD) > 1e-6:
         raise ValueError(f"{path}: sample period {period} s, expected {RAW_PERIOD} s")
@@ -237,7 +276,7 @@ def read_run(path: Path, pitch_deg: float) -> Run:
         name=path.name.split(".")[0],
         pitch=float(np.radians(pitch_deg)),
         yaw=float(header["Yaw_rad"]),
-        freq=float(header["Freq_Hz"]),
+        freq=freq,
         torque_pct=float(header["Torque_Pct"]),
         t=si["t"][keep],
         q_in=smooth["q_in"][keep],
@@ -253,7 +292,7 @@ def read_run(path: Path, pitch_deg: float) -> Run:
 
 def data_folder(arg: str | None) -> Path:
     """The data folder: ``--data``, else ``$MSARM_MIS_TOOL_DATA``, else the default."""
-    if arg:
+    if arg is not None:
         return Path(arg)
     return Path(os.environ.get(DATA_ENV, DEFAULT_DATA))
 
@@ -510,21 +549,58 @@ class Fold:
     test: tuple[int, ...]
 
 
+#: What each fold family holds out, one level at a time: the level of a run.
+FOLD_KEYS: dict[str, Callable[[Run], float]] = {
+    "torque": lambda r: r.torque_pct,
+    "frequency": lambda r: r.freq,
+    "yaw": lambda r: r.yaw,
+    "pitch": lambda r: round(float(np.degrees(r.pitch))),
+}
+#: Each family's levels in words.
+FOLD_NAMES = {
+    "torque": "torque level",
+    "frequency": "frequency",
+    "yaw": "yaw stop",
+    "pitch": "pitch",
+}
+#: Unit of each family's levels, as the fold names show them.
+FOLD_UNITS = {"torque": "%", "frequency": " Hz", "yaw": " rad", "pitch": " deg"}
+
+
 def make_folds(runs: Sequence[Run]) -> list[Fold]:
     """Leave-one-level-out folds: torque level, frequency, yaw stop (files) and pitch."""
-    keys: dict[str, Callable[[Run], float]] = {
-        "torque": lambda r: r.torque_pct,
-        "frequency": lambda r: r.freq,
-        "yaw": lambda r: r.yaw,
-        "pitch": lambda r: round(float(np.degrees(r.pitch))),
-    }
-    units = {"torque": "%", "frequency": " Hz", "yaw": " rad", "pitch": " deg"}
     folds = []
-    for family, key in keys.items():
+    for family, key in FOLD_KEYS.items():
         for value in sorted({key(r) for r in runs}):
             test = tuple(i for i, r in enumerate(runs) if key(r) == value)
-            folds.append(Fold(family, f"{family} {value:g}{units[family]}", test))
+            folds.append(Fold(family, f"{family} {value:g}{FOLD_UNITS[family]}", test))
     return folds
+
+
+def too_few_levels(runs: Sequence[Run]) -> list[str]:
+    """What the runs lack for the folds and the per-pitch fits, in words (empty: nothing).
+
+    Every family of folds needs 2 levels or more (a fold trains on the others), and every
+    pitch 2 files or more (its parameters are bootstrapped over its files).
+    """
+    single = []
+    for family, key in FOLD_KEYS.items():
+        levels = sorted({key(r) for r in runs})
+        if len(levels) == 1:
+            single.append(f"{FOLD_NAMES[family]} ({levels[0]:g}{FOLD_UNITS[family]})")
+    lone = sorted(f for f in {r.folder for r in runs} if sum(r.folder == f for r in runs) < 2)
+    problems = []
+    if single:
+        problems.append(
+            f"one level only of: {', '.join(single)}; each fold leaves one level out and "
+            "trains on the others, so at least 2 levels of each are needed"
+        )
+    if lone:
+        problems.append(
+            f"one file only in: {', '.join(lone)}; each pitch's parameters are bootstrapped "
+            "over its files, so at least 2 files a pitch are needed"
+        )
+    return problems
 
 
 @dataclass
@@ -822,6 +898,7 @@ def analyse(runs: Sequence[Run], n_boot: int = 30, seed: int = 0) -> dict[str, A
     }
     capstan_names = [n for n in chosen if n.startswith("capstan")]
     return {
+        "n_files": len(runs),
         "folds": [{"family": f.fold.family, "held_out": f.fold.held_out} for f in folds],
         "ratio_per_fold": {f.fold.held_out: f.ratio for f in folds},
         "selection_on_files": selection,
@@ -860,7 +937,7 @@ def print_report(results: dict[str, Any]) -> None:
     for fold, value in results["held_out"][chosen]["pitch_per_fold"].items():
         other = results["held_out"].get(wrap, {}).get("pitch_per_fold", {}).get(fold, np.nan)
         print(f"  {fold}: {value:.3f} vs {other:.3f}")
-    print("parameters (all 48 files; +- bootstrap std over files):")
+    print(f"parameters (all {results['n_files']} files; +- bootstrap std over files):")
     for key, value in results["parameters"].items():
         if isinstance(value, dict):
             print(f"  {key}: {value['value']:.4g} +- {value['std']:.2g}")
@@ -874,8 +951,20 @@ def print_report(results: dict[str, Any]) -> None:
         print(f"  mu Theta fitted on pitch {pitch} alone: {mean:.3f} +- {std:.3f}")
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line entry point; returns the exit status (2 when the data are absent)."""
+def write_outputs(results: dict[str, Any], runs: Sequence[Run], out: Path) -> None:
+    """Write the plots, then ``results.json`` (last, atomically) into ``out``.
+
+    A previous run's ``results.json`` is removed first: a folder holding ``results.json``
+    holds one whole run, the plots written just before it included.
+    """
+    (out / "results.json").unlink(missing_ok=True)
+    plot_scores(dict(results["held_out"]), results["chosen"], out / "held_out.png")
+    plot_loops(runs, results["chosen"], out / "loops_per_pitch.png")
+    write_json_atomic(out / "results.json", results)
+
+
+def parse_args(argv: Sequence[str] | None) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """The command line, its values checked (an error exits with 2 before any work)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--data", default=None, help=f"data folder (default: ${DATA_ENV} or {DEFAULT_DATA})"
@@ -884,10 +973,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap over files")
     parser.add_argument("--n-boot", type=int, default=30, help="bootstrap refits (default 30)")
     args = parser.parse_args(argv)
+    if args.data == "":
+        parser.error("--data: empty; expected the data folder (or leave --data out)")
+    if args.seed < 0:
+        parser.error(f"--seed: expected a seed >= 0, got {args.seed}")
     if args.n_boot < 2:
         parser.error(f"--n-boot: expected at least 2 refits, got {args.n_boot}")
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        parser.error(f"--out: {args.out} exists and is not a folder")
+    try:
+        output_folder(Path(args.out))  # up front: a path under a file is refused before work
+    except InputError as exc:
+        parser.error(str(exc))
+    return parser, args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line entry point; returns the exit status (2: bad data, 143: SIGTERM)."""
+    parser, args = parse_args(argv)
+    try:
+        with interrupts.sigterm_raises():  # SIGTERM unwinds: no temporary file left behind
+            return run(args)
+    except interrupts.Terminated as exc:
+        print(f"{parser.prog}: terminated", file=sys.stderr)
+        return int(exc.code)
+    finally:
+        remove_empty_created_folders()  # --out, if this run made it and wrote nothing there
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read the data, analyse them, print the report and write the outputs; the exit status."""
     root = data_folder(args.data)
     layout = f"{', '.join(PITCH_DEG)} with *.TXT.gz files"
     files = data_files(root)
@@ -912,17 +1025,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    problems = too_few_levels(runs)
+    if problems:
+        print(f"error: data under {root}: {'; '.join(problems)}; nothing done", file=sys.stderr)
+        return 2
     results = analyse(runs, n_boot=args.n_boot, seed=args.seed)
     results["data"] = str(root)
     results["seconds"] = round(time.perf_counter() - start, 1)
     print_report(results)
     out = Path(args.out)
-    plot_scores(
-        {k: v for k, v in results["held_out"].items()}, results["chosen"], out / "held_out.png"
-    )
-    plot_loops(runs, results["chosen"], out / "loops_per_pitch.png")
-    write_json_atomic(out / "results.json", results)
-    print(f"wrote {out}/results.json, held_out.png, loops_per_pitch.png in {results['seconds']} s")
+    write_outputs(results, runs, out)
+    print(f"wrote {out}/held_out.png, loops_per_pitch.png, results.json in {results['seconds']} s")
     return 0
 
 

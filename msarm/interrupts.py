@@ -6,11 +6,18 @@ for signals while it works (IPOPT through casadi does) runs the handler itself, 
 exception and returns early with a failure status: the command would then go on with a
 half-finished fit. So the handler also records the request, and code after such a solver
 calls :func:`raise_if_terminated`, which raises it again.
+
+A script of its own (the examples) wraps its work in :func:`sigterm_raises`: SIGTERM then
+unwinds it the same way (its temporary folders and files are removed) instead of ending the
+process where it stands.
 """
 
 from __future__ import annotations
 
-__all__ = ["Terminated", "clear", "on_sigterm", "raise_if_terminated"]
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["Terminated", "clear", "on_sigterm", "raise_if_terminated", "sigterm_raises"]
 
 #: The exit code of a SIGTERM received and not yet acted on (None: none received).
 _pending: int | None = None
@@ -47,3 +54,31 @@ def clear() -> None:
     """Forget a received SIGTERM (the command line does at the start and end of a command)."""
     global _pending
     _pending = None
+
+
+@contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`Terminated` (exit code 143).
+
+    The block's ``with`` and ``finally`` clauses then run (a ``TemporaryDirectory`` is
+    removed, an atomic write's temporary file too); catch :class:`Terminated` outside the
+    block to print a line and return its ``code``. On the way out the previous handler is
+    restored and a received SIGTERM forgotten. Outside the main thread, where no handler can
+    be set, the block runs with the handler as it is.
+
+    Yields:
+        Nothing; the block runs with the handler installed.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    clear()
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+        clear()

@@ -161,6 +161,9 @@ def test_write_report_refuses_bad_input(diagnosis, tmp_path):
     afile.write_text("x")
     with pytest.raises(InputError, match="out_dir"):
         write_report(diagnosis, afile)
+    # a folder under a file cannot be made: msarm's error naming it, not a raw OSError
+    with pytest.raises(InputError, match=f"out_dir: cannot create the folder {afile / 'sub'}: "):
+        write_report(diagnosis, afile / "sub")
     with pytest.raises(InputError, match="breakdowns"):
         write_report(diagnosis, tmp_path / "b", {"../evil": None})
     with pytest.raises(InputError, match="breakdowns"):

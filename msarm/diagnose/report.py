@@ -427,7 +427,8 @@ def write_report(
         breakdown, ``markdown`` and ``html`` (see :data:`REPORT_FILES`), and the extra files.
 
     Raises:
-        InputError: ``diagnosis`` is not a :class:`Diagnosis`; ``out_dir`` is a file; a
+        InputError: ``diagnosis`` is not a :class:`Diagnosis`; ``out_dir`` is a file or
+            cannot be created (under a file, no permission; named, with the reason); a
             breakdown that is not a :class:`GapBreakdown` or a kind unfit for a file name.
     """
     _check_diagnosis(diagnosis)
@@ -452,7 +453,12 @@ def write_report(
                 f"extra_files: {name!r} cannot name a file of the report (letters, digits, "
                 f"_ . - only, and not one of {sorted(taken)})"
             )
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(
+            f"out_dir: cannot create the folder {out}: {exc.strerror or exc}"
+        ) from None
     with tempfile.TemporaryDirectory(dir=out, prefix=".report-") as staging:
         staged = _write_report_files(diagnosis, Path(staging), where, extras)
         for old in out.glob("where-*.png"):  # a previous report's maps of other residuals
