@@ -9,6 +9,7 @@ from msarm.errors import InputError
 from msarm.tasks import metrics
 from msarm.tasks.metrics import (
     cable_length_error,
+    cable_length_error_at_end,
     final_position_error,
     joint_rmse,
     settle_sample,
@@ -56,6 +57,19 @@ def test_cable_length_error_eq_12_13():
     # Cable 0: |e| = 3 mm everywhere; cable 1: sqrt((0 + 0 + 1 + 1) / 4) mm.
     np.testing.assert_allclose(rmse, [0.003, np.sqrt(0.5) * 1e-3], rtol=1e-10)
     np.testing.assert_allclose(percent, [5.0, np.sqrt(0.5) * 10.0], rtol=1e-10)
+
+
+def test_cable_length_error_at_the_end_as_paper_003_reports_it():
+    l_theory = np.array([[0.30, 0.20], [0.31, 0.21], [0.32, 0.22], [0.33, 0.25]])
+    offsets = np.array([[0.003, 0.0], [-0.003, 0.0], [0.003, 0.001], [-0.0033, 0.001]])
+    # the last sample only: 3.3 mm of 0.33 m, 1 mm of 0.25 m; the sign does not count
+    np.testing.assert_allclose(
+        cable_length_error_at_end(l_theory + offsets, l_theory), [1.0, 0.4], rtol=1e-10
+    )
+    with pytest.raises(InputError, match=r"l_theory must be > 0 at the last sample.*cable 1"):
+        cable_length_error_at_end(l_theory, l_theory * [1.0, 0.0])
+    with pytest.raises(InputError, match="no samples"):
+        cable_length_error_at_end(np.zeros((0, 2)), np.zeros((0, 2)))
 
 
 def test_cable_length_error_bad_input():

@@ -185,6 +185,7 @@ def _metrics(final: float, outside: float, cable: tuple[float, ...]) -> Tracking
         settle_error_mm=10 * final,
         joint_rmse=(1e-3, 1e-3),
         cable_length_error_percent=cable,
+        cable_length_end_percent=tuple(v / 2 for v in cable),
         slack_events=(0, 0, 0),
         time_outside_bounds=(outside, 2 * outside, 0.0),
         completed=True,

@@ -193,6 +193,7 @@ def test_metrics_that_do_not_apply_are_null_in_json():
 
     values = {"final_error_mm": 1.0, "final_error_percent": 0.1, "settle_error_mm": float("nan")}
     values |= {"joint_rmse": (0.1,), "cable_length_error_percent": (0.2,), "slack_events": (0,)}
+    values |= {"cable_length_end_percent": (0.1,)}
     values |= {"time_outside_bounds": (0.0,), "completed": True}
     tracking = TrackingMetrics(**values).as_dict()
     assert tracking["settle_error_mm"] is None and tracking["final_error_mm"] == 1.0

@@ -359,6 +359,9 @@ def summary_lines(result, group: str, tasks: list[str]) -> list[str]:
     def lowest(label: str) -> float:
         return min(result.true_min_insertion_tension[t][label] for t in tasks)
 
+    def largest(label: str, key: str) -> float:
+        return max(max(getattr(result.metrics[t][label], key)) for t in tasks)
+
     lines = []
     for label in result.labels[1:]:
         name = "feedforward" if label == WITH else label
@@ -373,7 +376,12 @@ def summary_lines(result, group: str, tasks: list[str]) -> list[str]:
             f"{mean(WITHOUT, 'settle_error_mm'):.2f} -> {mean(label, 'settle_error_mm'):.2f} mm; "
             f"time outside the tension bounds (load cells, all cables) "
             f"{outside(WITHOUT):.1f} -> {outside(label):.1f} s a task; lowest tension at an "
-            f"insertion (simulation) {lowest(WITHOUT):.2f} -> {lowest(label):.2f} N"
+            f"insertion (simulation) {lowest(WITHOUT):.2f} -> {lowest(label):.2f} N; largest "
+            f"cable length error {largest(WITHOUT, 'cable_length_error_percent'):.2f} -> "
+            f"{largest(label, 'cable_length_error_percent'):.2f} % of the travel (eq. 12-13), "
+            f"at the end {largest(WITHOUT, 'cable_length_end_percent'):.2f} -> "
+            f"{largest(label, 'cable_length_end_percent'):.2f} % of the length (as paper 003 "
+            "section 3.2 reports it)"
         )
     return lines
 
@@ -391,6 +399,7 @@ def comparison_table(result, joint_names) -> Table:
         f"error {SETTLE_DELAY:g} s after the move [mm]",
         "joint RMSE [mrad] (mean)",
         "cable length error [% travel]",
+        "cable length at the end [% of length]",
         "slack events",
         "time outside tension bounds [s]",
     ):
@@ -406,6 +415,8 @@ def comparison_table(result, joint_names) -> Table:
             f"{1000 * np.mean(a.joint_rmse):.1f} / {1000 * np.mean(b.joint_rmse):.1f}",
             f"{min(a.cable_length_error_percent):.2f}-{max(a.cable_length_error_percent):.2f} / "
             f"{min(b.cable_length_error_percent):.2f}-{max(b.cable_length_error_percent):.2f}",
+            f"{min(a.cable_length_end_percent):.2f}-{max(a.cable_length_end_percent):.2f} / "
+            f"{min(b.cable_length_end_percent):.2f}-{max(b.cable_length_end_percent):.2f}",
             f"{sum(a.slack_events)} / {sum(b.slack_events)}",
             f"{sum(a.time_outside_bounds):.1f} / {sum(b.time_outside_bounds):.1f}",
         )

@@ -106,6 +106,13 @@ def metrics_table(title: str, rows: dict[str, object], joint_names, cable_names)
             for m in metrics
         ],
     )
+    add(
+        "cable length at the end [% of length]",
+        [
+            f"{min(m.cable_length_end_percent):.2f}-{max(m.cable_length_end_percent):.2f}"
+            for m in metrics
+        ],
+    )
     add("slack events (all cables)", [str(sum(m.slack_events)) for m in metrics])
     add(
         "time outside bounds [s] (sum)",

@@ -10,7 +10,13 @@ In a run with the compensator's sheath stage on, the drives were asked on purpos
 (or less) than the tension meant for the insertions; what the stage added is logged
 (``tension_ff``) and taken off: ``F_sensor - F_ff`` is the tension the stage meant to arrive,
 so ``T_f`` is the torque error the stage leaves, which is what a network on top of it has to
-learn. Logs without ``tension_ff`` columns (runs without the stage) count it as zero.
+learn. Logs without ``tension_ff`` columns (runs without the stage) count it as zero. The two
+are taken off row by row, although with ``tension_timing="period"`` the load-cell sample of a
+row is the tension the previous row's command made: ``tension_ff`` of row ``k - 1`` would be
+the exact pair. A review measured the difference (2026-11-29, the demo's runs with the stage):
+0.006-0.016 N m RMS of a ``T_f`` of 0.21-0.30 N m, and a compensator trained on the shifted
+target did no better on the fourteen held-out tasks (0.111 mm mean final error against
+0.097 mm, within what a retraining moves); it is left as it is.
 The derivatives come from the joint encoders through a Savitzky-Golay filter (zero phase:
 this is offline, for training only). On a plant without unmodelled effects ``T_f`` is zero up
 to filtering error; friction, slack and cable elasticity make it differ.

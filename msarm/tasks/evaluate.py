@@ -10,7 +10,9 @@ the nominal model, never the plant's ground truth:
 - joint RMSE against the reference [rad];
 - cable length error (eq. 12-13): the RMSE between the cable length the motor encoders say
   was reeled (``l(q_0) - r (theta - theta_0)``) and the theoretical length ``l(q)`` from the
-  joint encoders, in % of each cable's maximum travel over the joint range;
+  joint encoders, in % of each cable's maximum travel over the joint range; and, as paper
+  003 reports its results (section 3.2), the two lengths' difference at the end of the run
+  in % of the theoretical length;
 - slack events (a load cell falling below ``SLACK_THRESHOLD``) and the time each tension
   spends outside its bounds ``[min_tension, F_max]`` by more than ``BOUND_TOLERANCE`` (a
   tension held at its lower bound must not count as outside through round-off or noise).
@@ -67,7 +69,10 @@ class TrackingMetrics:
             time to help); NaN when the run ends sooner.
         joint_rmse: Joint RMSE against the reference [rad], one per joint.
         cable_length_error_percent: Cable length RMSE in % of the cable's travel, one per
-            cable.
+            cable (eq. 12-13).
+        cable_length_end_percent: The cable lengths' difference at the end of the run in %
+            of the theoretical length, one per cable (how paper 003's section 3.2 reports
+            its results).
         slack_events: Entries into slack, one per cable.
         time_outside_bounds: Seconds outside the tension bounds, one per cable.
         completed: Whether the run reached the end of its task.
@@ -78,6 +83,7 @@ class TrackingMetrics:
     settle_error_mm: float
     joint_rmse: tuple[float, ...]
     cable_length_error_percent: tuple[float, ...]
+    cable_length_end_percent: tuple[float, ...]
     slack_events: tuple[int, ...]
     time_outside_bounds: tuple[float, ...]
     completed: bool
@@ -255,6 +261,9 @@ def evaluate_run(
         settle_error_mm=settle_mm,
         joint_rmse=tuple(float(v) for v in metrics.joint_rmse(q, q_ref)),
         cable_length_error_percent=tuple(float(v) for v in length_percent),
+        cable_length_end_percent=tuple(
+            float(v) for v in metrics.cable_length_error_at_end(valid, theory)
+        ),
         slack_events=tuple(int(v) for v in metrics.slack_events(tension, SLACK_THRESHOLD)),
         time_outside_bounds=tuple(
             float(v)

@@ -2,8 +2,10 @@
 
 Paper 003 (the musculoskeletal arm with feedforward compensation) scores a run by the final
 end-effector error and its share of the commanded displacement (eq. 10-11) and by the RMSE of
-the cable ("muscle") lengths as a share of each cable's travel (eq. 12-13). The joint RMSE and
-the tension counts (slack events, time outside the tension bounds) complete them.
+the cable ("muscle") lengths as a share of each cable's travel (eq. 12-13); its results section
+(3.2) reports the cable lengths otherwise, as their difference at the end of the movement in %
+of the theoretical length (:func:`cable_length_error_at_end`). The joint RMSE and the tension
+counts (slack events, time outside the tension bounds) complete them.
 
 Shapes: ``T`` samples, ``n`` joints, ``m`` cables, ``d`` Cartesian dimensions. Every function
 refuses NaN, infinite values (bounds excepted: an infinite bound is no bound), values that
@@ -20,6 +22,7 @@ from msarm.errors import InputError
 
 __all__ = [
     "cable_length_error",
+    "cable_length_error_at_end",
     "final_position_error",
     "settle_sample",
     "joint_rmse",
@@ -196,6 +199,38 @@ def cable_length_error(
         raise InputError(f"max_travel must be > 0, got {max_travel[j]} at cable {j}")
     rmse = np.sqrt(np.mean((l_valid - l_theory) ** 2, axis=0))
     return rmse, 100.0 * rmse / max_travel
+
+
+def cable_length_error_at_end(l_valid: ArrayLike, l_theory: ArrayLike) -> FloatArray:
+    """The cable lengths' difference at the end of the run in % of the theoretical length.
+
+    ``100 |l_i(T) - l_hat_i(T)| / l_hat_i(T)``, as paper 003 reports its results (section
+    3.2: "the difference between the valid length of the cable and the theoretical length as
+    a percentage of the theoretical length", 1.22-11.43 % without feedforward and
+    0.03-2.09 % with it), beside the RMSE over the whole run in % of the travel of its
+    eq. 12-13 (:func:`cable_length_error`). Both lengths must share one zero.
+
+    Args:
+        l_valid: Valid cable lengths [m], shape ``(T, m)``.
+        l_theory: Theoretical cable lengths [m], shape ``(T, m)``, > 0 at the last sample.
+
+    Returns:
+        The difference at the last sample [%], shape ``(m,)``.
+
+    Raises:
+        InputError: Shapes differ, no samples, NaN or infinite values, or a theoretical
+            length that is not > 0 at the last sample.
+    """
+    l_valid = _array(l_valid, "l_valid", 2)
+    l_theory = _array(l_theory, "l_theory", 2)
+    _same_shape(l_valid, l_theory, "l_valid", "l_theory")
+    if l_valid.shape[0] == 0:
+        raise InputError("l_valid has no samples")
+    last = l_theory[-1]
+    if not (last > 0).all():
+        j = int(np.argmax(~(last > 0)))
+        raise InputError(f"l_theory must be > 0 at the last sample, got {last[j]} at cable {j}")
+    return 100.0 * np.abs(l_valid[-1] - last) / last
 
 
 def slack_events(tension: ArrayLike, threshold: ArrayLike) -> NDArray[np.int64]:
