@@ -91,8 +91,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     fe = columns("following_error", run.columns)
     truth = columns("tension", run.truth)
     v = np.gradient(length, t, axis=0)  # cable speed from the encoder [m/s]
-    modes = getattr(make_cdpr_controller(args.controller, robot), "drive_mode", None)
+    controller = make_cdpr_controller(args.controller, robot)
+    modes = getattr(controller, "drive_mode", None)
     p_drive = [i for i, mode in enumerate(modes or ()) if mode == DRIVE_P]
+    # msarm's controllers send the IK cable speed as velocity feedforward (paper 000's PLC
+    # does not, and its following error then carries eq. 9's c_v v): say which, as the
+    # estimate must
+    feedforward = bool(controller.velocity_feedforward)
 
     estimates = {
         "motor torque, friction model": (force_from_motor_torque(torque, v), range(len(names))),
@@ -107,11 +112,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     }
     if p_drive:
         estimates["following error, friction model"] = (
-            force_from_following_error(fe[:, p_drive], v[:, p_drive]),
+            force_from_following_error(
+                fe[:, p_drive], v[:, p_drive], velocity_feedforward=feedforward
+            ),
             p_drive,
         )
         estimates["following error, no tau_F"] = (
-            force_from_following_error(fe[:, p_drive], v[:, p_drive], friction_model=False),
+            force_from_following_error(
+                fe[:, p_drive],
+                v[:, p_drive],
+                friction_model=False,
+                velocity_feedforward=feedforward,
+            ),
             p_drive,
         )
     v_low = DEFAULT_CDPR_PLANT.friction.model().v_low

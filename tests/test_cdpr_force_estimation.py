@@ -78,7 +78,8 @@ def _stats(error):
 def test_following_error_gives_the_platform_tension_to_a_tenth_of_a_newton(log):
     p, cruise = log["p_drive"], log["cruise"]
     assert p == [0, 1, 2, 3]
-    estimate = force_from_following_error(log["fe"][:, p], log["v"][:, p])
+    fe, v = log["fe"][:, p], log["v"][:, p]
+    estimate = force_from_following_error(fe, v, velocity_feedforward=True)
     worst, rms, mean = _stats((estimate - log["truth"][:, p])[cruise])
     assert worst < 0.1 and rms < 0.025 and abs(mean) < 0.01, (worst, rms, mean)
 
@@ -99,8 +100,10 @@ def test_without_the_friction_model_the_estimates_are_clearly_worse(log):
             force_from_motor_torque(log["torque"], log["v"], friction_model=False),
         ),
         (
-            force_from_following_error(log["fe"][:, p], log["v"][:, p]),
-            force_from_following_error(log["fe"][:, p], log["v"][:, p], friction_model=False),
+            force_from_following_error(log["fe"][:, p], log["v"][:, p], velocity_feedforward=True),
+            force_from_following_error(
+                log["fe"][:, p], log["v"][:, p], friction_model=False, velocity_feedforward=True
+            ),
         ),
     ):
         cables = slice(None) if with_model.shape[1] == truth.shape[1] else p
@@ -213,10 +216,26 @@ _NAN = np.nan
         (lambda: _cur(1.0, 0.0, 0.0), r"torque_constant .* must be > 0"),
         (lambda: _cur(1.0, _NAN, 0.0), r"torque_constant .* must be finite"),
         (lambda: _cur([1.0, 2.0], [0.3, 0.3, 0.3], 0.0), r"torque_constant .* \(3,\)"),
-        (lambda: _fe([[-1e-3, _NAN]], 0.0), r"following_error \[m\] .* index \(0, 1\)"),
-        (lambda: _fe(np.zeros(3), np.zeros(4)), r"following error's \(3,\)"),
+        (
+            lambda: _fe([[-1e-3, _NAN]], 0.0, velocity_feedforward=True),
+            r"following_error \[m\] .* index \(0, 1\)",
+        ),
+        (
+            lambda: _fe(np.zeros(3), np.zeros(4), velocity_feedforward=True),
+            r"following error's \(3,\)",
+        ),
     ],
 )
 def test_bad_inputs_are_refused_with_the_argument_named(call, match):
     with pytest.raises(InputError, match=match):
         call()
+
+
+def test_the_following_error_estimate_is_told_whether_the_plc_sent_velocity_feedforward():
+    """A default (msarm's PLC, which sends it) read a paper-000 robot's 10 N as 2.9 N."""
+    winch = WinchParameters()
+    fe = winch.following_error_for_force(10.0, 4 / 60, 0.0, velocity_feedforward=False)
+    assert force_from_following_error(fe, 4 / 60, velocity_feedforward=False) == pytest.approx(10)
+    assert abs(force_from_following_error(fe, 4 / 60, velocity_feedforward=True) - 10.0) > 5.0
+    with pytest.raises(TypeError, match="velocity_feedforward"):
+        force_from_following_error(fe, 4 / 60)  # no default: the caller says which

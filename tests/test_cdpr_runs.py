@@ -538,9 +538,12 @@ def test_switching_statistics_leave_the_start_up_out():
 
     assert START_UP_TIME == 0.5  # the trajectories' initial hold
     run = _switching_run(get_cdpr_trajectory("rectangle-switch"))
-    # the ramps' last samples below h = 1, to a sample's rounding
+    # from the last sample before h moves to the first at its end value: a switch of 79
+    # cycles is 79 ms long (the in-between samples alone gave 77 ms, and 2 ms for 4 cycles)
     intervals = switch_intervals(run)
-    np.testing.assert_allclose(intervals, [(0.0, 0.077), (1.0, 1.077)], atol=1.5e-3)
+    np.testing.assert_allclose(intervals, [(0.0, 0.078), (0.999, 1.078)], atol=1e-9)
+    short = switch_intervals(_switching_run(get_cdpr_trajectory("rectangle-switch"), 4))
+    np.testing.assert_allclose(short[1], (0.999, 1.003), atol=1e-9)
     stats = switching_statistics(run)
     assert stats["start_up_time_s"] == START_UP_TIME
     assert stats["whole_run"] == {

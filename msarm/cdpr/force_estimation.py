@@ -289,7 +289,7 @@ def force_from_following_error(
     *,
     winch: WinchParameters | None = None,
     friction_model: bool = True,
-    velocity_feedforward: bool = True,
+    velocity_feedforward: bool,
 ) -> FloatArray:
     """Cable tension from a pure-P drive's following error: eq. 9 then eq. 3 inverted [N].
 
@@ -305,8 +305,10 @@ def force_from_following_error(
         a: Cable acceleration [m/s^2], broadcastable; 0 (default) leaves out tau_In.
         winch: r_D, J_D, friction and FE models; :class:`WinchParameters` defaults if None.
         friction_model: False sets tau_F = 0.
-        velocity_feedforward: Whether the PLC sent ``v_ff = v`` (msarm's default; FE is then
-            eq. 8's torque term alone) or not (eq. 9's ``c_v v`` lag is removed first).
+        velocity_feedforward: Whether the PLC sent ``v_ff = v`` (msarm's controllers do by
+            default; FE is then eq. 8's torque term alone) or not, as paper 000's PLC
+            (eq. 9's ``c_v v`` lag is removed first). No default: the wrong one is far off
+            (a true 10 N at 4 m/min read as 2.9 N), so say which your drives do.
 
     Returns:
         Estimated platform-side tension f [N], the FE's shape; not clipped.

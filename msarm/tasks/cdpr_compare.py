@@ -387,11 +387,15 @@ def _largest_error_mm(run: CdprRun, after: float = 0.0) -> float | None:
 
 
 def switch_intervals(run: CdprRun) -> list[tuple[float, float]]:
-    """The times [s] some cable's force-control share ``h`` (eq. 10) is strictly in (0, 1).
+    """The times [s] some cable's force-control share ``h`` (eq. 10) changes, as intervals.
 
-    Each interval is ``(first, last)`` sample of a stretch of such samples: the controller's
-    activation (the one from ``t = 0``, ``h`` rising from 0 on the first pair) and each switch
-    of the force-controlled pair.
+    Each interval runs from the last sample before a stretch of samples with some ``h``
+    strictly in (0, 1) to the first sample after it, where ``h`` is at its end value (the
+    run's first or last sample where the stretch starts or ends the run): so an eq. 10 switch
+    of ``N`` cycles is ``N`` control periods long (before 2026-11-29 the stretch's own first
+    and last samples were given, two periods short, and half of a 4-cycle switch). The
+    intervals are the controller's activation (the one from ``t = 0``, ``h`` rising from 0
+    on the first pair) and each switch of the force-controlled pair.
     """
     t = run.columns["t"]
     shares = [v for k, v in run.columns.items() if k.startswith("h.")]
@@ -400,8 +404,9 @@ def switch_intervals(run: CdprRun) -> list[tuple[float, float]]:
     h = np.stack(shares, axis=1)
     moving = np.any((h > 0.0) & (h < 1.0), axis=1).astype(np.int8)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], moving, [0]])))
+    last = len(t) - 1
     return [
-        (round(float(t[a]), 6), round(float(t[b - 1]), 6))
+        (round(float(t[max(a - 1, 0)]), 6), round(float(t[min(b, last)]), 6))
         for a, b in zip(edges[::2], edges[1::2], strict=True)
     ]
 
