@@ -56,7 +56,13 @@ def _residuals(
 
 
 # thresholds that are exact binary fractions, so that "at the threshold" is exact
-EXACT = PhaseSettings(hold_speed=0.5, reversal_speed=0.25, reversal_window=0.02, acceleration=2.0)
+EXACT = PhaseSettings(
+    hold_speed=0.5,
+    reversal_speed=0.25,
+    reversal_window=0.02,
+    reversal_pause=0.02,  # straight through zero only (the through-a-stop case: below)
+    acceleration=2.0,
+)
 
 
 def test_motion_thresholds_are_strict_or_inclusive_as_documented():
@@ -79,6 +85,24 @@ def test_motion_thresholds_are_strict_or_inclusive_as_documented():
     expected[30:33] = 0  # reversal
     got = motion_phases(_residuals(qd, qdd), EXACT)
     np.testing.assert_array_equal(got, expected)
+
+
+def test_a_joint_that_stops_and_goes_back_reverses_at_its_restart():
+    """Out, a 0.4 s hold, back (a reach-and-hold task's joint): the 0.05 s either side of the
+    first sample moving back is a reversal; before, only a pass straight through zero was,
+    and no sample of the benchmark's tasks ever was. A hold longer than reversal_pause is
+    none."""
+    qd = np.zeros((80, 1))
+    qd[:20, 0] = 0.3
+    qd[60:, 0] = -0.3
+    expected = np.full(80, 3)  # constant velocity (|qd| >= hold_speed 0.25) ...
+    expected[20:60] = 2  # ... around the hold
+    expected[55:66] = 0  # +-5 samples of 10 ms about sample 60, the first moving back
+    settings = PhaseSettings(hold_speed=0.25, reversal_speed=0.25, reversal_window=0.05)
+    np.testing.assert_array_equal(motion_phases(_residuals(qd), settings), expected)
+    expected[55:66] = np.where(np.arange(55, 66) < 60, 2, 3)
+    short = replace(settings, reversal_pause=0.3)  # the 0.4 s hold is longer
+    np.testing.assert_array_equal(motion_phases(_residuals(qd), short), expected)
 
 
 def test_a_sign_change_across_a_time_gap_is_no_reversal():

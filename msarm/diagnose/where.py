@@ -54,7 +54,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import maximum_filter1d
 
 from msarm.diagnose.residuals import (
     RESIDUAL_UNITS,
@@ -104,9 +103,11 @@ class PhaseSettings:
     Attributes:
         hold_speed: Below this joint speed (every joint) the arm holds [rad/s].
         reversal_speed: A joint reverses when its velocity passes from above this to below
-            its negative (or back) [rad/s].
-        reversal_window: Half width of the window around a sample in which a reversal counts
-            [s].
+            its negative (or back) [rad/s], straight through or after a stop.
+        reversal_window: Half width of the window in which a reversal counts [s] (see
+            :func:`motion_phases`).
+        reversal_pause: Longest stop between the two ways that still makes a reversal [s]
+            (a reach-and-hold task's joint goes out and back through a hold).
         acceleration: Joint acceleration from which a sample is in the acceleration phase
             [rad/s^2].
         low_tension: Load-cell tension below which a cable is slack or nearly [N].
@@ -120,6 +121,7 @@ class PhaseSettings:
     hold_speed: float = 0.05
     reversal_speed: float = 0.05
     reversal_window: float = 0.05
+    reversal_pause: float = 1.0
     acceleration: float = 0.5
     low_tension: float = 2.0
     high_load_percentile: float = 90.0
@@ -127,7 +129,13 @@ class PhaseSettings:
     hot_spot_samples: int = HOT_SPOT_SAMPLES
 
     def __post_init__(self) -> None:
-        for name in ("hold_speed", "reversal_speed", "reversal_window", "acceleration"):
+        for name in (
+            "hold_speed",
+            "reversal_speed",
+            "reversal_window",
+            "reversal_pause",
+            "acceleration",
+        ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.high_load_percentile < 100:
@@ -346,6 +354,14 @@ class GapBreakdown:
 def motion_phases(residuals: Residuals, settings: PhaseSettings | None = None) -> NDArray:
     """The motion phase of every sample of one log (index into :data:`MOTION_PHASES`).
 
+    A joint reverses when it moves one way (faster than ``reversal_speed``) and then the other,
+    straight through zero speed or after a stop of at most ``reversal_pause``. Straight
+    through, the reversal is the samples that have both ways within ``reversal_window``;
+    through a stop, the samples within ``reversal_window`` of the first one moving the other
+    way (where the friction turns). Before 2026-11-29 only a pass straight through zero
+    counted, and no sample of a reach-and-hold task (the benchmark's, 0.3-0.7 s holds between
+    moves) was a reversal.
+
     Args:
         residuals: One log's residuals (its filtered ``qd`` and ``qdd``).
         settings: Thresholds.
@@ -356,17 +372,26 @@ def motion_phases(residuals: Residuals, settings: PhaseSettings | None = None) -
     s = settings or PhaseSettings()
     qd = np.nan_to_num(residuals.qd)
     qdd = np.nan_to_num(residuals.qdd)
-    half = max(1, round(s.reversal_window * residuals.sample_rate_hz))
-    size = 2 * half + 1
+    rate = residuals.sample_rate_hz
+    half = max(1, round(s.reversal_window * rate))
+    pause = max(1, round(s.reversal_pause * rate))
     reversal = np.zeros(len(qd), dtype=bool)
-    # the window counts samples within each stretch: a sign change across a time gap is no
-    # reversal (the residuals are computed stretch by stretch too)
-    bounds = [0, *gap_starts(residuals.t, residuals.sample_rate_hz).tolist(), len(qd)]
+    # within each stretch: a sign change across a time gap is no reversal (the residuals are
+    # computed stretch by stretch too)
+    bounds = [0, *gap_starts(residuals.t, rate).tolist(), len(qd)]
     for start, stop in zip(bounds[:-1], bounds[1:], strict=True):
-        part = slice(start, stop)
-        up = maximum_filter1d((qd[part] > s.reversal_speed).astype(np.int8), size, axis=0)
-        down = maximum_filter1d((qd[part] < -s.reversal_speed).astype(np.int8), size, axis=0)
-        reversal[part] = (up & down).astype(bool).any(axis=1)
+        way = np.sign(qd[start:stop]) * (np.abs(qd[start:stop]) > s.reversal_speed)
+        for joint in range(qd.shape[1]):
+            moving = np.flatnonzero(way[:, joint])
+            turns = np.flatnonzero(np.diff(way[moving, joint]) != 0)
+            for last, first in zip(moving[turns], moving[turns + 1], strict=True):
+                if first - last > pause:
+                    continue
+                # straight through zero: the samples whose window holds both ways; through a
+                # stop: the window about the start the other way (where friction turns)
+                straight = first - last <= 2 * half
+                low, high = first - half, (last if straight else first) + half
+                reversal[start + max(low, 0) : start + min(high + 1, stop - start)] = True
     accelerating = (np.abs(qdd) >= s.acceleration).any(axis=1)
     holding = (np.abs(qd) < s.hold_speed).all(axis=1)
     return np.select(
