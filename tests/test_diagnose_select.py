@@ -938,3 +938,25 @@ def test_a_set_the_training_runs_resolve_is_kept_though_the_held_out_runs_barely
     (effect,) = pruned.selected
     assert list(effect.parameters[4:8]) == [0.0] * 4  # left out: it adds under 0.001
     assert np.isnan(effect.std[4:8]).all()  # fixed, not estimated
+
+
+def test_a_parameter_its_design_never_excites_is_not_resolved():
+    """Zero in every fit and every jackknife error zero: `0 >= 10 * 0` had counted it as
+    resolved, so a never-excited set could not be left out."""
+    from types import SimpleNamespace
+
+    import msarm.diagnose.select as select
+    from msarm.diagnose.fitting import LinearSolver
+
+    rng = np.random.default_rng(0)
+    runs = np.repeat(np.arange(3), 50)
+    design = np.zeros((150, 1, 2))
+    design[:, 0, 0] = rng.standard_normal(150)  # parameter 0 excited, parameter 1 never
+    left = 2.0 * design[:, :, 0] + 0.01 * rng.standard_normal((150, 1))
+    sampled = SimpleNamespace(
+        signals={"train": SimpleNamespace(run=runs)},
+        design=lambda term, split: design,
+        solver=lambda terms: LinearSolver(design),
+    )
+    term = SimpleNamespace(n_parameters=2)
+    np.testing.assert_array_equal(select._resolved_by_runs(term, left, sampled), [True, False])

@@ -611,6 +611,12 @@ def test_a_user_nonlinear_term_is_checked_before_any_fit(logs, arm, monkeypatch)
 
     refused(Branching(), r"test_scaled: torque\(\) with casadi ops raised .*written with the ops")
 
+    class NanGuess(_Scaled):
+        def initial_guess(self, signals, residual=None):
+            return np.array([np.nan])
+
+    refused(NanGuess(), r"test_scaled: initial_guess\(\) returned a non-finite value")
+
     class ShortGuess(_Scaled):
         def initial_guess(self, signals, residual=None):
             return np.zeros(2)
@@ -644,6 +650,18 @@ def test_a_user_nonlinear_term_is_checked_before_any_fit(logs, arm, monkeypatch)
     with pytest.raises(SelectionReachedError):
         diagnose(arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[_Scaled()])
     assert fitted == [1]
+
+    class FromTheResidual(_Scaled):  # a data-driven guess: NaN from a zero residual
+        def initial_guess(self, signals, residual=None):
+            return np.array([0.1 * np.sign(np.corrcoef(signals.qd[:, 1], residual[:, 1])[0, 1])])
+
+    # the guess is asked for as the fit asks: the training signals and residual (a review
+    # found it asked on eight still samples with a zero residual, and a valid term refused)
+    with pytest.raises(SelectionReachedError):
+        diagnose(
+            arm, logs[:2], logs[2:], candidates=["coulomb"], extra_candidates=[FromTheResidual()]
+        )
+    assert fitted == [1, 1]
 
 
 def test_a_delay_kernel_is_also_given_in_milliseconds():

@@ -77,12 +77,15 @@ def test_motion_thresholds_are_strict_or_inclusive_as_documented():
     qd[16, 0] = -0.3  # ... this one (both are below hold_speed: hold)
     qd[30, 1] = 0.3  # a real reversal two samples apart: samples 30..32 see both signs
     qd[32, 1] = -0.3
+    qd[20, 1] = 0.3  # straight through, three samples apart (more than the 2-sample
+    qd[23, 1] = -0.3  # reversal_pause, within the window): samples 21..22 see both signs
     qd[37] = np.nan  # an invalid sample
     qdd[37] = np.nan
     expected = np.full(40, 2)  # hold
     expected[5] = 3  # constant_velocity
     expected[10] = 1  # acceleration
     expected[30:33] = 0  # reversal
+    expected[21:23] = 0
     got = motion_phases(_residuals(qd, qdd), EXACT)
     np.testing.assert_array_equal(got, expected)
 

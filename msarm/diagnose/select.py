@@ -387,7 +387,8 @@ def _resolved_by_runs(term: Embedded, left: FloatArray, sampled: Sampled) -> NDA
     )
     n = labels.size
     error = np.sqrt((n - 1) / n * np.sum((drops - drops.mean(axis=0)) ** 2, axis=0))
-    return np.abs(full) >= RESOLVED_Z * error
+    # a parameter the design never excites is 0 in every fit, its error 0: not resolved
+    return (error > 0.0) & (np.abs(full) > RESOLVED_Z * error)
 
 
 def _selected_effect(
@@ -787,47 +788,72 @@ def _check_design(term: CandidateEffect, signals: Signals) -> None:
         raise InputError(f"{term.name}: design() has a non-finite value (NaN or inf) at {bad}")
 
 
-def _check_torque(term: CandidateEffect, signals: Signals) -> None:
-    """Refuse a nonlinear term whose ``torque()`` fails, or is not ``(T, W)`` and finite.
+def _user_call(term: CandidateEffect, what: str, function: Callable[[], Any], where: str) -> Any:
+    """``function()``; a user's term's own error becomes an InputError naming the term.
 
-    Evaluated at its starting parameters on ``signals`` (a few samples of the logs), with
-    numpy and as the casadi expression IPOPT fits: an output of the wrong width would
-    otherwise be cut to the term's columns (or fail deep in casadi), a NaN make IPOPT give
-    up without a word, and an ``if`` on a parameter or a numpy function of one fail in
-    casadi with no term named. Raises :class:`InputError` naming the term.
+    msarm's own terms keep their traceback: a bug of msarm's, not a term to skip.
     """
-    T, W, p = signals.n_samples, term.width(signals), term.n_parameters
-    where = f"checked on the first {T} samples of the logs"
-    expected = f"(T, W) = ({T}, {W}) (samples, the residual columns of its groups)"
-    own = type(term).__module__.split(".")[0] == "msarm"
-
-    hint = (
-        "; a nonlinear term's torque() must be written with the ops it is given (ops.exp, "
-        "ops.tanh, ops.row, ops.const, theta[i]; no numpy function of theta, no if on it) "
-        "for IPOPT to differentiate it"
-    )
-
-    def call(what: str, function: Callable[[], Any], why: str = "") -> Any:
-        try:
-            return function()
-        except InputError:
+    try:
+        return function()
+    except InputError:
+        raise
+    except Exception as exc:
+        if type(term).__module__.split(".")[0] == "msarm":
             raise
-        except Exception as exc:
-            if own:
-                raise  # a bug of msarm's own: its traceback, not a term skipped
-            raise InputError(  # a user's term: its own error, with the term named
-                f"{term.name}: {what} raised {type(exc).__name__}: {exc}{why} ({where})"
-            ) from exc
+        raise InputError(
+            f"{term.name}: {what} raised {type(exc).__name__}: {exc} ({where})"
+        ) from exc
 
-    guess = call("initial_guess()", lambda: term.initial_guess(signals, np.zeros((T, W))))
+
+def _starting_parameters(
+    term: CandidateEffect, signals: Signals, residual: FloatArray
+) -> FloatArray:
+    """A nonlinear term's :meth:`~CandidateEffect.initial_guess` on the training logs, checked.
+
+    As the fit will ask for it (the training signals and the residual of the term's groups),
+    clipped to its bounds. Raises :class:`InputError` naming the term when the guess raises,
+    is not ``(p,)`` or is not finite.
+    """
+    p = term.n_parameters
+    where = "asked for on the training logs"
+    guess = _user_call(
+        term, "initial_guess()", lambda: term.initial_guess(signals, residual), where
+    )
     start = np.asarray(guess, dtype=float)
     if start.shape != (p,):
         raise InputError(
             f"{term.name}: initial_guess() returned shape {start.shape}, expected ({p},) for "
             f"{term.parameter_names}"
         )
-    start = np.clip(start, *bounds_of(term))
-    value = np.asarray(call("torque()", lambda: term.torque(signals, start, NUMPY_OPS)))
+    if not np.all(np.isfinite(start)):
+        raise InputError(
+            f"{term.name}: initial_guess() returned a non-finite value (NaN or inf): "
+            f"{dict(zip(term.parameter_names, start.tolist(), strict=True))} ({where})"
+        )
+    return np.clip(start, *bounds_of(term))
+
+
+def _check_torque(term: CandidateEffect, signals: Signals, start: FloatArray) -> None:
+    """Refuse a nonlinear term whose ``torque()`` fails, or is not ``(T, W)`` and finite.
+
+    Evaluated at its starting parameters ``start`` (:func:`_starting_parameters`) on
+    ``signals`` (a few samples of the logs), with numpy and as the casadi expression IPOPT
+    fits: an output of the wrong width would otherwise be cut to the term's columns (or fail
+    deep in casadi), a NaN make IPOPT give up without a word, and an ``if`` on a parameter
+    or a numpy function of one fail in casadi with no term named. Raises
+    :class:`InputError` naming the term.
+    """
+    T, W, p = signals.n_samples, term.width(signals), term.n_parameters
+    where = f"checked on the first {T} samples of the logs"
+    expected = f"(T, W) = ({T}, {W}) (samples, the residual columns of its groups)"
+    hint = (
+        "; a nonlinear term's torque() must be written with the ops it is given (ops.exp, "
+        "ops.tanh, ops.row, ops.const, theta[i]; no numpy function of theta, no if on it) "
+        "for IPOPT to differentiate it"
+    )
+    value = np.asarray(
+        _user_call(term, "torque()", lambda: term.torque(signals, start, NUMPY_OPS), where)
+    )
     if value.shape != (T, W):
         raise InputError(
             f"{term.name}: torque() returned shape {value.shape}, expected {expected} ({where})"
@@ -840,8 +866,11 @@ def _check_torque(term: CandidateEffect, signals: Signals) -> None:
             f"starting parameters {at} ({where})"
         )
     theta = casadi.MX.sym("theta", p)
-    expression = call(
-        "torque() with casadi ops", lambda: term.torque(signals, theta, CasadiOps()), hint
+    expression = _user_call(
+        term,
+        "torque() with casadi ops",
+        lambda: term.torque(signals, theta, CasadiOps()),
+        where + hint.replace(";", ":", 1),
     )
     shape = tuple(getattr(expression, "shape", ()))
     if shape != (T, W):
@@ -881,6 +910,7 @@ def _usable(
     required: set[str],
     absent: set[str],
     held_signals: Signals | None = None,
+    residual: FloatArray | None = None,
 ) -> tuple[list[CandidateEffect], dict[str, str]]:
     """Drop candidates whose groups or signals the logs lack (an error if the user named them).
 
@@ -915,14 +945,20 @@ def _usable(
             checks = [("training", signals)]
             if held_signals is not None:
                 checks.append(("held-out", held_signals))
+            start = None
             for which, these in checks:
                 try:
                     term.check(these)
                     few = these.take(np.arange(min(these.n_samples, 8)))
                     if term.linear:
                         _check_design(term, few)
-                    else:
-                        _check_torque(term, few)
+                        continue
+                    if start is None:  # the guess the fit will start from
+                        own = np.zeros((signals.n_samples, term.width(signals)))
+                        if residual is not None:
+                            own = np.hstack([residual[:, layout.slices[g]] for g in term.groups])
+                        start = _starting_parameters(term, signals, own)
+                    _check_torque(term, few, start)
                 except InputError as exc:
                     reason = f"in the {which} logs: {exc}"
                     break
@@ -1227,7 +1263,7 @@ def load_data(
     absent = {g for g in wanted if g not in g_train or g not in g_hold}
     required = {c.name for c in pool} if named else set()
     required |= {c.name for c in extras}
-    usable, skipped = _usable([*pool, *extras], layout, train, required, absent, hold)
+    usable, skipped = _usable([*pool, *extras], layout, train, required, absent, hold, r_train)
     names = {"joint": tuple(model.joint_names)}
     names.update({g: tuple(model.cable_names) for g in ("drive", "length")})
     return DiagnosisData(

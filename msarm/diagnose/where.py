@@ -385,11 +385,11 @@ def motion_phases(residuals: Residuals, settings: PhaseSettings | None = None) -
             moving = np.flatnonzero(way[:, joint])
             turns = np.flatnonzero(np.diff(way[moving, joint]) != 0)
             for last, first in zip(moving[turns], moving[turns + 1], strict=True):
-                if first - last > pause:
-                    continue
                 # straight through zero: the samples whose window holds both ways; through a
                 # stop: the window about the start the other way (where friction turns)
                 straight = first - last <= 2 * half
+                if not straight and first - last > pause:
+                    continue
                 low, high = first - half, (last if straight else first) + half
                 reversal[start + max(low, 0) : start + min(high + 1, stop - start)] = True
     accelerating = (np.abs(qdd) >= s.acceleration).any(axis=1)
