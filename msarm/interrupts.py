@@ -64,7 +64,8 @@ def sigterm_raises() -> Iterator[None]:
     removed, an atomic write's temporary file too); catch :class:`Terminated` outside the
     block to print a line and return its ``code``. On the way out the previous handler is
     restored and a received SIGTERM forgotten. Outside the main thread, where no handler can
-    be set, the block runs with the handler as it is.
+    be set, the block runs with the handler as it is. Not to be nested: an inner block
+    forgets a SIGTERM the outer one has received and not yet acted on.
 
     Yields:
         Nothing; the block runs with the handler installed.
