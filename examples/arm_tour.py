@@ -17,10 +17,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio
 
-from msarm import interrupts
 from msarm.allocation import make_allocator
 from msarm.cli.arm import show_arm
-from msarm.cli.common import output_folder, remove_empty_created_folders
+from msarm.cli.common import output_folder, run_script
 from msarm.errors import InputError
 from msarm.model import load_arm
 
@@ -34,15 +33,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         output_folder(args.out)  # up front: a path under a file is refused before any work
     except InputError as exc:
         parser.error(str(exc))
-    try:
-        with interrupts.sigterm_raises():  # SIGTERM: a plot's temporary file is removed
-            tour(args.out)
-    except interrupts.Terminated as exc:
-        print(f"{parser.prog}: terminated", file=sys.stderr)
-        return int(exc.code)
-    finally:
-        remove_empty_created_folders()  # --out, if this run made it and wrote nothing there
-    return 0
+    # SIGTERM unwinds: a plot's temporary file is removed
+    return run_script(parser.prog, lambda: tour(args.out))
 
 
 def tour(out: Path) -> None:

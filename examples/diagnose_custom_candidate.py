@@ -51,8 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msarm import interrupts
-from msarm.cli.common import output_folder, remove_empty_created_folders
+from msarm.cli.common import output_folder, run_script
 from msarm.diagnose.effects import CandidateEffect, register
 from msarm.diagnose.residuals import DiagnosisWarning
 from msarm.diagnose.select import Diagnosis, diagnose
@@ -199,15 +198,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             output_folder(args.out)  # up front: a path under a file is refused before any work
         except InputError as exc:
             parser.error(str(exc))
-    try:
-        with interrupts.sigterm_raises():  # SIGTERM unwinds: the temporary logs are removed
-            run_and_print(args.loss, args.out)
-    except interrupts.Terminated as exc:
-        print(f"{parser.prog}: terminated", file=sys.stderr)
-        return int(exc.code)
-    finally:
-        remove_empty_created_folders()  # --out, if this run made it and wrote nothing there
-    return 0
+    # SIGTERM unwinds: the temporary logs are removed
+    return run_script(parser.prog, lambda: run_and_print(args.loss, args.out))
 
 
 def run_and_print(loss: float, out: Path | None) -> None:

@@ -56,8 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter, sosfiltfilt
 
-from msarm import interrupts
-from msarm.cli.common import output_folder, remove_empty_created_folders
+from msarm.cli.common import output_folder, run_script
 from msarm.diagnose.effects import (
     NUMPY_OPS,
     CableCapstanFriction,
@@ -989,14 +988,8 @@ def parse_args(argv: Sequence[str] | None) -> tuple[argparse.ArgumentParser, arg
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line entry point; returns the exit status (2: bad data, 143: SIGTERM)."""
     parser, args = parse_args(argv)
-    try:
-        with interrupts.sigterm_raises():  # SIGTERM unwinds: no temporary file left behind
-            return run(args)
-    except interrupts.Terminated as exc:
-        print(f"{parser.prog}: terminated", file=sys.stderr)
-        return int(exc.code)
-    finally:
-        remove_empty_created_folders()  # --out, if this run made it and wrote nothing there
+    # SIGTERM unwinds: no temporary file left behind
+    return run_script(parser.prog, lambda: run(args))
 
 
 def run(args: argparse.Namespace) -> int:

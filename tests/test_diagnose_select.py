@@ -902,9 +902,9 @@ def test_a_set_the_training_runs_resolve_is_kept_though_the_held_out_runs_barely
     absorbs it. Before, a winch's viscous level 31 jackknife errors from zero went that way,
     reported as 0 ± 0, with the Coulomb level 9 bootstrap deviations off the plant's."""
     from test_diagnose_effects import _make_signals
+    from test_diagnose_stack import diagnosis_data
 
     import msarm.diagnose.select as select
-    from msarm.diagnose.stack import DiagnosisData, Embedded, Layout
 
     term = _waves_term()
     signals = _make_signals(arm, seed=3)
@@ -913,22 +913,7 @@ def test_a_set_the_training_runs_resolve_is_kept_though_the_held_out_runs_barely
     theta = strong + np.concatenate([np.zeros(4), np.full(4, 0.02 * scale), np.zeros(12)])
     pure = np.asarray(term.torque(signals, theta))
     torque = pure + 0.002 * scale * np.random.default_rng(3).standard_normal(pure.shape)
-    layout = Layout({"joint": torque})
-    stacked = layout.stack({"joint": torque})
-    train, hold = signals.run < 6, signals.run >= 6
-    data = DiagnosisData(
-        model=arm,
-        train=signals.take(train),
-        hold=signals.take(hold),
-        layout=layout,
-        r_train=stacked[train],
-        r_hold=stacked[hold],
-        candidates=(Embedded(term, layout),),
-        skipped={},
-        train_runs=tuple("abcdef"),
-        holdout_runs=("g", "h"),
-        channel_names={"joint": tuple(arm.joint_names)},
-    )
+    data = diagnosis_data(arm, signals, torque, [term], n_train=6)
     kept = select.select_effects(data, n_boot=0, replay=False)
     (effect,) = kept.selected
     np.testing.assert_allclose(effect.parameters[4:8], theta[4:8], rtol=0.05)

@@ -29,11 +29,12 @@ from msarm.diagnose.stack import (
 from msarm.errors import InputError
 
 
-def diagnosis_data(arm, signals, torque, pool):
-    """Diagnosis data of a joint residual ``torque`` (runs 0-1 trained on, the rest held out)."""
+def diagnosis_data(arm, signals, torque, pool, n_train: int = 2):
+    """Diagnosis data of a joint residual ``torque`` (runs below ``n_train`` trained on, the
+    rest held out)."""
     layout = Layout({"joint": torque})
     stacked = layout.stack({"joint": torque})
-    train, hold = signals.run < 2, signals.run >= 2
+    train, hold = signals.run < n_train, signals.run >= n_train
     return DiagnosisData(
         model=arm,
         train=signals.take(train),
@@ -43,8 +44,8 @@ def diagnosis_data(arm, signals, torque, pool):
         r_hold=stacked[hold],
         candidates=tuple(Embedded(t, layout) for t in pool),
         skipped={},
-        train_runs=("a", "b"),
-        holdout_runs=("c",),
+        train_runs=tuple(f"run{k}" for k in range(n_train)),
+        holdout_runs=tuple(f"run{k}" for k in np.unique(signals.run[hold])),
         channel_names={"joint": tuple(arm.joint_names)},
     )
 

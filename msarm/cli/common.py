@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
@@ -337,6 +338,33 @@ def remove_empty_created_folders() -> None:
             folder.rmdir()  # only if empty
         except OSError:
             pass
+
+
+def run_script(prog: str, work: Callable[[], int | None]) -> int:
+    """Run a script's ``work`` so that SIGTERM unwinds it; the exit status.
+
+    For scripts of their own (the examples): SIGTERM raises inside ``work``
+    (:func:`msarm.interrupts.sigterm_raises`), so its temporary folders and files are removed
+    on the way out; ``prog: terminated`` is printed and 143 returned, as by ``msarm``. An
+    ``--out`` folder :func:`output_folder` made and left empty is removed in any case.
+
+    Args:
+        prog: The script's name, for the message.
+        work: The script's work; what it returns is the exit status (None: 0).
+
+    Returns:
+        The exit status: ``work``'s, or 143 after a SIGTERM.
+    """
+    from msarm import interrupts
+
+    try:
+        with interrupts.sigterm_raises():
+            return int(work() or 0)
+    except interrupts.Terminated as exc:
+        print(f"{prog}: terminated", file=sys.stderr)
+        return int(exc.code)
+    finally:
+        remove_empty_created_folders()  # --out, if this run made it and wrote nothing there
 
 
 def check_drum_radius(drum_radius: float) -> None:
