@@ -315,6 +315,32 @@ def test_a_write_removes_stale_temp_files_of_its_own_target_only(tmp_path):
     assert left == sorted({*names} - {".a.json.k2x9_q0z.tmp"} | {"a.json"})
 
 
+def test_a_reused_folder_loses_every_stale_temp_file(tmp_path):
+    """A finished run reused by the next command is never written again, so a killed
+    writer's temporary file in it stayed for good (a review: 800 kB after two reruns)."""
+    from msarm.io.atomic import STALE_TEMP_AGE_S, remove_stale_temps_in
+
+    old = time.time() - STALE_TEMP_AGE_S - 5
+    names = {
+        ".log.truth.parquet.b9ax66sk.tmp": old,  # removed
+        ".metrics.json.k2x9_q0z.tmp": old,  # removed
+        ".log.parquet.fresh123.tmp": time.time(),  # perhaps a live writer's: kept
+        "log.parquet": old,  # the run itself: kept
+        ".hidden.tmp.keep": old,  # not a temporary file: kept
+    }
+    for name, mtime in names.items():
+        (tmp_path / name).write_text("x")
+        os.utime(tmp_path / name, (mtime, mtime))
+    removed = remove_stale_temps_in(tmp_path)
+    assert sorted(p.name for p in removed) == [
+        ".log.truth.parquet.b9ax66sk.tmp",
+        ".metrics.json.k2x9_q0z.tmp",
+    ]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [".log.parquet.fresh123.tmp", "log.parquet", ".hidden.tmp.keep"]
+    )
+
+
 def test_sigterm_unwinds_the_command_and_removes_its_temp_file(monkeypatch, tmp_path, capsys):
     import warnings
 
@@ -445,3 +471,66 @@ def test_cdpr_run_s_default_folder_names_a_seed_other_than_0(monkeypatch, tmp_pa
     folder = tmp_path / "runs" / "cdpr-ikc-triangle-12-s1"
     assert (folder / "log.parquet").is_file()
     assert not (tmp_path / "runs" / "cdpr-ikc-triangle-12").exists()
+
+
+def test_a_sigterm_a_callback_swallowed_still_ends_the_command(monkeypatch, capsys, tmp_path):
+    """Python ignores an exception raised in a garbage-collection or weakref callback: a
+    SIGTERM that arrived there (matplotlib's plots, 3 of 27 tries in a review) let the
+    command run on and exit 0. The command's next atomic write, its next progress step and
+    main() after the command now raise it again: 143, 'msarm: terminated'."""
+    import signal
+    import sys
+
+    import msarm.cli as cli
+    from msarm import interrupts
+    from msarm.cli import common, main
+    from msarm.io.atomic import write_json_atomic
+
+    def swallowed():
+        try:
+            interrupts.on_sigterm(signal.SIGTERM, None)
+        except interrupts.Terminated:
+            pass  # as "Exception ignored in <function WeakSet._remove ...>"
+
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        swallowed()
+        with pytest.raises(interrupts.Terminated):  # no result committed after it
+            write_json_atomic(tmp_path / "result.json", {})
+        assert not list(tmp_path.iterdir())  # nor its temporary file left
+        with pytest.raises(interrupts.Terminated):
+            common.progress_lines("test")("a step")
+    finally:
+        interrupts.clear()
+        signal.signal(signal.SIGTERM, before)
+
+    def command(*args, **kwargs):  # a command whose SIGTERM was swallowed, then returns
+        swallowed()
+
+    monkeypatch.setattr(sys, "argv", ["msarm", "arm"])
+    monkeypatch.setattr(cli, "app", command)
+    with pytest.raises(SystemExit) as exit_:
+        main()
+    assert exit_.value.code == 128 + signal.SIGTERM
+    assert "msarm: terminated" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGTERM) == before  # main() gave the handler back
+
+
+def test_an_interrupted_write_leaves_no_empty_folder_of_its_own(tmp_path):
+    """A SIGTERM between a run folder's creation and its first file left it empty (a
+    review: `run-1001/` after `msarm train`); a folder that was there stays."""
+    from msarm import interrupts
+    from msarm.io.atomic import folder_for_writing
+
+    with pytest.raises(interrupts.Terminated):
+        with folder_for_writing(tmp_path / "runs" / "run-1001"):
+            raise interrupts.Terminated(143)
+    assert not (tmp_path / "runs" / "run-1001").exists()
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(interrupts.Terminated):
+        with folder_for_writing(tmp_path / "kept"):
+            raise interrupts.Terminated(143)
+    assert (tmp_path / "kept").is_dir()  # not this call's: left as it was
+    with folder_for_writing(tmp_path / "done") as folder:
+        (folder / "log.parquet").write_text("x")
+    assert (tmp_path / "done" / "log.parquet").is_file()

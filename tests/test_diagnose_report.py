@@ -5,8 +5,11 @@ from __future__ import annotations
 import base64
 import importlib.util
 import json
+import os
 import re
+import shutil
 import sys
+import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -93,7 +96,15 @@ def test_write_report_writes_every_file(arm, diagnosis, friction_logs, tmp_path)
     every, _ = where_breakdowns(arm, friction_logs[:-1])
     assert "joint_torque" in every and "drive" not in every
     out = tmp_path / "report"
+    # a staging folder a SIGKILLed writer left (stale) and one a writer may still be using
+    stale, young = out / ".report-killed", out / ".report-busy"
+    for folder in (stale, young):
+        folder.mkdir(parents=True)
+        (folder / "diagnosis.json").write_text("{}")
+    os.utime(stale, (time.time() - 120, time.time() - 120))
     paths = write_report(diagnosis, out, breakdowns)
+    assert not stale.exists() and young.exists()  # the stale one removed, the young kept
+    shutil.rmtree(young)
     expected = {**REPORT_FILES, **{f"where-{k}": f"where-{k}.png" for k in breakdowns}}
     assert set(paths) == set(expected)
     for key, name in expected.items():

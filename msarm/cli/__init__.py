@@ -196,6 +196,9 @@ def main() -> None:
         code = app(
             args=spread_multi_value_options(sys.argv[1:]), prog_name="msarm", standalone_mode=False
         )
+        # a SIGTERM whose exception a garbage-collection or weakref callback swallowed (Python
+        # prints it as "Exception ignored in" and goes on): the command still ends with 143
+        interrupts.raise_if_terminated()
     except MsarmError as exc:
         remove_empty_created_folders()  # an --out made for a command refused: not left behind
         print(f"msarm: error: {exc}", file=sys.stderr)

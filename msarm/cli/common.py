@@ -261,11 +261,15 @@ def progress_lines(what: str, total: int | None = None, enabled: bool = True):
     """
     import sys
 
+    from msarm.interrupts import raise_if_terminated
+
     if not enabled or Console(stderr=True).is_terminal:
-        return lambda label: None
+        # no line to print; a SIGTERM a callback swallowed still takes effect at each step
+        return lambda label: raise_if_terminated()
     done = [0]
 
     def line(label: str) -> None:
+        raise_if_terminated()  # a SIGTERM a callback swallowed (garbage collection)
         done[0] += 1
         count = f"{done[0]}/{total}" if total else f"{done[0]}"
         print(f"{what} [{count}]: {label}", file=sys.stderr, flush=True)

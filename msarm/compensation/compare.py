@@ -238,6 +238,10 @@ def compare_feedforward(
             floor[name] = 1000.0 * encoder_noise_floor(model, posture, noise.joint_noise)
     files: dict[str, Path] = {}
     comparison = Comparison(tuple(tasks), held_out, metrics, true_final, files, lowest, floor)
+    # the results go last and the old ones first: a folder with comparison.json holds one
+    # whole comparison, not new plots beside an old run's results (a review's kill during
+    # the plots left such a mix)
+    (out_dir / "comparison.json").unlink(missing_ok=True)
     for name in tasks[:4] + list(held_out[:2]):
         kind = " (held out)" if name in held_out else ""
         files[f"trajectories_{name}"] = plots.plot_joint_tracking(

@@ -24,6 +24,7 @@ from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.target import TargetSpec, torque_error
 from msarm.control import ArmControllerConfig
 from msarm.errors import InputError, MsarmError
+from msarm.io.atomic import remove_stale_temps_in
 from msarm.io.code_version import code_fingerprint
 from msarm.io.config import load_config
 from msarm.io.logs import STANDARD_UNITS, check_standard_units, read_log, read_model_sha256
@@ -172,7 +173,8 @@ def reusable_run(folder: Path, settings: TrackSettings, model_sha256: str) -> bo
     written last), say it did not diverge and were made by the code in use (their ``code``,
     :func:`~msarm.io.code_version.code_fingerprint`: the same msarm sources and library
     versions), and its log was recorded with the model of ``model_sha256``; any other run is
-    simulated again.
+    simulated again. A reused run's folder loses the temporary files a killed writer left
+    there (:func:`~msarm.io.atomic.remove_stale_temps_in`): its files are not written again.
     """
     config_path, log_path = folder / "config.yaml", folder / "log.parquet"
     metrics_path = folder / "metrics.json"
@@ -186,9 +188,12 @@ def reusable_run(folder: Path, settings: TrackSettings, model_sha256: str) -> bo
             return False
         if metrics.get("code") != code_fingerprint("simulation"):
             return False  # made by another version of msarm or of its libraries
-        return read_model_sha256(log_path).lower() == model_sha256.lower()
+        if read_model_sha256(log_path).lower() != model_sha256.lower():
+            return False
     except (MsarmError, OSError, ValueError):
         return False
+    remove_stale_temps_in(folder)
+    return True
 
 
 def build_arrays(

@@ -38,7 +38,7 @@ from msarm.diagnose.builder import GROUP_UNITS
 from msarm.diagnose.result import Diagnosis, SelectedEffect
 from msarm.diagnose.where import GapBreakdown, plot_heatmap
 from msarm.errors import InputError
-from msarm.io.atomic import write_bytes_atomic, write_json_atomic
+from msarm.io.atomic import STALE_TEMP_AGE_S, write_bytes_atomic, write_json_atomic
 
 __all__ = ["REPORT_FILES", "plot_gap", "plot_waterfall", "render_html", "write_report"]
 
@@ -398,6 +398,36 @@ def render_html(markdown: str, images: Mapping[str, bytes], title: str = "") -> 
     )
 
 
+#: The prefix of the hidden folder a report is staged in before its files are moved out.
+_STAGING_PREFIX = ".report-"
+
+
+def _remove_stale_staging(out: Path) -> list[Path]:
+    """Remove staging folders a killed writer left in ``out`` (older than a minute).
+
+    A report is written into a hidden ``.report-*`` folder and its files moved out; a
+    SIGKILL leaves that folder, which no later report would otherwise remove (a review found
+    one holding a partial ``diagnosis.json`` after every rerun). Younger ones may belong to
+    a writer still at work (:data:`~msarm.io.atomic.STALE_TEMP_AGE_S`).
+
+    Returns:
+        The folders removed.
+    """
+    import shutil
+    import time
+
+    removed = []
+    for folder in out.glob(f"{_STAGING_PREFIX}*"):
+        try:
+            old = time.time() - folder.stat().st_mtime > STALE_TEMP_AGE_S
+        except OSError:
+            continue
+        if folder.is_dir() and old:
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder)
+    return removed
+
+
 def write_report(
     diagnosis: Diagnosis,
     out_dir: str | Path,
@@ -459,7 +489,8 @@ def write_report(
         raise InputError(
             f"out_dir: cannot create the folder {out}: {exc.strerror or exc}"
         ) from None
-    with tempfile.TemporaryDirectory(dir=out, prefix=".report-") as staging:
+    _remove_stale_staging(out)
+    with tempfile.TemporaryDirectory(dir=out, prefix=_STAGING_PREFIX) as staging:
         staged = _write_report_files(diagnosis, Path(staging), where, extras)
         for old in out.glob("where-*.png"):  # a previous report's maps of other residuals
             if old.name not in taken:

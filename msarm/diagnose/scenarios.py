@@ -70,7 +70,7 @@ from numpy.typing import NDArray
 from msarm.control import ArmControllerConfig
 from msarm.diagnose.effect_classes import EFFECT_CLASSES
 from msarm.errors import InputError, MsarmError
-from msarm.io.atomic import write_json_atomic
+from msarm.io.atomic import remove_stale_temps_in, write_json_atomic
 from msarm.io.code_version import code_fingerprint
 from msarm.io.config import config_to_dict, dump_config
 from msarm.io.logs import read_model_sha256
@@ -509,13 +509,16 @@ def _is_done(
     except (OSError, MsarmError):
         return False
     metrics = _read_json(run_dir / "metrics.json")
-    return (
+    done = (
         config_text == dump_config(settings)
         and _read_json(run_dir / "task.json") == task_data
         and recorded_with.lower() == model_sha256.lower()
         and isinstance(metrics, dict)
         and metrics.get("code") == code_fingerprint("simulation")
     )
+    if done:  # reused, never written again: a killed writer's temporary files go now
+        remove_stale_temps_in(run_dir)
+    return done
 
 
 def _check_diverged(scenario: Scenario, run: str, run_dir: Path) -> None:

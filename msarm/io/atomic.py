@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from msarm.errors import InputError
+from msarm.interrupts import raise_if_terminated
 
 __all__ = [
     "STALE_TEMP_AGE_S",
@@ -84,6 +85,53 @@ def remove_stale_temps(path: str | Path, age_s: float = STALE_TEMP_AGE_S) -> lis
     return removed
 
 
+def remove_stale_temps_in(folder: str | Path, age_s: float = STALE_TEMP_AGE_S) -> list[Path]:
+    """Remove every temporary file of :func:`atomic_path` in ``folder`` older than ``age_s``.
+
+    For a folder whose files are reused and never written again (a finished run reused by
+    the next command): a killed writer's ``.<name>.<random>.tmp`` there would otherwise stay
+    for good, as only the next write of ``<name>`` removes it.
+
+    Returns:
+        The files removed.
+    """
+    removed: list[Path] = []
+    try:
+        names = {entry.name for entry in os.scandir(folder)}
+    except OSError:
+        return removed
+    for name in names:
+        match = re.fullmatch(r"\.(.+)\.[A-Za-z0-9_]+\.tmp", name)
+        if match:
+            removed += remove_stale_temps(Path(folder) / match.group(1), age_s)
+    return removed
+
+
+@contextmanager
+def folder_for_writing(path: str | Path) -> Iterator[Path]:
+    """Create the folder ``path`` (and its parents) for the block's files.
+
+    If the block raises (a SIGTERM included) and this call created the folder, the folder
+    is removed when it is still empty: an interrupted run leaves no empty folder of its own
+    (a review found ``run-1001/`` left empty by a SIGTERM during ``msarm train``).
+
+    Yields:
+        The folder.
+    """
+    path = Path(path)
+    made = not path.exists()
+    path.mkdir(parents=True, exist_ok=True)
+    try:
+        yield path
+    except BaseException:
+        if made:
+            try:
+                path.rmdir()  # only if empty
+            except OSError:
+                pass
+        raise
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success move it onto ``path``.
@@ -121,6 +169,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     tmp = Path(name)
     try:
         yield tmp
+        # a SIGTERM whose exception a callback swallowed (Python ignores exceptions raised in
+        # garbage-collection and weakref callbacks): no new result after it
+        raise_if_terminated()
         with open(tmp, "rb") as handle:
             os.fsync(handle.fileno())
         os.chmod(tmp, 0o666 & ~_umask())

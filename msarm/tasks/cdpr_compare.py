@@ -245,6 +245,10 @@ def compare_cdpr(
     }
     files: dict[str, Path] = {}
     options_of = {g[0]: g[3] for g in grid}
+    # the results go last and the old ones first: a folder with cdpr_comparison.json holds
+    # one whole comparison, not new plots beside an old run's results (a review's kill
+    # during the plots left such a mix)
+    (out_dir / "cdpr_comparison.json").unlink(missing_ok=True)
     for test in PLOTTED_TESTS:
         if test in runs:
             safe = test.replace("/", "_")

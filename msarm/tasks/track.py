@@ -25,7 +25,7 @@ import numpy as np
 
 from msarm import plots
 from msarm.control import ArmControllerConfig, MuscleSpaceController
-from msarm.io.atomic import write_json_atomic
+from msarm.io.atomic import folder_for_writing, write_json_atomic
 from msarm.io.code_version import code_fingerprint
 from msarm.io.config import config_to_dict, write_config
 from msarm.io.logs import LogMetadata, RunLog, write_log, write_sidecar
@@ -130,42 +130,42 @@ def track(
     files: dict[str, Path] = {}
     if out_dir is None:
         return TrackResult(run, metrics, files)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    # metrics.json is written last and marks a whole run (msarm compare and msarm train reuse
-    # such runs): an older run's must go before this run's files replace the others, or a run
-    # cut off between them would pair this log with that run's metrics; so must its plots,
-    # which a run too short to plot would otherwise leave beside this one's log
-    for name in ("metrics.json", *PLOT_FILES):
-        (out_dir / name).unlink(missing_ok=True)
-    metadata = LogMetadata.for_model(
-        model,
-        sample_rate_hz=run.control_rate_hz,
-        units=LOG_UNITS,
-        controller_config=config_to_dict(settings.controller),
-        extra={"task": task.name, "seed": settings.seed},
-    )
-    files["log"] = write_log(out_dir / "log.parquet", RunLog(run.columns, metadata))
-    files["sidecar"] = write_sidecar(files["log"], run.truth, run.effects, TRUTH_UNITS)
-    files["config"] = out_dir / "config.yaml"
-    write_config(settings, files["config"])
-    payload = {"task": task.name, "plant": settings.plant.name, **metrics.as_dict()}
-    # the code that made the run: a cache reuses it only under the same code
-    payload["code"] = code_fingerprint("simulation")
-    if run.error is not None:
-        payload["diverged"] = {"time": run.error.time, "message": str(run.error)}
-    if plots_too and len(run.columns["t"]) > 1:
-        title = run_title(task.name, settings, feedforward is not None)
-        files["joints_plot"] = plots.plot_joint_tracking(
-            run.columns, model.joint_names, out_dir / "joints.png", title=title
+    # an interrupted write leaves no empty run folder of its own
+    with folder_for_writing(out_dir) as out_dir:
+        # metrics.json is written last and marks a whole run (msarm compare and msarm train reuse
+        # such runs): an older run's must go before this run's files replace the others, or a run
+        # cut off between them would pair this log with that run's metrics; so must its plots,
+        # which a run too short to plot would otherwise leave beside this one's log
+        for name in ("metrics.json", *PLOT_FILES):
+            (out_dir / name).unlink(missing_ok=True)
+        metadata = LogMetadata.for_model(
+            model,
+            sample_rate_hz=run.control_rate_hz,
+            units=LOG_UNITS,
+            controller_config=config_to_dict(settings.controller),
+            extra={"task": task.name, "seed": settings.seed},
         )
-        files["tensions_plot"] = plots.plot_cable_tensions(
-            run.columns,
-            model.cable_names,
-            out_dir / "tensions.png",
-            lower=settings.controller.min_tension,
-            upper=np.asarray(model.muscles.max_isometric_force),
-            title=title,
-        )
-    files["metrics"] = write_json_atomic(out_dir / "metrics.json", payload)
+        files["log"] = write_log(out_dir / "log.parquet", RunLog(run.columns, metadata))
+        files["sidecar"] = write_sidecar(files["log"], run.truth, run.effects, TRUTH_UNITS)
+        files["config"] = out_dir / "config.yaml"
+        write_config(settings, files["config"])
+        payload = {"task": task.name, "plant": settings.plant.name, **metrics.as_dict()}
+        # the code that made the run: a cache reuses it only under the same code
+        payload["code"] = code_fingerprint("simulation")
+        if run.error is not None:
+            payload["diverged"] = {"time": run.error.time, "message": str(run.error)}
+        if plots_too and len(run.columns["t"]) > 1:
+            title = run_title(task.name, settings, feedforward is not None)
+            files["joints_plot"] = plots.plot_joint_tracking(
+                run.columns, model.joint_names, out_dir / "joints.png", title=title
+            )
+            files["tensions_plot"] = plots.plot_cable_tensions(
+                run.columns,
+                model.cable_names,
+                out_dir / "tensions.png",
+                lower=settings.controller.min_tension,
+                upper=np.asarray(model.muscles.max_isometric_force),
+                title=title,
+            )
+        files["metrics"] = write_json_atomic(out_dir / "metrics.json", payload)
     return TrackResult(run, metrics, files)
