@@ -403,7 +403,11 @@ def comparison_table(result, joint_names) -> Table:
         "slack events",
         "time outside tension bounds [s]",
     ):
-        table.add_column(escape(column), justify="left" if column == "task" else "right")
+        if column == "task":  # the name whole (random-1013 was cut to "random-10…")
+            longest = max((len(task) for task in result.tasks), default=4)
+            table.add_column(column, justify="left", min_width=longest)
+        else:
+            table.add_column(escape(column), justify="right")
     for task in result.tasks:
         a, b = result.metrics[task][WITHOUT], result.metrics[task][WITH]
         label = f"{task}{' (held out)' if task in result.held_out else ''}"
