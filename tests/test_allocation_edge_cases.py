@@ -212,3 +212,18 @@ def test_the_exact_solvers_agree_with_the_kkt_optimum_on_arm_problems(arm):
             np.testing.assert_allclose(
                 res.f, f_star, rtol=0, atol=1e-9 * np.abs(f_max).max(), err_msg=name
             )
+
+
+def test_an_infinite_bound_is_refused_without_a_numpy_warning():
+    """The fast finiteness check's 0 * inf leaked a RuntimeWarning before the clear error."""
+    import warnings
+
+    from msarm.allocation import make_allocator
+    from msarm.errors import InputError
+
+    allocator = make_allocator(3, 2)
+    M = np.array([[1.0, -1.0, 0.0], [0.0, 1.0, -1.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match=r"f_max \[N\] must be finite, got inf"):
+            allocator.solve(M, np.zeros(2), np.zeros(3), np.full(3, np.inf))

@@ -463,3 +463,23 @@ def test_the_replay_converges_at_second_order(arm, logs):
         assert 3.0 < coarse / finer < 5.0  # second order: a quarter (first order: a half)
     # one step a sample is already close: well under a percent of the residual it measures
     assert errors[0] < 0.01 * float(np.max(np.abs(fine)))
+
+
+def test_diagnose_where_checks_its_arguments_before_reading_a_log(arm, tmp_path):
+    """A bad kind, bins or posture joints were found only after every log's residuals were
+    computed (or hidden behind a missing file's error); two equal joints gave a grid of a
+    joint against itself."""
+    from msarm.diagnose.where import diagnose_where
+    from msarm.errors import InputError
+
+    missing = [tmp_path / "not-there.parquet"]
+    for kwargs, match in (
+        ({"kind": "torque"}, r"kind: unknown residual kind 'torque'"),
+        ({"bins": 0}, r"bins: expected a whole number >= 1"),
+        ({"posture_joints": ("elbow", "elbow")}, r"posture_joints: expected two different"),
+        ({"posture_joints": ("elbow", "wrist")}, r"posture_joints: expected two different"),
+    ):
+        with pytest.raises(InputError, match=match):
+            diagnose_where(arm, missing, **kwargs)
+    with pytest.raises(InputError, match=r"logs: expected a list of one or more log files"):
+        diagnose_where(arm, [])

@@ -416,3 +416,9 @@ def test_the_nominal_step_is_the_mean_step_between_gaps():
     assert nominal_step(t) == pytest.approx(1 / 300, rel=1e-12)
     gapped = np.concatenate([t, t[-1] + 0.5 + t])
     assert nominal_step(gapped) == pytest.approx(1 / 300, rel=1e-12)
+
+
+def test_a_model_checksum_that_is_not_one_is_refused():
+    with pytest.raises(InputError, match=r"model_sha256 must be the SHA-256 .* 64 hex digits"):
+        LogMetadata(robot_model="arm", model_sha256="xyz", sample_rate_hz=250.0)
+    LogMetadata(robot_model="arm", model_sha256="AB" * 32, sample_rate_hz=250.0)  # any case

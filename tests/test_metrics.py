@@ -167,3 +167,9 @@ def test_infinite_values_and_words_are_refused_by_name():
         metrics.settle_sample(np.arange(4.0), np.zeros((4, 2)), "x")
     outside = metrics.time_outside_bounds(np.full((5, 3), 40.0), -np.inf, np.inf, 0.01)
     np.testing.assert_array_equal(outside, 0.0)
+
+
+def test_settle_sample_refuses_times_that_do_not_increase():
+    q_ref = np.zeros((4, 2))
+    with pytest.raises(InputError, match=r"t must increase, got 0.02 then 0.01 s at samples 2, 3"):
+        settle_sample([0.0, 0.01, 0.02, 0.01], q_ref, 0.0)

@@ -406,7 +406,9 @@ def check_tick(
     # all end non-finite); an overflow of the sum alone goes to the exact check, which passes.
     flat = M.reshape(-1)
     bb = float(b @ b)
-    if not math.isfinite(float(flat @ flat) + bb + float(f_min @ f_max)):
+    with np.errstate(invalid="ignore", over="ignore"):  # 0 * inf: the check's own NaN
+        total = float(flat @ flat) + bb + float(f_min @ f_max)
+    if not math.isfinite(total):
         _diagnose(M, b, f_min, f_max, "")
     return M, b, f_min, f_max, bb
 

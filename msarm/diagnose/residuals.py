@@ -46,7 +46,7 @@ from scipy.signal import savgol_filter
 
 from msarm.compensation.target import TargetSpec, filtered_motion, torque_error
 from msarm.diagnose.missing_values import read_log_for_diagnosis
-from msarm.errors import LogError, MsarmWarning
+from msarm.errors import InputError, LogError, MsarmWarning
 from msarm.io.logs import TIME, RunLog, check_standard_units, nominal_step, split_channel
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import JacobianAt, cable_kinematics_batch
@@ -147,19 +147,19 @@ class ResidualSpec:
 
     def __post_init__(self) -> None:
         if not self.drum_radius > 0:
-            raise ValueError(f"drum_radius must be > 0 [m], got {self.drum_radius}")
+            raise InputError(f"drum_radius must be > 0 [m], got {self.drum_radius}")
         if self.replay_source not in ("command", "tension"):
-            raise ValueError(
+            raise InputError(
                 f"replay_source must be 'command' or 'tension', got {self.replay_source!r}"
             )
         if not self.length_resolution >= 0:
-            raise ValueError(f"length_resolution must be >= 0 [m], got {self.length_resolution}")
+            raise InputError(f"length_resolution must be >= 0 [m], got {self.length_resolution}")
         if not self.drive_gain >= 0:
-            raise ValueError(f"drive_gain must be >= 0, got {self.drive_gain}")
+            raise InputError(f"drive_gain must be >= 0, got {self.drive_gain}")
         if not self.replay_window > 0:
-            raise ValueError(f"replay_window must be > 0 [s], got {self.replay_window}")
+            raise InputError(f"replay_window must be > 0 [s], got {self.replay_window}")
         if self.replay_substeps < 1:
-            raise ValueError(f"replay_substeps must be >= 1, got {self.replay_substeps}")
+            raise InputError(f"replay_substeps must be >= 1, got {self.replay_substeps}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,13 +236,13 @@ class Residuals:
             kind: ``"joint_torque"``, ``"cable_length"``, ``"drive"`` or ``"replay"``.
 
         Raises:
-            ValueError: Unknown kind, or a kind this log has none of.
+            InputError: Unknown kind, or a kind this log has none of.
         """
         if kind not in RESIDUAL_UNITS:
-            raise ValueError(f"unknown residual kind {kind!r}; kinds: {', '.join(RESIDUAL_UNITS)}")
+            raise InputError(f"unknown residual kind {kind!r}; kinds: {', '.join(RESIDUAL_UNITS)}")
         value = getattr(self, kind)
         if value is None:
-            raise ValueError(
+            raise InputError(
                 f"{self.source}: no {kind} residual (kinds: {', '.join(self.kinds())})"
             )
         return value
@@ -254,7 +254,7 @@ class Residuals:
         to the log's offset (their zero at its start), so the level carries no gap.
 
         Raises:
-            ValueError: As :meth:`get`.
+            InputError: As :meth:`get`.
         """
         values = self.get(kind)[self.valid]
         return values - values.mean(axis=0) if kind == "cable_length" else values

@@ -62,6 +62,7 @@ from msarm.diagnose.residuals import (
     gap_starts,
     residuals_from_log,
 )
+from msarm.errors import InputError
 from msarm.model import RobotModel
 
 __all__ = [
@@ -137,15 +138,15 @@ class PhaseSettings:
             "acceleration",
         ):
             if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+                raise InputError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 < self.high_load_percentile < 100:
-            raise ValueError(
+            raise InputError(
                 f"high_load_percentile must be in (0, 100), got {self.high_load_percentile}"
             )
         if not self.hot_spot_density >= 1:
-            raise ValueError(f"hot_spot_density must be >= 1, got {self.hot_spot_density}")
+            raise InputError(f"hot_spot_density must be >= 1, got {self.hot_spot_density}")
         if not self.hot_spot_samples >= 1:
-            raise ValueError(f"hot_spot_samples must be >= 1, got {self.hot_spot_samples}")
+            raise InputError(f"hot_spot_samples must be >= 1, got {self.hot_spot_samples}")
 
 
 @dataclass(frozen=True)
@@ -212,7 +213,7 @@ class GapBreakdown:
             name: One of :data:`GROUPS`.
         """
         if name not in GROUPS:
-            raise ValueError(f"unknown group {name!r}; groups: {', '.join(GROUPS)}")
+            raise InputError(f"unknown group {name!r}; groups: {', '.join(GROUPS)}")
         return [row for row in self.rows if row.group == name]
 
     def share(self, group: str, where: str) -> float:
@@ -444,19 +445,19 @@ def break_down(
         The breakdown.
 
     Raises:
-        ValueError: No logs, logs of different robots, an unknown kind or joint, no valid
+        InputError: No logs, logs of different robots, an unknown kind or joint, no valid
             sample, or a residual that is zero everywhere.
     """
     runs = [residuals] if isinstance(residuals, Residuals) else list(residuals)
     if not runs:
-        raise ValueError("break_down needs at least one log's residuals")
+        raise InputError("break_down needs at least one log's residuals")
     settings = settings or PhaseSettings()
     if bins < 1:
-        raise ValueError(f"bins must be >= 1, got {bins}")
+        raise InputError(f"bins must be >= 1, got {bins}")
     first = runs[0]
     for run in runs[1:]:
         if run.joint_names != first.joint_names or run.cable_names != first.cable_names:
-            raise ValueError(
+            raise InputError(
                 f"{run.source} and {first.source} are logs of different robots (joint or cable "
                 "names differ)"
             )
@@ -477,12 +478,12 @@ def break_down(
     tension = np.concatenate([p[2] for p in parts])
     motion = np.concatenate([p[3] for p in parts])
     if len(residual) == 0:
-        raise ValueError("no valid sample in the logs")
+        raise InputError("no valid sample in the logs")
     energy = residual**2
     per_sample = energy.sum(axis=1)
     total = float(per_sample.sum())
     if not total > 0:
-        raise ValueError(f"the {kind} residual is zero everywhere: nothing to break down")
+        raise InputError(f"the {kind} residual is zero everywhere: nothing to break down")
     n_samples = len(per_sample)
 
     rows: list[BreakdownRow] = []
@@ -509,7 +510,7 @@ def break_down(
     else:
         unknown = [j for j in posture_joints if j not in joint_names]
         if unknown:
-            raise ValueError(f"unknown joint {unknown[0]!r}; joints: {', '.join(joint_names)}")
+            raise InputError(f"unknown joint {unknown[0]!r}; joints: {', '.join(joint_names)}")
         pair = (joint_names.index(posture_joints[0]), joint_names.index(posture_joints[1]))
     edges = []
     cells = []
@@ -583,7 +584,30 @@ def diagnose_where(
 
     Returns:
         The breakdown.
+
+    Raises:
+        InputError: No logs, an unknown ``kind``, ``bins < 1`` or ``posture_joints`` that
+            are not two different joints of the model, all before any log is read; and as
+            :func:`break_down`.
     """
+    if isinstance(logs, str | Path) or not list(logs):
+        raise InputError(f"logs: expected a list of one or more log files, got {logs!r}")
+    if kind not in RESIDUAL_UNITS:
+        kinds = ", ".join(RESIDUAL_UNITS)
+        raise InputError(f"kind: unknown residual kind {kind!r}; kinds: {kinds}")
+    if not (isinstance(bins, int | np.integer) and bins >= 1):
+        raise InputError(f"bins: expected a whole number >= 1, got {bins!r}")
+    if posture_joints is not None:
+        names = list(model.joint_names)
+        if (
+            len(posture_joints) != 2
+            or len(set(posture_joints)) != 2
+            or any(j not in names for j in posture_joints)
+        ):
+            raise InputError(
+                f"posture_joints: expected two different joints of the model ({', '.join(names)}),"
+                f" got {posture_joints!r}"
+            )
     spec = spec or ResidualSpec(replay=kind == "replay")
     runs = [residuals_from_log(model, path, spec=spec) for path in logs]
     return break_down(runs, kind, settings, posture_joints, bins, model)

@@ -251,6 +251,11 @@ class LogMetadata:
             raise InputError(f"robot_model must be a non-empty string, got {self.robot_model!r}")
         if not isinstance(self.model_sha256, str):
             raise InputError(f"model_sha256 must be a string, got {self.model_sha256!r}")
+        if not re.fullmatch(r"[0-9a-fA-F]{64}", self.model_sha256):
+            raise InputError(
+                "model_sha256 must be the SHA-256 of the model's MJCF file, 64 hex digits "
+                f"(msarm.model.RobotModel.sha256), got {self.model_sha256!r}"
+            )
         rate = self.sample_rate_hz
         if isinstance(rate, bool | np.bool_) or not isinstance(
             rate, int | float | np.integer | np.floating

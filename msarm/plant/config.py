@@ -32,6 +32,7 @@ from __future__ import annotations
 import numbers
 from dataclasses import dataclass, field, replace
 
+from msarm.errors import InputError
 from msarm.io.config import check_field_types, check_numbers, check_plant_name
 
 __all__ = [
@@ -54,10 +55,10 @@ __all__ = [
 
 
 def _check_count(config: object, name: str, least: int) -> None:
-    """Refuse a count that is not an integer >= ``least`` (``ValueError``, named)."""
+    """Refuse a count that is not an integer >= ``least`` (``InputError``, named)."""
     value = getattr(config, name)
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < least:
-        raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
+        raise InputError(f"{name} must be an integer >= {least}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -238,7 +239,7 @@ class DelayConfig:
         for name in ("sensing_periods", "actuation_periods"):
             _check_count(self, name, 0)
             if getattr(self, name) > MAX_DELAY_PERIODS:  # its buffer would not fit in memory
-                raise ValueError(
+                raise InputError(
                     f"{name} must be at most {MAX_DELAY_PERIODS} control periods, got "
                     f"{getattr(self, name)}"
                 )
@@ -309,12 +310,12 @@ class PlantConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"name must be a non-empty string, got {self.name!r}")
+            raise InputError(f"name must be a non-empty string, got {self.name!r}")
         check_plant_name(self.name)
         check_field_types(self)
         check_numbers(self, positive=("timestep",))
         if not 0 < self.timestep <= 0.001:
-            raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
+            raise InputError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
 
 
 def ideal_config(name: str = "ideal") -> PlantConfig:
@@ -327,7 +328,7 @@ def ideal_config(name: str = "ideal") -> PlantConfig:
         The default plant's configuration with every effect's ``enabled`` false.
 
     Raises:
-        ValueError: ``name`` is not a valid plant name.
+        InputError: ``name`` is not a valid plant name.
     """
     off = {name_: replace(getattr(EffectsConfig(), name_), enabled=False) for name_ in EFFECT_NAMES}
     return PlantConfig(name=name, effects=EffectsConfig(**off))

@@ -89,12 +89,19 @@ def settle_sample(t: ArrayLike, q_ref: ArrayLike, delay: float) -> int | None:
         reference never comes to rest (it changes between its last two samples).
 
     Raises:
-        InputError: Shapes differ, NaN or infinite values, or a bad delay.
+        InputError: Shapes differ, NaN or infinite values, times that do not increase, or a
+            bad delay.
     """
     times = _array(t, "t", 1)
     ref = _array(q_ref, "q_ref", 2)
     if ref.shape[0] != times.shape[0]:
         raise InputError(f"q_ref has {ref.shape[0]} samples but t has {times.shape[0]}")
+    steps = np.diff(times)
+    if (steps <= 0).any():
+        k = int(np.argmax(steps <= 0))
+        raise InputError(
+            f"t must increase, got {times[k]:g} then {times[k + 1]:g} s at samples {k}, {k + 1}"
+        )
     delay = _scalar(delay, "delay")
     if not delay >= 0.0:
         raise InputError(f"delay must be >= 0 [s], got {delay}")
