@@ -358,7 +358,10 @@ class ArmPlant:
 
         Args:
             tension: Motor-side tension command [N], shape ``(m,)``, finite and >= 0 (a cable
-                only pulls; nothing is clipped).
+                only pulls; the command is not clipped). As a real drive, a motor asked for
+                more than it can hold (:attr:`holding_tension`, its torque limit over the
+                drum radius) saturates at its torque limit: the tension it reaches is then
+                below the command (the ground truth's ``tension_motor`` shows it).
 
         Raises:
             InputError: A wrong shape, a non-finite or negative value (cable named), or a
