@@ -239,3 +239,14 @@ def test_the_following_error_estimate_is_told_whether_the_plc_sent_velocity_feed
     assert abs(force_from_following_error(fe, 4 / 60, velocity_feedforward=True) - 10.0) > 5.0
     with pytest.raises(TypeError, match="velocity_feedforward"):
         force_from_following_error(fe, 4 / 60)  # no default: the caller says which
+
+
+def test_the_winch_model_takes_lists_as_its_docstring_says():
+    """`any shape broadcastable`: a list of tensions was a TypeError (list times float)."""
+    winch = WinchParameters()
+    np.testing.assert_allclose(
+        winch.motor_torque([10.0, 5.0], [0.0, 0.01], [0.0, 0.0]),
+        winch.motor_torque(np.array([10.0, 5.0]), np.array([0.0, 0.01]), np.zeros(2)),
+    )
+    fe = winch.following_error_for_force([10.0], [0.01], [0.0])
+    assert fe.shape == (1,) and np.isfinite(fe).all()

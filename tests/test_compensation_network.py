@@ -265,3 +265,14 @@ def test_a_training_that_keeps_the_untrained_weights_says_so():
     with pytest.warns(MsarmWarning, match="keeps the\\s+initial .random. weights"):
         result = train_network(x, y, xv, yv, config)
     assert result.best_epoch == 0
+
+
+def test_labels_that_do_not_match_the_array_are_refused():
+    """A wrong number of row labels or column names was ignored silently."""
+    x = np.array([[1.0, np.nan], [2.0, 3.0]])
+    with pytest.raises(InputError, match=r"row_labels: 1 given for 2 of x's"):
+        check_finite("x", x, row_labels=["a"])
+    with pytest.raises(InputError, match=r"column_names: 3 given for 2 of x's"):
+        check_finite("x", x, column_names=["a", "b", "c"])
+    with pytest.raises(InputError, match=r"first at row 0 \(a\), column 1 \('q'\)"):
+        check_finite("x", x, row_labels=["a", "b"], column_names=["p", "q"])

@@ -193,3 +193,16 @@ def test_task_outside_model_limits_is_refused(arm, monkeypatch):
     monkeypatch.setattr(registry, "TABLE1_TARGETS", targets)
     with pytest.raises(InputError, match="joint 'elbow'"):
         get_task("table1-1", arm)
+
+
+def test_a_random_task_refuses_a_home_outside_the_range_and_strings():
+    from msarm.errors import InputError
+    from msarm.tasks.trajectories import minimum_jerk, random_reach_task
+
+    lower, upper = -np.ones(4), np.ones(4)
+    with pytest.raises(InputError, match=r"home must lie in the joint range: joint 0 is 2 rad"):
+        random_reach_task(1, lower, upper, home=np.full(4, 2.0))
+    with pytest.raises(InputError, match=r"duration must be a finite time"):
+        random_reach_task(1, lower, upper, duration=float("nan"))
+    with pytest.raises(InputError, match=r"q0 must be numbers"):
+        minimum_jerk(["a"] * 4, np.zeros(4), 1.0, 0.5)

@@ -113,6 +113,8 @@ class WinchParameters:
         Returns:
             tau [N m], the broadcast shape; ``tau_In = -J_D a / r_D``.
         """
+        # lists as well as arrays, as the docstring says (a list times a float was a TypeError)
+        f, v, a = (np.asarray(x, dtype=np.float64) for x in (f, v, a))
         tau = f * self.drum_radius - self.drum_inertia * a / self.drum_radius
         if friction_model:
             tau = tau + self.friction.torque(f, v)
@@ -142,6 +144,7 @@ class WinchParameters:
             FE [m], the broadcast shape.
         """
         tau = self.motor_torque(f, v, a, friction_model=friction_model)
+        v = np.asarray(v, dtype=np.float64)
         return self.following_error.following_error(tau, _lag_speed(v, velocity_feedforward))
 
 

@@ -373,9 +373,16 @@ def check_finite(
 
     Raises:
         InputError: The array has non-finite values; the message gives their count and the row
-            and column index (and label/name) of the first one.
+            and column index (and label/name) of the first one. Also labels or names whose
+            count is not the array's rows or columns.
     """
     values = np.asarray(array)
+    for labels, size, what in (
+        (row_labels, values.shape[0] if values.ndim else 0, "row_labels"),
+        (column_names, values.shape[1] if values.ndim >= 2 else None, "column_names"),
+    ):
+        if labels is not None and size is not None and len(labels) != size:
+            raise InputError(f"{what}: {len(labels)} given for {size} of {name}'s")
     if values.dtype.kind not in "fc":
         return
     bad = ~np.isfinite(values)

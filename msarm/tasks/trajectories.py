@@ -8,6 +8,7 @@ the next move starts. Times in seconds, angles in radians, arrays in the model's
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,8 +43,16 @@ MIN_HOLD = 0.5
 MIN_FINAL_HOLD = 5.0
 
 
+def _numbers(value: ArrayLike, name: str) -> FloatArray:
+    """``value`` as a float array; a value that is not numbers is refused by name."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be numbers, got {value!r} ({exc})") from None
+
+
 def _vector(value: ArrayLike, name: str, n: int | None = None) -> FloatArray:
-    arr = np.asarray(value, dtype=np.float64)
+    arr = _numbers(value, name)
     if arr.ndim == 0:
         arr = arr.reshape(1)
     if arr.ndim != 1 or (n is not None and arr.shape != (n,)):
@@ -56,7 +65,7 @@ def _vector(value: ArrayLike, name: str, n: int | None = None) -> FloatArray:
 
 def _times(t: ArrayLike) -> tuple[FloatArray, bool]:
     """``t`` as a 1-D float array, and whether it was a scalar."""
-    arr = np.asarray(t, dtype=np.float64)
+    arr = _numbers(t, "t")
     if arr.ndim > 1:
         raise InputError(f"t must be a scalar or of shape (T,), got {arr.shape}")
     if np.isnan(arr).any():
@@ -297,6 +306,14 @@ def random_reach_task(
     home = _vector(home, "home", lower.shape[0])
     if not (upper > lower).all():
         raise InputError(f"upper must exceed lower at every joint: lower={lower}, upper={upper}")
+    if not ((home >= lower) & (home <= upper)).all():
+        j = int(np.argmax((home < lower) | (home > upper)))
+        raise InputError(
+            f"home must lie in the joint range: joint {j} is {home[j]:g} rad, outside "
+            f"[{lower[j]:g}, {upper[j]:g}]"
+        )
+    if not math.isfinite(duration):
+        raise InputError(f"duration must be a finite time [s], got {duration}")
     if not 0.0 <= margin < 0.5:
         raise InputError(f"margin must be in [0, 0.5), got {margin}")
     if isinstance(n_moves, bool) or not isinstance(n_moves, int) or n_moves < 1:
