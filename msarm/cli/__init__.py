@@ -157,9 +157,7 @@ def main() -> None:
     :mod:`msarm.io.atomic`, and the output folders it created and left empty), with
     ``msarm: terminated`` and exit code 143.
     """
-    import signal
     import sys
-    import threading
     import warnings
 
     import mujoco
@@ -187,18 +185,18 @@ def main() -> None:
     warnings.showwarning = show
     previous_mujoco_warning = mujoco.get_mju_user_warning()
     mujoco.set_mju_user_warning(_mujoco_warning)
-    # signal handlers can only be set in the main thread (not when called from another one)
-    handles_sigterm = threading.current_thread() is threading.main_thread()
-    if handles_sigterm:
-        interrupts.clear()
-        previous_sigterm = signal.signal(signal.SIGTERM, interrupts.on_sigterm)
     try:
-        code = app(
-            args=spread_multi_value_options(sys.argv[1:]), prog_name="msarm", standalone_mode=False
-        )
-        # a SIGTERM whose exception a garbage-collection or weakref callback swallowed (Python
-        # prints it as "Exception ignored in" and goes on): the command still ends with 143
-        interrupts.raise_if_terminated()
+        # SIGTERM raises in the command (the handler set, in the main thread only, and given
+        # back after it)
+        with interrupts.sigterm_raises():
+            code = app(
+                args=spread_multi_value_options(sys.argv[1:]),
+                prog_name="msarm",
+                standalone_mode=False,
+            )
+            # a SIGTERM whose exception a garbage-collection or weakref callback swallowed
+            # (Python prints "Exception ignored in" and goes on): the command still ends 143
+            interrupts.raise_if_terminated()
     except MsarmError as exc:
         remove_empty_created_folders()  # an --out made for a command refused: not left behind
         print(f"msarm: error: {exc}", file=sys.stderr)
@@ -228,9 +226,6 @@ def main() -> None:
         if isinstance(code, int) and code != 0:  # typer.Exit(code) of a command
             raise SystemExit(code)
     finally:
-        if handles_sigterm:  # as it was (None: set outside Python, left as the default)
-            signal.signal(signal.SIGTERM, previous_sigterm or signal.SIG_DFL)
-            interrupts.clear()
         mujoco.set_mju_user_warning(previous_mujoco_warning)
         for text in repeats.summary():
             print(f"msarm: warning: {text}", file=sys.stderr)

@@ -765,17 +765,8 @@ def _check_design(term: CandidateEffect, signals: Signals) -> None:
     ``signals`` are a few samples of the logs (the check's, not the fit's): an error in the
     term's own code is named with the term.
     """
-    try:
-        design = np.asarray(term.design(signals))
-    except InputError:
-        raise
-    except Exception as exc:
-        if type(term).__module__.split(".")[0] == "msarm":
-            raise  # a bug of msarm's own: its traceback, not a term skipped
-        raise InputError(  # a user's term: its own error, with the term named
-            f"{term.name}: design() raised {type(exc).__name__}: {exc} (called on the first "
-            f"{signals.n_samples} samples of the logs, to check it)"
-        ) from exc
+    where = f"called on the first {signals.n_samples} samples of the logs, to check it"
+    design = np.asarray(_user_call(term, "design()", lambda: term.design(signals), where))
     expected = (signals.n_samples, term.width(signals), term.n_parameters)
     if design.shape != expected:
         raise InputError(

@@ -85,6 +85,10 @@ def remove_stale_temps(path: str | Path, age_s: float = STALE_TEMP_AGE_S) -> lis
     return removed
 
 
+#: A temporary file of :func:`atomic_path` of any target: ``.<target>.<random>.tmp``.
+_ANY_TEMP = re.compile(r"\.(.+)\.[A-Za-z0-9_]+\.tmp")
+
+
 def remove_stale_temps_in(folder: str | Path, age_s: float = STALE_TEMP_AGE_S) -> list[Path]:
     """Remove every temporary file of :func:`atomic_path` in ``folder`` older than ``age_s``.
 
@@ -97,13 +101,12 @@ def remove_stale_temps_in(folder: str | Path, age_s: float = STALE_TEMP_AGE_S) -
     """
     removed: list[Path] = []
     try:
-        names = {entry.name for entry in os.scandir(folder)}
+        names = [entry.name for entry in os.scandir(folder)]
     except OSError:
         return removed
-    for name in names:
-        match = re.fullmatch(r"\.(.+)\.[A-Za-z0-9_]+\.tmp", name)
-        if match:
-            removed += remove_stale_temps(Path(folder) / match.group(1), age_s)
+    targets = {m.group(1) for m in map(_ANY_TEMP.fullmatch, names) if m}
+    for target in sorted(targets):  # each target's own temporary files, by its own rule
+        removed += remove_stale_temps(Path(folder) / target, age_s)
     return removed
 
 
