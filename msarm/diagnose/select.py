@@ -898,15 +898,17 @@ def _usable(
     pool: list[CandidateEffect],
     layout: Layout,
     signals: Signals,
+    residual: FloatArray,
+    held_signals: Signals,
     required: set[str],
     absent: set[str],
-    held_signals: Signals | None = None,
-    residual: FloatArray | None = None,
 ) -> tuple[list[CandidateEffect], dict[str, str]]:
     """Drop candidates whose groups or signals the logs lack (an error if the user named them).
 
     The signals are checked on the training logs and on the held-out logs
-    (``held_signals``): a term is fitted on the first and scored on the second. A warning names
+    (``held_signals``): a term is fitted on the first and scored on the second; a nonlinear
+    term's starting guess is asked for on the training signals and ``residual`` (stacked,
+    ``layout``'s columns), as the fit asks for it. A warning names
     those dropped for want of channels (``absent`` groups); those whose group is below its
     resolution are only listed in the result.
     """
@@ -933,11 +935,8 @@ def _usable(
                 "with rigid cables)"
             )
         else:
-            checks = [("training", signals)]
-            if held_signals is not None:
-                checks.append(("held-out", held_signals))
             start = None
-            for which, these in checks:
+            for which, these in (("training", signals), ("held-out", held_signals)):
                 try:
                     term.check(these)
                     few = these.take(np.arange(min(these.n_samples, 8)))
@@ -945,9 +944,7 @@ def _usable(
                         _check_design(term, few)
                         continue
                     if start is None:  # the guess the fit will start from
-                        own = np.zeros((signals.n_samples, term.width(signals)))
-                        if residual is not None:
-                            own = np.hstack([residual[:, layout.slices[g]] for g in term.groups])
+                        own = np.hstack([residual[:, layout.slices[g]] for g in term.groups])
                         start = _starting_parameters(term, signals, own)
                     _check_torque(term, few, start)
                 except InputError as exc:
@@ -1254,7 +1251,7 @@ def load_data(
     absent = {g for g in wanted if g not in g_train or g not in g_hold}
     required = {c.name for c in pool} if named else set()
     required |= {c.name for c in extras}
-    usable, skipped = _usable([*pool, *extras], layout, train, required, absent, hold, r_train)
+    usable, skipped = _usable([*pool, *extras], layout, train, r_train, hold, required, absent)
     names = {"joint": tuple(model.joint_names)}
     names.update({g: tuple(model.cable_names) for g in ("drive", "length")})
     return DiagnosisData(
