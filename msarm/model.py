@@ -31,7 +31,7 @@ import pinocchio
 from numpy.typing import NDArray
 
 from msarm.errors import ModelError, ModelWarning
-from msarm.muscle.hill import HillMuscles, MuscleParameters
+from msarm.muscle.hill import MAX_FIBRE_LENGTH, HillMuscles, MuscleParameters
 
 if TYPE_CHECKING:
     from msarm.muscle.geometry import CableGeometry
@@ -230,7 +230,7 @@ def load_arm(path: str | Path | None = None) -> RobotModel:
 #: Normalised fibre lengths ``l_M / l_M0`` a muscle may have at the model's reference
 #: posture (``qpos0``): a Hill muscle works near 1 (0.8-1.2 on msarm's arm); far outside,
 #: the cable lengths and the Hill parameters are not in the same units.
-_FIBRE_LENGTH_RANGE = (0.25, 2.5)
+_FIBRE_LENGTH_RANGE = (0.25, MAX_FIBRE_LENGTH)
 
 
 def _check_fibre_lengths(model: RobotModel) -> None:
@@ -244,9 +244,9 @@ def _check_fibre_lengths(model: RobotModel) -> None:
     optimal = np.asarray(muscles.optimal_fiber_length, dtype=float)
     low, high = _FIBRE_LENGTH_RANGE
     taut = length > slack  # a fibre exists (the Hill model refuses the others)
-    fibre = muscles.fiber_state(
-        np.where(taut, length, slack + optimal), np.zeros_like(length)
-    ).length_norm
+    # the Hill model's fibre length (HillMuscles.fiber_state), which refuses long fibres itself
+    thickness = optimal * np.sin(np.asarray(muscles.pennation_at_optimal, dtype=float))
+    fibre = np.hypot(length - slack, thickness) / optimal
     for i, name in enumerate(model.cable_names):
         if taut[i] and low <= fibre[i] <= high:
             continue

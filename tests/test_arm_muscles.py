@@ -48,6 +48,43 @@ def test_size_fibres_maps_the_travel_onto_the_span():
         size_fibres(np.ones((3, 2)), pennation)
 
 
+@pytest.mark.parametrize(
+    ("pennation", "span", "message"),
+    [
+        ([0.0, np.nan], (0.8, 1.2), r"pennation_at_optimal\[1\] = nan rad"),
+        ([-0.3, 0.0], (0.8, 1.2), r"pennation_at_optimal\[0\] = -0.3 rad; expected .*\[0, pi/2\)"),
+        ([0.0, np.pi - 0.3], (0.8, 1.2), r"pennation_at_optimal\[1\]"),
+        ([0.0, 2.0], (0.8, 1.2), r"pennation_at_optimal\[1\] = 2.0 rad"),
+        ([0.0, 0.3], (0.8, 1.0, 1.2), r"span must be two numbers"),
+        ([0.0, 0.3], (0.8, np.inf), r"span must satisfy"),
+    ],
+)
+def test_size_fibres_names_a_bad_pennation_or_span(pennation, span, message):
+    lengths = np.array([[0.50, 0.70], [0.60, 0.75]])
+    with pytest.raises(InputError, match=message):
+        size_fibres(lengths, pennation, span=span)
+
+
+@pytest.mark.parametrize(
+    ("lower", "upper", "points", "message"),
+    [
+        ([0, 0], [1, 1], 2.9, "whole numbers >= 1"),
+        ([0, 0], [1, 1], 0, "whole numbers >= 1"),
+        ([0, 0], [1, 1], [2, 2, 2], "one count or one per joint"),
+        ([0, np.nan], [1, 1], 2, "must be finite"),
+        ([0, 0], [1, 1, 1], 2, "one shape"),
+        ([0, 2], [1, 1], 2, "lower limit must be <= its upper"),
+    ],
+)
+def test_joint_grid_refuses_bad_limits_and_counts_when_called(lower, upper, points, message):
+    with pytest.raises(InputError, match=message):
+        joint_grid(lower, upper, points)  # before the first posture is asked for
+
+
+def test_joint_grid_takes_whole_float_counts():
+    assert len(list(joint_grid([0.0, 0.0], [1.0, 2.0], [2.0, 3]))) == 6
+
+
 def test_muscles_can_hold_the_arm_against_gravity_everywhere(arm):
     """At every grid posture some forces within [passive, full activation] give g(q)."""
     data = arm.pin_model.createData()

@@ -248,6 +248,29 @@ def test_equation_15_rejects_zero_activation_and_too_small_force(muscles):
         muscles.fiber_velocity_for_force(np.full(3, 0.5), force * [1, 1, 0.001], length)
 
 
+def test_equation_15_inverts_force_at_the_top_of_its_range(muscles):
+    """At exactly 10 v_max lengthening the force is inverted, not refused for round-off."""
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        a = rng.uniform(0.01, 1.0, 3)
+        length, velocity = mtu_state(rng.uniform(0.5, 1.6, 3), 10.0)
+        force = muscles.force(a, length, velocity)
+        fiber = muscles.fiber_velocity_for_force(a, force, length)
+        expected = velocity * muscles.fiber_state(length, velocity).cos_pennation
+        np.testing.assert_allclose(fiber, expected, rtol=1e-12)
+
+
+def test_fibre_stretched_past_its_range_is_refused(muscles):
+    """Lengths in centimetres (say) give an error, not inf or 1e289 N of passive force."""
+    length, velocity = mtu_state(1.0, 0.0)
+    with pytest.raises(InputError, match=r"mtu_length\[0\] \(muscle 'biceps'\).* are the"):
+        muscles.force(np.ones(3), length * 100, velocity)
+    at_limit, _ = mtu_state(2.5, 0.0)
+    assert np.all(np.isfinite(muscles.force(np.ones(3), at_limit * (1 - 1e-12), velocity)))
+    with pytest.raises(InputError, match=r"mtu_length\[1\] \(muscle 'triceps'\).*at most 2.5"):
+        muscles.force_capacity(at_limit * [0.99, 1.01, 0.99], velocity)
+
+
 @pytest.mark.parametrize("activation", [0.01, 1e-6])
 def test_equation_15_rejects_a_force_above_the_eccentric_range(muscles, activation):
     """A force no plausible lengthening speed gives: refused, not 1e115 m/s or inf."""

@@ -56,3 +56,13 @@ def test_fast_path_names_a_nan_before_the_slack_length(arm):
     speeds[5] = np.nan
     with pytest.raises(InputError, match=r"mtu_velocity\[5\] .* must be finite, got nan m/s"):
         fast.parts(lengths, speeds)
+
+
+def test_fast_path_refuses_arrays_of_another_length(arm):
+    """Fewer values kept the last call's results; more read past the parameters."""
+    fast = FastHill(arm.muscles)
+    lengths = np.array(arm.muscles.tendon_slack_length) + 0.1
+    with pytest.raises(InputError, match=r"mtu_length has shape \(1,\); expected \(9,\)"):
+        fast.parts(lengths[:1], np.zeros(1))
+    with pytest.raises(InputError, match=r"mtu_velocity has shape \(11,\); expected \(9,\)"):
+        fast.parts(lengths, np.zeros(11))

@@ -9,10 +9,10 @@ path points. :func:`cable_kinematics_batch` runs the same MuJoCo functions (``mj
 ``mj_comPos``, ``mj_tendon``, called through their addresses, see :mod:`msarm.mujoco_c`) and
 the same arithmetic in one compiled loop over the postures. Where MuJoCo's library cannot be
 found it falls back to the Python functions; both give the same values (tested: lengths and
-Jacobians bit for bit; wrap angles bit for bit on x86-64, where the compiled form sums each
-cosine in numpy's order, and to round-off elsewhere). The arm plant refreshes its wrap angles
-with :func:`current_wrap_angles`; the diagnosis's replay takes its Jacobians from
-:class:`JacobianAt`.
+Jacobians bit for bit; wrap angles to round-off, about 1e-15 rad: the order in which
+numpy's einsum sums a cosine's three products depends on the CPU features it finds). The arm
+plant refreshes its wrap angles with :func:`current_wrap_angles`; the diagnosis's replay takes
+its Jacobians from :class:`JacobianAt`.
 """
 
 from __future__ import annotations
@@ -312,8 +312,8 @@ def wrap_angles_into(points, objects, wrapadr, wrapnum, out):  # pragma: no cove
                 continue  # two sites at one point: the turn is taken across it
             vx, vy, vz = ax / norm, ay / norm, az / norm
             if have_previous:
-                # summed as numpy's einsum sums three products on x86-64 (x and z first), so
-                # that the two forms agree bit for bit there (elsewhere to round-off)
+                # summed as numpy's einsum sums three products on some x86-64 builds (x and z
+                # first): bit for bit there, to round-off where it picks another order
                 cosine = (ux * vx + uz * vz) + uy * vy
                 total += math.acos(min(1.0, max(-1.0, cosine)))
             ux, uy, uz = vx, vy, vz

@@ -153,9 +153,16 @@ class FastHill:
             mtu_velocity: MTU speeds [m/s], shape ``(m,)`` (lengthening positive).
 
         Raises:
-            InputError: An MTU length or speed is not finite, or a length is not longer than
-                its tendon slack length (argument, muscle and value named).
+            InputError: An argument is not of shape ``(m,)``, an MTU length or speed is not
+                finite, or a length is not longer than its tendon slack length (argument,
+                muscle and value named).
         """
+        m = self.active.shape[0]
+        for name, value in (("mtu_length", mtu_length), ("mtu_velocity", mtu_velocity)):
+            if np.shape(value) != (m,):
+                raise InputError(
+                    f"{name} has shape {np.shape(value)}; expected ({m},), one value per muscle"
+                )
         bad = hill_parts(mtu_length, mtu_velocity, *self.parameters, self.active, self.passive)
         if bad >= 0:
             raise InputError(self._bad_message(bad, mtu_length, mtu_velocity))

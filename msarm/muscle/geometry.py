@@ -242,23 +242,51 @@ def wrap_angles(m_model: mujoco.MjModel, m_data: mujoco.MjData) -> NDArray[np.fl
 def joint_grid(
     lower: ArrayLike, upper: ArrayLike, points_per_joint: int | ArrayLike
 ) -> Iterator[NDArray[np.float64]]:
-    """Yield the postures of a regular grid over the joint range, limits included.
+    """Iterate over the postures of a regular grid over the joint range, limits included.
+
+    The arguments are checked when this is called, before the first posture.
 
     Args:
-        lower: Lower joint limits, shape ``(n,)``.
-        upper: Upper joint limits, shape ``(n,)``.
-        points_per_joint: Grid points along each joint (one number or one per joint).
+        lower: Lower joint limits, shape ``(n,)``, finite.
+        upper: Upper joint limits, shape ``(n,)``, finite, each >= its lower limit.
+        points_per_joint: Grid points along each joint, whole numbers >= 1 (one number or
+            one per joint).
 
-    Yields:
-        Postures of shape ``(n,)``, ``prod(points_per_joint)`` of them.
+    Returns:
+        An iterator over postures of shape ``(n,)``, ``prod(points_per_joint)`` of them.
+
+    Raises:
+        InputError: On limits that are not finite ``(n,)`` arrays of the same shape, a lower
+            limit above its upper one, or a count that is not a whole number >= 1.
     """
-    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
-    counts = np.broadcast_to(np.asarray(points_per_joint, dtype=int), lower.shape)
-    if np.any(counts < 1) or np.any(lower > upper):
-        raise InputError(f"invalid grid: lower={lower}, upper={upper}, points={counts}")
-    axes = [np.linspace(lo, hi, c) for lo, hi, c in zip(lower, upper, counts, strict=True)]
-    for posture in product(*axes):
-        yield np.array(posture)
+    low = np.asarray(lower, dtype=float)
+    high = np.asarray(upper, dtype=float)
+    if low.ndim != 1 or high.shape != low.shape:
+        raise InputError(
+            f"lower and upper must be joint limits of one shape (n,); got {low.shape} and "
+            f"{high.shape}"
+        )
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
+        raise InputError(f"joint limits must be finite; got lower={low}, upper={high}")
+    if np.any(low > high):
+        raise InputError(f"every lower limit must be <= its upper limit; got {low} and {high}")
+    given = np.asarray(points_per_joint)
+    try:
+        counts = np.broadcast_to(given, low.shape)
+    except ValueError as exc:
+        raise InputError(
+            f"points_per_joint must be one count or one per joint ({low.shape[0]}); got "
+            f"{points_per_joint!r}"
+        ) from exc
+    whole = counts.dtype.kind in "iu" or (
+        counts.dtype.kind == "f"
+        and np.all(np.isfinite(counts))
+        and np.all(counts == np.round(counts))
+    )
+    if not whole or np.any(counts < 1):
+        raise InputError(f"points_per_joint must be whole numbers >= 1; got {points_per_joint!r}")
+    axes = [np.linspace(lo, hi, int(c)) for lo, hi, c in zip(low, high, counts, strict=True)]
+    return (np.array(posture) for posture in product(*axes))
 
 
 def positive_spanning_margin(jacobian: ArrayLike) -> float:

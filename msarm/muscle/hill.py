@@ -49,7 +49,11 @@ from msarm.muscle.curves import (
     passive_force_length,
 )
 
-__all__ = ["FiberState", "HillMuscles", "MuscleParameters"]
+__all__ = ["MAX_FIBRE_LENGTH", "FiberState", "HillMuscles", "MuscleParameters"]
+
+#: Longest normalised fibre length ``l_M / l_M0`` the model accepts: the passive force is
+#: already about 400 ``F_max`` there (a torn fibre), and overflows to inf past about 100.
+MAX_FIBRE_LENGTH = 2.5
 
 #: Normalised fibre velocities this far below -1 are round-off and are taken as -1.
 _VELOCITY_ROUNDOFF = 1e-12
@@ -342,10 +346,29 @@ class HillMuscles:
     # ------------------------------------------------------------------ kinematics
 
     def _geometry(self, mtu_length: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Normalised fibre length and cos(alpha) from validated MTU lengths."""
+        """Normalised fibre length and cos(alpha) from validated MTU lengths.
+
+        Raises:
+            InputError: If a fibre would be longer than :data:`MAX_FIBRE_LENGTH` optimal
+                lengths (the passive force is hundreds of ``F_max`` there and overflows soon
+                after: a length in other units, say).
+        """
         along = mtu_length - self._l_slack
         fiber_length = np.hypot(along, self._thickness)
-        return fiber_length / self._l_opt, along / fiber_length
+        l_norm = fiber_length / self._l_opt
+        too_long = l_norm > MAX_FIBRE_LENGTH
+        if np.any(too_long):
+            i = int(np.flatnonzero(too_long)[0])
+            most = self._l_slack[i] + math.sqrt(
+                max((MAX_FIBRE_LENGTH * self._l_opt[i]) ** 2 - self._thickness[i] ** 2, 0.0)
+            )
+            raise InputError(
+                f"mtu_length[{i}] (muscle {self._names[i]!r}) = {float(mtu_length[i])!r} m "
+                f"stretches its fibre to {float(l_norm[i]):.4g} optimal lengths; expected at "
+                f"most {MAX_FIBRE_LENGTH:g} (an MTU length <= {most:.6g} m): are the lengths "
+                "in metres?"
+            )
+        return l_norm, along / fiber_length
 
     def _velocity_norm(self, mtu_velocity: FloatArray, cos_alpha: FloatArray) -> FloatArray:
         """Normalised fibre velocity, rejecting shortening faster than v_max."""
@@ -518,15 +541,18 @@ class HillMuscles:
                 f"{float(least):.6g} N, the force at activation {float(a[i]):.4g} while "
                 "shortening at the maximum contraction velocity; eq. 15 has no solution"
             )
-        fastest = f_v > FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING
+        # Values above f_v(10) by no more than the round-off are taken as f_v(10).
+        fastest = f_v > FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING + roundoff
         if np.any(fastest):
             i = int(np.flatnonzero(fastest)[0])
             most = scale[i] * (a[i] * f_l[i] * FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING + f_pe[i])
             raise InputError(
-                f"force[{i}] (muscle {self._names[i]!r}) = {float(wanted[i])} N is above "
-                f"{float(most):.6g} N, the force at activation {float(a[i]):.4g} while "
+                f"force[{i}] (muscle {self._names[i]!r}) = {float(wanted[i])!r} N is above "
+                f"{float(most)!r} N, the force at activation {float(a[i]):.4g} while "
                 f"lengthening at {MAX_INVERSE_LENGTHENING_VELOCITY:g} times the maximum "
                 "contraction velocity; no plausible fibre velocity gives it (eq. 15)"
             )
-        f_v = np.maximum(f_v, FORCE_VELOCITY_AT_MAX_SHORTENING)
+        f_v = np.clip(
+            f_v, FORCE_VELOCITY_AT_MAX_SHORTENING, FORCE_VELOCITY_AT_MAX_INVERSE_LENGTHENING
+        )
         return force_velocity_inverse(f_v) * self._v_max * self._l_opt

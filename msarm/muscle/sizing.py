@@ -54,10 +54,25 @@ def size_fibres(
         raise InputError(
             f"pennation_at_optimal must have shape {lengths.shape[1:]}, got {alpha.shape}"
         )
-    s_lo, s_hi = span
+    outside = ~((alpha >= 0.0) & (alpha < 0.5 * np.pi))  # NaN included
+    if np.any(outside):
+        i = int(np.flatnonzero(outside)[0])
+        raise InputError(
+            f"pennation_at_optimal[{i}] = {float(alpha[i])!r} rad; expected a value in "
+            "[0, pi/2), as MuscleParameters takes"
+        )
+    try:
+        s_lo, s_hi = (float(value) for value in span)
+    except (TypeError, ValueError) as exc:
+        raise InputError(
+            f"span must be two numbers (s_lo, s_hi), normalised fibre lengths; got {span!r}"
+        ) from exc
     sin2 = np.sin(alpha) ** 2
-    if not 0 < s_lo < s_hi or np.any(s_lo**2 <= sin2):
-        raise InputError(f"span must satisfy sin(pennation) < s_lo < s_hi, got {span}")
+    if not 0 < s_lo < s_hi < np.inf or np.any(s_lo**2 <= sin2):
+        raise InputError(
+            f"span must satisfy sin(pennation) < s_lo < s_hi < inf for every cable (largest "
+            f"sin(pennation) {float(np.sqrt(sin2.max(initial=0.0))):.4g}); got {span!r}"
+        )
     l_min, l_max = lengths.min(axis=0), lengths.max(axis=0)
     if np.any(l_max - l_min <= 0):
         raise InputError("every cable must change length over the postures given")
