@@ -53,6 +53,7 @@ from msarm.allocation.problem import (
     validate_batch,
     validate_tick,
 )
+from msarm.allocation.solution_check import residual_limit, residual_limits
 from msarm.allocation.solvers.base import Allocator, FloatArray, MethodOutput
 from msarm.allocation.solvers.daqp_solver import DaqpAllocator
 
@@ -398,8 +399,7 @@ class BatchedAllocator(Allocator):
         f = np.where(active < 0, lo, np.where(active > 0, hi, np.clip(ref + x / w, lo, hi)))
         r = (M @ f[..., None])[..., 0] - b
         residual = np.sqrt((r * r).sum(axis=1))
-        limit = self._tol * (1.0 + np.sqrt((b * b).sum(axis=1)))
-        converged &= residual <= limit
+        converged &= residual <= residual_limits(M, b, f, self._tol)
         status = np.full(count, OPTIMAL, dtype="<U11")
         feasible = np.ones(count, dtype=bool)
         rest = np.flatnonzero(~converged & ~infeasible)
@@ -412,14 +412,14 @@ class BatchedAllocator(Allocator):
             f[good], active[good] = f_r[solved], active_r[solved]
             r = (M[good] @ f[good][..., None])[..., 0] - b[good]
             residual[good] = np.sqrt((r * r).sum(axis=1))
-            ok = residual[good] <= limit[good]
+            ok = residual[good] <= residual_limits(M[good], b[good], f[good], self._tol)
             infeasible[rest[~solved]] = True  # DAQP found none: least squares
             infeasible[good[~ok]] = True
         for i in np.flatnonzero(infeasible):
             fi, extra = bounded_least_squares(M[i], b[i], lo[i], hi[i], w, ref[i])
             e = M[i] @ fi - b[i]
             f[i], residual[i] = fi, math.sqrt(e @ e)
-            feasible[i] = residual[i] <= limit[i]
+            feasible[i] = residual[i] <= residual_limit(M[i], b[i], fi, self._tol)
             status[i] = FALLBACK if feasible[i] else INFEASIBLE
             active[i] = active_set(fi, lo[i], hi[i], self._tol)
             iterations[i] += extra

@@ -74,8 +74,10 @@ class AllocationSpec:
         f_ref_mode: ``"zero"`` (minimum weighted 2-norm), ``"midpoint"`` (f_ref is the
             midpoint of each tick's bounds, Pott's choice) or ``"fixed"``.
         f_ref: The fixed reference force [N], shape (m,); zeros unless mode is "fixed".
-        tol: Feasibility tolerance: f is feasible when ``||M f - b|| <= tol (1 + ||b||)``
-            and ``f_min - tol (1 + |f_min|) <= f <= f_max + tol (1 + |f_max|)``.
+        tol: Feasibility tolerance: f is feasible when
+            ``||M f - b|| <= tol (1 + ||b|| + || |M| |f| ||)`` (the round-off of ``M f = b``'s
+            terms, at any force scale) and
+            ``f_min - tol (1 + |f_min|) <= f <= f_max + tol (1 + |f_max|)``.
     """
 
     n_actuators: int

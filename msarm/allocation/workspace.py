@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from msarm.allocation.batched import dual_newton
 from msarm.allocation.problem import AllocationSpec, validate_batch
+from msarm.allocation.solution_check import residual_limits
 from msarm.allocation.solvers.daqp_solver import DaqpAllocator
 from msarm.cdpr.kinematics import CableRobot
 from msarm.errors import InputError
@@ -44,7 +45,7 @@ def feasibility_batch(
         b: Shape (N, n).
         f_min: Lower bounds [N], shape (m,), (N, m) or scalar.
         f_max: Upper bounds [N], shape (m,), (N, m) or scalar.
-        tol: Tolerance on ``||M f - b||``, relative to ``1 + ||b||``.
+        tol: Tolerance on ``||M f - b||``, relative to ``1 + ||b|| + || |M| |f| ||``.
 
     Returns:
         Shape (N,) bool.
@@ -65,7 +66,7 @@ def feasibility_batch(
     c = b_arr - (M_arr @ ref[..., None])[..., 0]
     x, converged, _, _, infeasible = dual_newton(M_arr, c, lo - ref, hi - ref)
     r = (M_arr @ x[..., None])[..., 0] - c
-    limit = _residual_limit(M_arr, b_arr, x + ref, tol)
+    limit = residual_limits(M_arr, b_arr, x + ref, tol)
     feasible = converged & (np.sqrt((r * r).sum(axis=1)) <= limit)
     rest = np.flatnonzero(~feasible & ~infeasible)  # certified infeasible ones stay False
     if rest.size:
@@ -73,19 +74,9 @@ def feasibility_batch(
             M_arr[rest], b_arr[rest], lo[rest], hi[rest], ref[rest]
         )
         e = (M_arr[rest] @ f[..., None])[..., 0] - b_arr[rest]
-        limit_rest = _residual_limit(M_arr[rest], b_arr[rest], f, tol)
+        limit_rest = residual_limits(M_arr[rest], b_arr[rest], f, tol)
         feasible[rest] = solved & (np.sqrt((e * e).sum(axis=1)) <= limit_rest)
     return feasible
-
-
-def _residual_limit(M: FloatArray, b: FloatArray, f: FloatArray, tol: float) -> FloatArray:
-    """``tol`` times the size of the terms of ``M f = b``: ``1 + |b| + | |M| |f| |``, (N,).
-
-    With the size of ``M f`` in it, the test holds at any force scale: with bounds of 1e7 N
-    the rounding of ``M f`` alone exceeded ``tol (1 + |b|)`` and feasible poses were refused.
-    """
-    terms = (np.abs(M) @ np.abs(f)[..., None])[..., 0]
-    return tol * (1.0 + np.sqrt((b * b).sum(axis=1)) + np.sqrt((terms * terms).sum(axis=1)))
 
 
 def _wrench_array(wrenches: ArrayLike, n: int) -> FloatArray:

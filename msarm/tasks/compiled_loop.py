@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.allocation.batched import MAX_ITER
+from msarm.allocation.solution_check import residual_limit
 from msarm.allocation.solvers.newton import dual_newton_tick
 from msarm.compensation.sheath_kernel import sheath_tick
 from msarm.control.arm_controller import MuscleSpaceController, check_tension_command
@@ -300,15 +301,14 @@ def _control_and_allocate(k, reference, sensing, c, a, ff):  # pragma: no cover 
     )
     if code < 0:
         return ALLOCATE
-    # Allocator.solve's acceptance: ||M f - b|| <= tol (1 + ||b||)
-    rr, bb = 0.0, 0.0
+    # Allocator.solve's acceptance: ||M f - b|| <= tol (1 + ||b|| + || |M| |f| ||)
+    rr = 0.0
     for j in range(n):
         r = -c.tau[j]
         for i in range(m):
             r += a.M[j, i] * a.force[i]
         rr += r * r
-        bb += c.tau[j] * c.tau[j]
-    if not np.sqrt(rr) <= a.tol * (1.0 + np.sqrt(bb)):
+    if not np.sqrt(rr) <= residual_limit(a.M, c.tau, a.force, a.tol):
         return ALLOCATE
     return DONE
 

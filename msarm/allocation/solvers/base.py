@@ -28,7 +28,7 @@ from msarm.allocation.problem import (
     check_tick,
     validate_batch,
 )
-from msarm.allocation.solution_check import PAST_A_BOUND, bounded_residual
+from msarm.allocation.solution_check import PAST_A_BOUND, bounded_residual, residual_limit
 from msarm.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -93,21 +93,31 @@ class Allocator(ABC):
     ) -> tuple[FloatArray, int]:
         """Forces when the method found none: ``(f, iterations)``, f within the bounds.
 
-        First the exact QP (DAQP): the problem may be feasible though the method failed, and
-        then the answer is the optimum. If DAQP finds no solution, or one that misses
-        ``M f = b`` or the bounds (it called x = 0 optimal for a zero row of M, below
-        f_min), the bounded least squares of ``msarm.allocation.fallback``.
+        First the exact QP (DAQP, :meth:`_exact_qp`): the problem may be feasible though the
+        method failed, and then the answer is the optimum. If DAQP finds no solution, the
+        bounded least squares of ``msarm.allocation.fallback``.
+        """
+        f, iterations = self._exact_qp(M, b, f_min, f_max, f_ref)
+        if f is not None:
+            return f, iterations
+        f, extra = bounded_least_squares(M, b, f_min, f_max, self._weights, f_ref)
+        return f, iterations + extra
+
+    def _exact_qp(
+        self, M: FloatArray, b: FloatArray, f_min: FloatArray, f_max: FloatArray, f_ref: FloatArray
+    ) -> tuple[FloatArray | None, int]:
+        """DAQP's optimum when it is a solution (:meth:`_accept`), else ``None``; its iterations.
+
+        An answer that misses ``M f = b`` or the bounds is not one (DAQP called x = 0 optimal
+        for a zero row of M, below f_min).
         """
         if self._exact is None:
             from msarm.allocation.solvers.daqp_solver import DaqpAllocator
 
             self._exact = DaqpAllocator(self.spec)
         f, _, iterations, _ = self._exact._solve(M, b, f_min, f_max, f_ref)
-        f, _ = self._accept(f, M, b, f_min, f_max, self._tol * (1.0 + math.sqrt(b @ b)))
-        if f is not None:
-            return f, iterations
-        f, extra = bounded_least_squares(M, b, f_min, f_max, self._weights, f_ref)
-        return f, iterations + extra
+        f, _ = self._accept(f, M, b, f_min, f_max)
+        return f, iterations
 
     def _accept(
         self,
@@ -116,11 +126,12 @@ class Allocator(ABC):
         b: FloatArray,
         f_min: FloatArray,
         f_max: FloatArray,
-        limit: float,
     ) -> tuple[FloatArray | None, float]:
         """A method's f if it is a solution, within the bounds; else ``None``.
 
-        A solution meets ``||M f - b|| <= limit`` and the bounds to ``tol (1 + |bound|)``
+        A solution meets ``M f = b`` to the round-off of its terms
+        (:func:`~msarm.allocation.solution_check.residual_limit`,
+        ``tol (1 + ||b|| + || |M| |f| ||)``) and the bounds to ``tol (1 + |bound|)``
         (the spec's tolerance); a force within that round-off of a bound is set onto it. A
         force farther out, a NaN or a missed ``M f = b`` means that the method failed
         (``None``): it is never clipped into a plausible-looking answer.
@@ -131,7 +142,6 @@ class Allocator(ABC):
             b: Shape (n,).
             f_min: Lower bounds [N], shape (m,).
             f_max: Upper bounds [N], shape (m,).
-            limit: The largest ``||M f - b||``, ``tol (1 + ||b||)``.
 
         Returns:
             ``(f, residual)``: f [N] of shape (m,) exactly within the bounds, or ``None``;
@@ -143,7 +153,8 @@ class Allocator(ABC):
         if residual == PAST_A_BOUND:  # by round-off: onto the bound (a new array)
             f = np.clip(f, f_min, f_max)
             residual = bounded_residual(f, f_min, f_max, self._tol, M, b)
-        if not residual <= limit:  # False for NaN: a NaN or a force farther out
+        # False for NaN: a NaN or a force farther out
+        if not residual <= residual_limit(M, b, f, self._tol):
             return None, math.nan
         return f, residual
 
@@ -204,17 +215,16 @@ class Allocator(ABC):
             InputError: On wrong shapes, NaN or infinite values, or f_min > f_max.
         """
         t0 = perf_counter()
-        M, b, f_min, f_max, bb = check_tick(self.spec, M, b, f_min, f_max)
+        M, b, f_min, f_max, _ = check_tick(self.spec, M, b, f_min, f_max)
         # checked on every path: a solver's answer does not prove the order (DAQP returns
         # f = 0 as optimal for b = 0 with f_min > f_max; a closed form can overstep f_max)
         check_bound_order(f_min, f_max)
         ref = self._reference(f_min, f_max, f_ref)
         f, status, iterations, active = self._solve(M, b, f_min, f_max, ref)
         tol = self._tol
-        limit = tol * (1.0 + math.sqrt(bb))
         # a method that claims success but misses M f = b or the bounds (beyond round-off),
         # or returns NaN, is not trusted: its tick goes to the fallback
-        f, residual = self._accept(f, M, b, f_min, f_max, limit)
+        f, residual = self._accept(f, M, b, f_min, f_max)
         if f is None:
             f, extra = self._fallback(M, b, f_min, f_max, ref)
             iterations += extra
@@ -224,7 +234,7 @@ class Allocator(ABC):
                     f"{self.name}: the bounded least-squares fallback returned forces outside "
                     f"[f_min, f_max] or not finite: {f}"
                 )
-            status = FALLBACK if residual <= limit else INFEASIBLE
+            status = FALLBACK if residual <= residual_limit(M, b, f, tol) else INFEASIBLE
             active = None
         if active is None:
             active = active_set(f, f_min, f_max, tol)
