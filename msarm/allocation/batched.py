@@ -377,7 +377,8 @@ class BatchedAllocator(Allocator):
                 problem's bounds), overriding the spec's.
 
         Returns:
-            The N answers; each equal to what the fast path gives for that problem.
+            The N answers; each equal to what the fast path gives for that problem, to
+            round-off (about 1e-12 relative: another order of the same arithmetic).
 
         Raises:
             InputError: On wrong shapes, NaN or infinite values, or f_min > f_max.
