@@ -21,7 +21,8 @@ compiled dual Newton method that a compiled control loop calls directly), ``"bat
 N problems at once with ``solve_batch``, over 100,000 a second), ``"cvxpy"`` (the exact
 reference, about 1 ms), ``"closed_form"`` and ``"improved_closed_form"`` (Pott's, not the QP
 optimum when a bound is active). The exact ones give one answer (to round-off, about 1e-12
-relative). An infeasible problem never raises: the result holds the bounded f closest to ``M f = b`` with ``feasible=False``.
+relative). An infeasible problem never raises: the result holds the bounded f closest to
+``M f = b`` with ``feasible=False``.
 """
 
 from __future__ import annotations
