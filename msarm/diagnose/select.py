@@ -535,7 +535,10 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     error = None
     for key, tension, extra in (("before", drive, None), ("after", delivered, lost)):
         if error is None or not nothing:
-            error = replay_runs(model, hold.q, hold.qd, tension, hold.segment, hold.dt, extra, spec)
+            error = replay_runs(
+                model, hold.q, hold.qd, tension, hold.segment, hold.dt, extra, spec,
+                period_ending=use_command or spec.target.tension_timing == "period",
+            )  # fmt: skip
         p_replay = hand_position(model, hold.q[ends] + error[ends])
         out[f"joint_rmse_{key}"] = pooled_rmse(error)
         out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))
