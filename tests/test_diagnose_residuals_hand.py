@@ -157,3 +157,26 @@ def test_a_log_without_a_stretch_as_long_as_the_filter_is_refused(arm):
     short = RunLog({k: v[:24] for k, v in log.columns.items()}, log.metadata)
     with pytest.raises(LogError, match=r"^hand: no contiguous stretch .* filter's 25 samples"):
         residuals_from_log(arm, short, source="hand", spec=ResidualSpec(replay=False))
+
+
+def test_the_joint_residual_keeps_a_compensators_feedforward_tension(arm):
+    """The diagnosis describes the plant: the whole measured tension counts, as in the drive
+    residual. The compensator's target takes the sheath stage's ``tension_ff`` off (what the
+    stage leaves); the diagnosis took it off too, and its joint and drive groups disagreed."""
+    from msarm.compensation.target import torque_error
+
+    log, _ = _log(arm)
+    columns = dict(log.columns)
+    for cable in arm.cable_names:
+        columns[f"tension_ff.{cable}"] = np.full(len(log), 2.0)
+    with_ff = RunLog(columns, log.metadata)
+    spec = ResidualSpec(replay=False)
+    plain, _ = _diagnose(arm, log, spec)
+    kept, _ = _diagnose(arm, with_ff, spec)
+    ok = plain.valid
+    np.testing.assert_array_equal(kept.joint_torque[ok], plain.joint_torque[ok])
+    np.testing.assert_array_equal(kept.drive[ok], plain.drive[ok])
+    # the compensator's target does take it off: 2 N on every cable is a torque
+    first = slice(0, LENGTHS[0])
+    target = torque_error(arm, RunLog({k: v[first] for k, v in columns.items()}, log.metadata))
+    assert np.abs(target - plain.joint_torque[first]).max() > 1e-3

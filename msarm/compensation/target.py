@@ -131,6 +131,8 @@ def torque_error(
     source: str = "log",
     jacobians: FloatArray | None = None,
     motion: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+    *,
+    remove_feedforward: bool = True,
 ) -> FloatArray:
     """``T_f`` of every sample of a log [N m], shape ``(T, n)``.
 
@@ -144,6 +146,10 @@ def torque_error(
             computed here otherwise.
         motion: :func:`filtered_motion` of the log's joint angles with ``spec``, if the caller
             has it already; computed here otherwise.
+        remove_feedforward: Take the sheath stage's logged ``tension_ff`` off the load-cell
+            tensions (the compensator's target: what the stage leaves). ``False`` keeps the
+            whole measured tension (the diagnosis: the gap between the plant and the nominal
+            model, whatever the drives were asked for).
 
     Raises:
         InputError: Too few samples for the filter, a needed channel is missing, or
@@ -165,7 +171,7 @@ def torque_error(
         raise InputError(f"{source}: motion must be three arrays of shape {q_raw.shape}")
     q, qd, qdd = motion
     tension = log.matrix("tension_motor", cables)
-    if all(f"tension_ff.{c}" in log.columns for c in cables):
+    if remove_feedforward and all(f"tension_ff.{c}" in log.columns for c in cables):
         tension = tension - log.matrix("tension_ff", cables)
     data = model.create_data()
     needed = np.empty_like(q)

@@ -8,7 +8,9 @@ Three residuals say, sample by sample, how far the logged robot is from the nomi
   logged motion (Savitzky-Golay derivatives of the joint encoders). The delivered torque is
   filtered as the joint angles are (integrated twice, at the load cells' timing, then
   differentiated twice by the same filter: parallel filtering), so that the two sides of the
-  balance have one bandwidth and one timing.
+  balance have one bandwidth and one timing. The whole measured tension counts: a log with
+  the compensator's ``tension_ff`` columns keeps them in (the compensator's target takes them
+  off), so that the joint and drive residuals describe the same plant.
 - ``cable_length`` [m], shape ``(T, m)``: ``l_hat - l(q)``, the cable length the motor
   encoders say (``l_hat = l(q_0) - r (theta - theta_0)``, drum radius ``r``, from the log's
   first diagnosed sample: the motor angles are absolute, so a time gap does not restart the
@@ -391,7 +393,7 @@ def residuals_from_log(
         kinematics = cable_kinematics_batch(model, q, with_wrap_angles=with_geometry)
         motion = filtered_motion(q, spec.target, dt)
         out["joint_torque"][part] = torque_error(
-            model, sub, spec.target, source, kinematics.jacobian, motion
+            model, sub, spec.target, source, kinematics.jacobian, motion, remove_feedforward=False
         )
         q_f, qd, qdd = motion
         window, order = spec.target.window, spec.target.polyorder
