@@ -18,6 +18,7 @@ from msarm.compensation import (
     build_mlp,
     train_network,
 )
+from msarm.compensation.features import FeatureSpec
 from msarm.errors import InputError
 
 D, N_OUT = 43, 4
@@ -291,3 +292,42 @@ def test_fast_path_refuses_bad_inputs(compensator):
             predict(np.zeros((2, D)) + 1j)
     with pytest.raises(InputError, match="got complex values"):  # one sample: the fast path's
         fast(np.zeros(D) + 1j)
+
+
+def test_load_takes_the_feature_spec_in_use(tmp_path):
+    """``expected_feature_spec=FeatureSpec()`` gave "'FeatureSpec' object is not iterable"."""
+    spec = FeatureSpec()
+    made = _compensator()
+    made.metadata["feature_spec"] = spec.as_dict()
+    path = made.save(tmp_path / "comp.pt")
+    assert Compensator.load(path, expected_feature_spec=spec).input_dim == D
+    assert Compensator.load(path, expected_feature_spec=spec.as_dict()).input_dim == D
+    other = FeatureSpec(drum_radius=0.004)
+    with pytest.raises(
+        CheckpointError, match=r"feature_spec\.drum_radius: compensator 0\.003, in use 0\.004"
+    ):
+        Compensator.load(path, expected_feature_spec=other)
+    with pytest.raises(CheckpointError, match="drum_radius"):
+        made.check_compatible(expected_feature_spec=other)
+    with pytest.raises(
+        InputError, match=r"expected_feature_spec must be a FeatureSpec or a dict .* got int 3"
+    ):
+        Compensator.load(path, expected_feature_spec=3)
+
+
+def test_ragged_features_are_refused_with_the_shape_expected(compensator):
+    """A ragged list gave numpy's "inhomogeneous shape" ValueError (np.iscomplexobj ran
+    outside the conversion's check)."""
+    fast = FastCompensator(compensator)
+    row = [0.0] * D
+    for predict, shape in (
+        (fast, rf"\({D},\) or \(N, {D}\)"),
+        (compensator.predict, rf"\({D},\) or \(N, {D}\)"),
+        (fast.predict_batch, rf"\(N, {D}\)"),
+    ):
+        for ragged in ([row, row[:-1]], [1.0, [2.0, 3.0]]):
+            with pytest.raises(
+                InputError,
+                match=rf"x: expected features as an array of shape {shape}, got a ragged",
+            ):
+                predict(ragged)

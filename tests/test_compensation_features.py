@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -11,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import ideal_plant_with
 
-from msarm.compensation.dataset import build_arrays, split_runs
+from msarm.compensation.dataset import DataConfig, build_arrays, split_runs
 from msarm.compensation.features import FeatureExtractor, FeatureSpec
 from msarm.compensation.target import (
     TENSION_TIMINGS,
@@ -431,3 +432,77 @@ def test_arrays_built_once_per_log_with_a_cache(arm, tmp_path):
     x, y = cache[first]
     cache[first] = (x + 1.0, y)
     assert np.array_equal(build_arrays(arm, [first], spec, target, cache)[0], x + 1.0)
+
+
+def test_data_config_refuses_mistyped_counts_and_shares_that_are_not_finite():
+    """``rounds=1.5`` was accepted and failed after the runs were collected, ``n_runs='14'``
+    with a TypeError about ``<``, and a NaN share passed the share check to be reported as
+    "14 runs leave none for training"."""
+    for name, value in (
+        ("rounds", 1.5),
+        ("rounds", True),
+        ("n_runs", "14"),
+        ("n_runs", 14.0),
+        ("first_seed", 1000.5),
+    ):
+        with pytest.raises(InputError, match=rf"{name} must be an integer .*got \w+ {value!r}"):
+            DataConfig(**{name: value})
+    for split in ((math.nan, 0.5, 0.5), (math.inf, 0.5, 0.5), ("0.7", 0.15, 0.15), 0.7):
+        with pytest.raises(InputError, match=r"split must be three finite positive shares"):
+            DataConfig(split=split)
+    assert DataConfig(n_runs=np.int64(4), split=(0.5, 0.25, 0.25)).seeds == [1000, 1001, 1002, 1003]
+
+
+def test_build_arrays_refuses_a_single_path_or_no_logs(arm):
+    """A bare path was read character by character ("/: not a file"), an empty list gave
+    numpy's "need at least one array to concatenate"."""
+    spec, target = FeatureSpec(), TargetSpec(window=3, polyorder=1)
+    for bare in ("runs/run-1000/log.parquet", Path("runs/run-1000/log.parquet")):
+        with pytest.raises(InputError, match=r"log_paths must be a sequence of log paths, got a"):
+            build_arrays(arm, bare, spec, target)
+    with pytest.raises(InputError, match=r"log_paths must be a non-empty sequence .*\[\]"):
+        build_arrays(arm, [], spec, target)
+
+
+def test_feature_spec_refuses_widths_that_are_not_finite_numbers():
+    """``sign_joint_speed=inf`` made every sign feature 0; ``drum_radius=inf`` went through."""
+    for name in (
+        "sign_joint_speed",
+        "sign_cable_speed",
+        "drum_radius",
+        "memory_angle",
+        "memory_length",
+        "sign_error_angle",
+    ):
+        for value in (math.inf, math.nan, 0.0, -1.0):
+            with pytest.raises(InputError, match=rf"{name} must be a finite value > 0, got"):
+                FeatureSpec(**{name: value})
+        with pytest.raises(InputError, match=rf"{name} must be a number, got '1'"):
+            FeatureSpec(**{name: "1"})
+
+
+def test_reference_features_refuse_a_reference_of_the_wrong_shape_or_not_finite(arm):
+    """A (T, 3) reference gave a broadcast error, a single row a matmul error, references of
+    two lengths an IndexError, and a NaN NaN features without a word."""
+    extractor = FeatureExtractor(arm)
+    q_ref = np.tile(HOME, (5, 1))
+    qd_ref = np.zeros((5, 4))
+    expected = extractor.from_reference(q_ref, qd_ref)
+    with pytest.raises(InputError, match=r"q_ref: expected shape \(T, 4\).*got \(5, 3\)"):
+        extractor.from_reference(q_ref[:, :3], qd_ref[:, :3])
+    with pytest.raises(InputError, match=r"qd_ref: expected shape \(T, 4\).*got \(4,\)"):
+        extractor.from_reference(q_ref, qd_ref[0])
+    with pytest.raises(InputError, match="q_ref has 5 ticks but qd_ref has 3"):
+        extractor.from_reference(q_ref, qd_ref[:3])
+    bad = q_ref.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(
+        InputError, match=rf"q_ref has 1 non-finite .* tick 2, joint '{arm.joint_names[1]}'"
+    ):
+        extractor.from_reference(bad, qd_ref)
+    bad = qd_ref.copy()
+    bad[4, 3] = np.inf
+    with pytest.raises(InputError, match="qd_ref has 1 non-finite value"):
+        extractor.from_reference(q_ref, bad)
+    # the refused calls left no state behind
+    np.testing.assert_array_equal(extractor.from_reference(q_ref, qd_ref), expected)

@@ -15,6 +15,7 @@ from msarm.compensation import (
     check_finite,
     train_network,
 )
+from msarm.compensation.pipeline import CompensatorRecipe
 from msarm.errors import ConfigError, InputError, MsarmWarning
 from msarm.io.config import load_config
 
@@ -276,3 +277,26 @@ def test_labels_that_do_not_match_the_array_are_refused():
         check_finite("x", x, column_names=["a", "b", "c"])
     with pytest.raises(InputError, match=r"first at row 0 \(a\), column 1 \('q'\)"):
         check_finite("x", x, row_labels=["a", "b"], column_names=["p", "q"])
+
+
+def test_a_bare_width_and_a_seed_torch_cannot_take_are_refused():
+    """``hidden=150`` gave "'int' object is not iterable"; ``seed=2**64`` was accepted (in
+    Python and in a recipe) and training failed after the runs were collected with
+    "Overflow when unpacking long long"."""
+    with pytest.raises(
+        InputError, match=r"hidden must be a list of layer sizes, got int 150.*\[150\]"
+    ):
+        NetworkConfig(hidden=150)
+    with pytest.raises(InputError, match="hidden must be a list of layer sizes, got str"):
+        NetworkConfig(hidden="150")
+    for seed in (2**64, -1, 1.0, True):
+        with pytest.raises(InputError, match=r"seed must be an integer in \[0, 2\*\*64 - 1\]"):
+            NetworkConfig(seed=seed)
+    with pytest.raises(
+        ConfigError, match=r"key 'network'.*seed must be an integer in \[0, 2\*\*64"
+    ):
+        load_config({"network": {"seed": 2**64}}, CompensatorRecipe)
+    # the largest seed torch takes still trains
+    x, y = _synthetic(40, seed=0)
+    config = NetworkConfig(hidden=(4,), max_epochs=1, seed=2**64 - 1)
+    assert train_network(x, y, x, y, config).epochs_run == 1

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
+from msarm.compensation.features import FeatureSpec
 from msarm.compensation.network import (
     DTYPE,
     TRAINING_CHECKPOINT_FORMAT,
@@ -189,9 +190,10 @@ class Compensator:
             Predicted targets [N·m], shape ``(n,)`` or ``(N, n)`` (float64).
 
         Raises:
-            InputError: Wrong shape, or a NaN/inf (row and column named).
+            InputError: Wrong shape (a ragged sequence too), or a NaN/inf (row and column
+                named).
         """
-        array = as_feature_array(x)
+        array = as_feature_array(x, f"({self.input_dim},) or (N, {self.input_dim})")
         if array.ndim not in (1, 2) or array.shape[-1] != self.input_dim:
             raise InputError(
                 f"Compensator.predict expects shape ({self.input_dim},) or (N, "
@@ -281,7 +283,7 @@ class Compensator:
         cls,
         path: str | Path,
         expected_model_sha256: str | None = None,
-        expected_feature_spec: Mapping[str, Any] | None = None,
+        expected_feature_spec: FeatureSpec | Mapping[str, Any] | None = None,
     ) -> Compensator:
         """Read a compensator written by :meth:`save`, refusing one that does not fit.
 
@@ -289,18 +291,23 @@ class Compensator:
             path: The compensator file.
             expected_model_sha256: If given, the SHA-256 of the robot model in use: the file
                 must have been made for it (``metadata["model_sha256"]``).
-            expected_feature_spec: If given, the feature spec in use: the file's
-                ``metadata["feature_spec"]`` must equal it (tuples and lists compare equal).
+            expected_feature_spec: If given, the feature spec in use (a
+                :class:`~msarm.compensation.features.FeatureSpec`, or a plain dict such as
+                its :meth:`~msarm.compensation.features.FeatureSpec.as_dict`): the file's
+                ``metadata["feature_spec"]`` must equal its dict form (tuples and lists
+                compare equal).
 
         Returns:
             The compensator.
 
         Raises:
+            InputError: ``expected_feature_spec`` is neither a FeatureSpec nor a mapping.
             CheckpointError: The file is missing, unreadable or corrupt, not a compensator
                 file, of another format version, or lacks keys; or it was made for another
                 robot model or another feature spec. The message says which, and shows the
                 values that differ.
         """
+        expected_feature_spec = _feature_spec_dict(expected_feature_spec)
         path = Path(path)
         if not path.is_file():
             folder = folder_instead_of_file(path, _EXPECTED)
@@ -425,20 +432,24 @@ class Compensator:
     def check_compatible(
         self,
         expected_model_sha256: str | None = None,
-        expected_feature_spec: Mapping[str, Any] | None = None,
+        expected_feature_spec: FeatureSpec | Mapping[str, Any] | None = None,
         source: str = "compensator",
     ) -> None:
         """Refuse a compensator made for another robot model or another feature spec.
 
         Args:
             expected_model_sha256: SHA-256 (hex) of the robot model in use, or None to skip.
-            expected_feature_spec: The feature spec in use, or None to skip.
+            expected_feature_spec: The feature spec in use (a
+                :class:`~msarm.compensation.features.FeatureSpec` or a plain dict of its
+                fields), or None to skip.
             source: Name of the compensator in messages (its file).
 
         Raises:
+            InputError: ``expected_feature_spec`` is neither a FeatureSpec nor a mapping.
             CheckpointError: The metadata lacks the key, or records another value (both
                 shown; for a feature spec, each differing key with both values).
         """
+        expected_feature_spec = _feature_spec_dict(expected_feature_spec)
         if expected_model_sha256 is not None:
             recorded = self.metadata.get("model_sha256")
             if recorded is None:
@@ -472,6 +483,24 @@ class Compensator:
             f"Compensator({self.input_dim} -> {list(self.config.hidden)} -> {self.output_dim}, "
             f"{self.config.activation}, model_sha256={str(sha)[:12] + '…' if sha else None})"
         )
+
+
+def _feature_spec_dict(
+    spec: FeatureSpec | Mapping[str, Any] | None,
+) -> Mapping[str, Any] | None:
+    """A feature spec in use as the plain dict it is compared in (None stays None).
+
+    Raises:
+        InputError: ``spec`` is neither a FeatureSpec nor a mapping.
+    """
+    if spec is None or isinstance(spec, Mapping):
+        return spec
+    if isinstance(spec, FeatureSpec):
+        return spec.as_dict()
+    raise InputError(
+        "expected_feature_spec must be a FeatureSpec or a dict of its fields "
+        f"(FeatureSpec.as_dict()), got {type(spec).__name__} {spec!r}"
+    )
 
 
 def _comparable(value: Any) -> Any:

@@ -13,8 +13,11 @@ of any NaN.
 from __future__ import annotations
 
 import json
+import math
+import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from os import PathLike
 from pathlib import Path
 
 import numpy as np
@@ -63,19 +66,52 @@ class DataConfig:
     rounds: int = 2
 
     def __post_init__(self) -> None:
+        """Check the settings before any run is collected.
+
+        Raises:
+            InputError: ``n_runs``, ``first_seed`` or ``rounds`` is not an integer (a bool is
+                refused), ``rounds < 0`` or ``n_runs < 3``; ``split`` is not three finite
+                positive shares adding to 1; ``folder`` is empty; or the split leaves a set
+                without runs.
+        """
+        for name in ("n_runs", "first_seed", "rounds"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                raise InputError(
+                    f"{name} must be an integer (a whole number), got "
+                    f"{type(value).__name__} {value!r}"
+                )
         if self.rounds < 0:
-            raise ValueError(f"rounds must be >= 0, got {self.rounds}")
+            raise InputError(f"rounds must be >= 0, got {self.rounds}")
         if self.n_runs < 3:
-            raise ValueError(f"n_runs must be >= 3 (training, validation, test), got {self.n_runs}")
-        if len(self.split) != 3 or min(self.split) <= 0 or abs(sum(self.split) - 1) > 1e-9:
-            raise ValueError(f"split must be three positive shares adding to 1, got {self.split}")
+            raise InputError(f"n_runs must be >= 3 (training, validation, test), got {self.n_runs}")
+        shares = self.split
+        try:
+            valid = (
+                not isinstance(shares, str | bytes)
+                and len(shares) == 3
+                and all(
+                    not isinstance(share, bool)
+                    and isinstance(share, numbers.Real)
+                    and math.isfinite(share)
+                    and share > 0
+                    for share in shares
+                )
+                and abs(sum(shares) - 1) <= 1e-9
+            )
+        except TypeError:  # no length: not a sequence of shares
+            valid = False
+        if not valid:
+            raise InputError(
+                f"split must be three finite positive shares adding to 1, got {self.split!r}"
+            )
         if not str(self.folder).strip():
             # Path("") is the working directory: the runs would be written all over it
-            raise ValueError("folder must name a folder for the runs' logs, got an empty string")
+            raise InputError("folder must name a folder for the runs' logs, got an empty string")
         try:
             split_runs(self.seeds, self.split)
         except InputError as exc:
-            raise ValueError(f"n_runs and split: {exc}") from None
+            raise InputError(f"n_runs and split: {exc}") from None
 
     @property
     def seeds(self) -> list[int]:
@@ -218,8 +254,17 @@ def build_arrays(
         ``(x, y)``: the features ``(N, d)`` and the targets [N m] ``(N, n)``.
 
     Raises:
-        InputError: A log holds NaN (file, column and row named) or lacks a channel.
+        InputError: ``log_paths`` is a single path (str or Path) or empty, not a sequence of
+            log paths; or a log holds NaN (file, column and row named) or lacks a channel.
     """
+    if isinstance(log_paths, str | bytes | PathLike):
+        raise InputError(
+            f"log_paths must be a sequence of log paths, got a single path {log_paths!r}; "
+            f"expected e.g. [{str(log_paths)!r}]"
+        )
+    log_paths = list(log_paths)
+    if not log_paths:
+        raise InputError("log_paths must be a non-empty sequence of log paths, got none ([])")
     extractor = FeatureExtractor(model, features)
     xs, ys = [], []
     for path in log_paths:

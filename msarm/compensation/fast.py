@@ -101,7 +101,8 @@ class FastCompensator:
             Predicted targets [N·m], shape ``(n,)`` (``out`` if given) or ``(N, n)``.
 
         Raises:
-            InputError: Wrong shape, or a NaN or inf in ``x`` (column named).
+            InputError: Wrong shape (a ragged sequence too), or a NaN or inf in ``x`` (column
+                named).
         """
         if (
             type(x) is not np.ndarray
@@ -142,10 +143,10 @@ class FastCompensator:
             Predicted targets [N·m], shape ``(N, n)``, a new array.
 
         Raises:
-            InputError: ``x`` is not of shape ``(N, d)``, or holds a NaN or inf (row and
-                column named).
+            InputError: ``x`` is not of shape ``(N, d)`` (a ragged sequence too), or holds a
+                NaN or inf (row and column named).
         """
-        array = as_feature_array(x)
+        array = as_feature_array(x, f"(N, {self.input_dim})")
         if array.ndim != 2 or array.shape[1] != self.input_dim:
             raise InputError(
                 f"FastCompensator.predict_batch expects shape (N, {self.input_dim}), "
@@ -163,7 +164,7 @@ class FastCompensator:
 
     def _general(self, x: ArrayLike, out: FloatArray | None) -> FloatArray:
         """Slow path: convert, check the shape, and evaluate one sample or a batch."""
-        array = as_feature_array(x)
+        array = as_feature_array(x, f"({self.input_dim},) or (N, {self.input_dim})")
         if array.ndim == 2:
             if out is not None:
                 raise InputError("FastCompensator: out is only supported for one sample (d,)")

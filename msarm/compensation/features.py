@@ -78,6 +78,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from msarm.errors import InputError
+from msarm.io.config import check_numbers
 from msarm.io.logs import RunLog
 from msarm.model import RobotModel
 from msarm.muscle.batch_kinematics import current_wrap_angles
@@ -147,6 +148,13 @@ class FeatureSpec:
         sign_error_angle: ``eps_e`` of ``tanh((q_r - q) / eps_e)`` [rad] (``sign_error``).
         stiction_mus: Friction coefficients of the ``sheath_stiction`` elements [-], one
             group of ``n`` inputs each.
+
+    The widths, the drum radius and the memory lengths must be finite and > 0.
+
+    Raises:
+        InputError: An unknown or repeated group, another source, a width, radius or
+            memory length that is not a finite number > 0, or a friction coefficient that
+            is not finite and > 0 (named, with the value given).
     """
 
     groups: tuple[str, ...] = DEFAULT_GROUPS
@@ -162,26 +170,29 @@ class FeatureSpec:
     def __post_init__(self) -> None:
         unknown = [g for g in self.groups if g not in FEATURE_GROUPS]
         if unknown or not self.groups:
-            raise ValueError(
+            raise InputError(
                 f"unknown feature groups {unknown}; expected some of {list(FEATURE_GROUPS)}"
             )
         if self.source not in ("reference", "measured"):
-            raise ValueError(f"source must be 'reference' or 'measured', got {self.source!r}")
+            raise InputError(f"source must be 'reference' or 'measured', got {self.source!r}")
         if len(set(self.groups)) != len(self.groups):
-            raise ValueError(f"feature groups repeat: {self.groups}")
-        for name in (
-            "sign_joint_speed",
-            "sign_cable_speed",
-            "drum_radius",
-            "memory_angle",
-            "memory_length",
-            "sign_error_angle",
-        ):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+            raise InputError(f"feature groups repeat: {self.groups}")
+        # widths and lengths: inf would make the sign features 0 and the memories still,
+        # NaN every feature NaN
+        check_numbers(
+            self,
+            positive=(
+                "sign_joint_speed",
+                "sign_cable_speed",
+                "drum_radius",
+                "memory_angle",
+                "memory_length",
+                "sign_error_angle",
+            ),
+        )
         mus = tuple(float(mu) for mu in self.stiction_mus)
         if not mus or not all(np.isfinite(mu) and mu > 0 for mu in mus):
-            raise ValueError(f"stiction_mus must be finite numbers > 0, got {self.stiction_mus}")
+            raise InputError(f"stiction_mus must be finite numbers > 0, got {self.stiction_mus}")
         object.__setattr__(self, "stiction_mus", mus)
 
     def as_dict(self) -> dict:
@@ -378,7 +389,8 @@ class FeatureExtractor:
 
         Raises:
             InputError: The spec has a group that needs the sensors (see
-                :attr:`reference_only`).
+                :attr:`reference_only`); ``q_ref`` or ``qd_ref`` is not of shape ``(T, n)``,
+                they differ in length, or they hold a NaN or inf (tick and joint named).
         """
         if not self.reference_only:
             raise InputError(
@@ -387,6 +399,27 @@ class FeatureExtractor:
                 "before the run"
             )
         q_ref, qd_ref = np.asarray(q_ref, dtype=float), np.asarray(qd_ref, dtype=float)
+        n = self.model.n_joints
+        for name, values in (("q_ref", q_ref), ("qd_ref", qd_ref)):
+            if values.ndim != 2 or values.shape[1] != n:
+                raise InputError(
+                    f"{name}: expected shape (T, {n}) (one row of {n} joints per tick), "
+                    f"got {values.shape}"
+                )
+        if len(q_ref) != len(qd_ref):
+            raise InputError(
+                f"q_ref has {len(q_ref)} ticks but qd_ref has {len(qd_ref)}; expected one row "
+                "of each per tick"
+            )
+        for name, values in (("q_ref", q_ref), ("qd_ref", qd_ref)):
+            bad = ~np.isfinite(values)
+            if bad.any():
+                tick, joint = (int(i) for i in np.argwhere(bad)[0])
+                raise InputError(
+                    f"{name} has {int(bad.sum())} non-finite value(s); first at tick {tick}, "
+                    f"joint {self.model.joint_names[joint]!r}: {float(values[tick, joint])!r}; "
+                    "expected finite values"
+                )
         unread = np.zeros(self.model.n_cables)  # sensors the reference groups do not read
         self.reset()
         out = np.empty((len(q_ref), self.size))

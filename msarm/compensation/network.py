@@ -37,9 +37,10 @@ import dataclasses
 import hashlib
 import math
 import numbers
+import reprlib
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -82,6 +83,9 @@ TRAINING_CHECKPOINT_VERSION = 1
 _RESUMABLE_CHANGES = ("max_epochs", "threads")
 #: Rows evaluated at once when computing a loss without gradients.
 _EVAL_CHUNK = 65536
+#: Largest ``NetworkConfig.seed``: ``torch.manual_seed`` and ``torch.Generator.manual_seed``
+#: take an unsigned 64-bit integer (a larger one fails with "Overflow when unpacking long long").
+MAX_SEED = 2**64 - 1
 
 
 @dataclass(frozen=True)
@@ -98,9 +102,16 @@ class NetworkConfig:
         patience: Epochs without a new best validation loss after which training stops.
         weight_decay: L2 penalty added to the gradient by Adam (``torch.optim.Adam``'s
             ``weight_decay``, not decoupled AdamW); 0 disables it.
-        seed: Seed of the initial weights and of the mini-batch shuffling.
+        seed: Seed of the initial weights and of the mini-batch shuffling, an integer in
+            ``[0, 2**64 - 1]`` (what ``torch.manual_seed`` takes).
         threads: Torch intra-op threads used while training (the caller's setting is restored
             afterwards). Bit-for-bit reproducibility holds for a fixed thread count.
+
+    Raises:
+        InputError: A setting of the wrong type or out of its range (named, with the value
+            given): ``hidden`` not a list of positive integers (``hidden=150`` for
+            ``[150]``), an unknown activation, a non-finite or non-positive learning rate, a
+            seed outside ``[0, 2**64 - 1]``.
     """
 
     hidden: tuple[int, ...] = (150,)
@@ -114,6 +125,12 @@ class NetworkConfig:
     threads: int = 1
 
     def __post_init__(self) -> None:
+        if isinstance(self.hidden, str | bytes) or not isinstance(self.hidden, Iterable):
+            raise InputError(
+                f"hidden must be a list of layer sizes, got {type(self.hidden).__name__} "
+                f"{self.hidden!r}; expected e.g. [150] (one hidden layer of 150 units) or [] "
+                "(a linear model)"
+            )
         hidden = tuple(self.hidden)
         object.__setattr__(self, "hidden", hidden)
         for i, width in enumerate(hidden):
@@ -136,8 +153,15 @@ class NetworkConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise InputError(f"{name} must be a positive integer, got {value!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise InputError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if (
+            isinstance(self.seed, bool)
+            or not isinstance(self.seed, int)
+            or not 0 <= self.seed <= MAX_SEED
+        ):
+            raise InputError(
+                f"seed must be an integer in [0, 2**64 - 1] (what torch.manual_seed takes), "
+                f"got {self.seed!r}"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,28 +356,35 @@ def build_mlp(d: int, n: int, config: NetworkConfig) -> torch.nn.Sequential:
     return torch.nn.Sequential(*layers)
 
 
-def as_feature_array(x: ArrayLike) -> FloatArray:
+def as_feature_array(x: ArrayLike, shape: str = "(d,) or (N, d)") -> FloatArray:
     """Features as float64, or an InputError for values that are not real numbers.
 
     Args:
         x: Features, any shape.
+        shape: The shape the caller expects, for the message about a ragged sequence
+            (e.g. ``"(43,) or (N, 43)"``).
 
     Returns:
         ``x`` as a float64 array (no copy when it already is one).
 
     Raises:
         InputError: ``x`` holds text, None, or complex values (whose imaginary part would be
-            lost).
+            lost), or is a ragged sequence (rows of different lengths; ``shape`` named).
     """
     if x is None:
         raise InputError("x: expected features as real numbers, got None")
-    complex_values = x.dtype.kind == "c" if isinstance(x, np.ndarray) else np.iscomplexobj(x)
-    if complex_values:
-        raise InputError("x: expected features as real numbers, got complex values")
     try:
-        return np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError):
+        complex_values = x.dtype.kind == "c" if isinstance(x, np.ndarray) else np.iscomplexobj(x)
+        if not complex_values:
+            return np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        if "inhomogeneous" in str(exc):  # numpy's words for a ragged nested sequence
+            raise InputError(
+                f"x: expected features as an array of shape {shape}, got a ragged sequence "
+                f"(rows of different lengths): {reprlib.repr(x)}"
+            ) from None
         raise InputError(f"x: expected features as real numbers, got {x!r}") from None
+    raise InputError("x: expected features as real numbers, got complex values")
 
 
 def check_finite(
