@@ -264,3 +264,50 @@ def test_the_cli_lists_every_effect_class_of_the_benchmark():
     from msarm.cli.bench import BENCH_EFFECTS
 
     assert BENCH_EFFECTS == tuple(EFFECT_CANDIDATES)
+
+
+def test_a_rerun_says_what_it_reused_and_the_effects_order_does_not_matter(arm, report, tmp_path):
+    """The same set of effects, in another order and repeated, is the same benchmark: reused
+    (each order re-scored before), and the progress says so (a rerun printed old timings
+    as if just measured)."""
+    out, _ = report
+    shutil.copytree(out, tmp_path / "b")  # other tests rescore the module's folder
+    first = run_diagnosis_benchmark(arm, tmp_path / "b", TINY)
+    lines = []
+    shuffled = replace(TINY, effects=("sensor_bias", "winch_friction", "sensor_bias"))
+    again = run_diagnosis_benchmark(arm, tmp_path / "b", shuffled, progress=lines.append)
+    assert again["summary"] == first["summary"]
+    assert lines == [
+        f"3 of 3 scenarios reused from {tmp_path / 'b' / 'results.json'} (their times are "
+        "those of the run that scored them; --rescore scores them again)"
+    ]
+
+
+def test_the_plot_of_replaced_results_goes_before_new_scores(arm, report, monkeypatch, tmp_path):
+    """Killed after its first new scenario, a run with other settings left the old run's plot
+    beside its own partial results."""
+    out, _ = report
+    shutil.copytree(out, tmp_path / "b")
+    assert (tmp_path / "b" / "confusion.png").is_file()
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bench_module, "_diagnose_scenario", stop)
+    with pytest.raises(KeyboardInterrupt), pytest.warns(bench_module.BenchCacheWarning):
+        run_diagnosis_benchmark(arm, tmp_path / "b", replace(TINY, sindy_alpha=0.1))
+    assert not (tmp_path / "b" / "confusion.png").exists()
+
+
+def test_out_paths_that_cannot_be_written_are_refused_before_any_simulation(arm, tmp_path):
+    (tmp_path / "a" / "results.json").mkdir(parents=True)
+    with pytest.raises(InputError, match=r"results.json: it is a folder"):
+        run_diagnosis_benchmark(arm, tmp_path / "a", TINY)
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "logs").write_text("not a folder")
+    with pytest.raises(InputError, match=r"logs is a file; expected the folder"):
+        run_diagnosis_benchmark(arm, tmp_path / "b", TINY)
+    (tmp_path / "c" / "logs").mkdir(parents=True)
+    (tmp_path / "c" / "logs" / "null-0").write_text("not a folder")
+    with pytest.raises(InputError, match=r"null-0 is a file; expected the folder of null-0"):
+        run_diagnosis_benchmark(arm, tmp_path / "c", TINY)

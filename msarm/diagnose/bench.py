@@ -292,14 +292,25 @@ def run_diagnosis_benchmark(
     settings = settings or BenchSettings()
     _check(settings)
     out = Path(out)
+    _check_out(out)
     out.mkdir(parents=True, exist_ok=True)
     results_path = out / "results.json"
-    settings_dict = {**asdict(settings), "effects": list(settings.effects)}
+    # the set of effects, not their order or repeats, makes the scenarios
+    settings_dict = {**asdict(settings), "effects": sorted(set(settings.effects))}
     done: dict[str, Any] = {}
     code = code_fingerprint("diagnosis")
     if results_path.is_file() and not rescore:
         done = _cached_rows(results_path, settings_dict, model.sha256, code)
     scenarios = _scenarios(settings)
+    reused = sum(scenario.name in done for scenario in scenarios)
+    if reused and progress is not None:
+        progress(
+            f"{reused} of {len(scenarios)} scenarios reused from {results_path} (their times "
+            "are those of the run that scored them; --rescore scores them again)"
+        )
+    plot_path = out / "confusion.png"
+    if reused < len(scenarios):  # the plot is of the results being replaced: not left beside
+        plot_path.unlink(missing_ok=True)  # the new ones, should this run be interrupted
     train_tasks, held_tasks = scenario_tasks(
         model, settings.n_train, settings.n_holdout, settings.duration, settings.seed
     )
@@ -351,8 +362,25 @@ def run_diagnosis_benchmark(
         "summary": summary,
     }
     write_json_atomic(results_path, report)
-    plot_benchmark(report, out / "confusion.png")
+    plot_benchmark(report, plot_path)
     return report
+
+
+def _check_out(out: Path) -> None:
+    """Refuse, before any simulation, an ``out`` whose results, plot or logs cannot be written.
+
+    Raises:
+        InputError: ``out`` is a file, ``results.json`` or ``confusion.png`` in it a folder,
+            or ``logs`` in it a file.
+    """
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} is a file; expected a folder (created if missing)")
+    for name in ("results.json", "confusion.png"):
+        if (out / name).is_dir():
+            raise InputError(f"cannot write {out / name}: it is a folder, expected a file path")
+    logs = out / "logs"
+    if logs.exists() and not logs.is_dir():
+        raise InputError(f"{logs} is a file; expected the folder of the scenarios' logs")
 
 
 #: Keys of a scored scenario's entry in ``results.json``, and of each method's answer in it.
@@ -431,8 +459,10 @@ def _cached_rows(
             else ["all"]
         )
         warnings.warn(
-            f"{path}: holds the results of other settings ({', '.join(differ)} differ); "
-            "this run's results replace them (each scenario's cached logs are still reused)",
+            f"{path}: holds the results of other settings ({', '.join(differ)} "
+            f"{'differs' if len(differ) == 1 and differ != ['all'] else 'differ'}); this run's "
+            "results replace them (a scenario's cached logs are reused where its plant and "
+            "tasks are unchanged, simulated again otherwise)",
             BenchCacheWarning,
             stacklevel=3,
         )

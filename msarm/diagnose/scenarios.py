@@ -590,6 +590,9 @@ def generate_logs(
                 f"holdout_tasks must differ from the training tasks; {task.name!r} is in both"
             )
     folder = Path(root) / scenario.name
+    for place in (Path(root), folder):
+        if place.exists() and not place.is_dir():
+            raise InputError(f"{place} is a file; expected the folder of {scenario.name}'s logs")
     folder.mkdir(parents=True, exist_ok=True)
     description = scenario.as_dict()
     if _read_json(folder / "scenario.json") != description:
