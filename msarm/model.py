@@ -305,7 +305,7 @@ def load_robot(path: str | Path) -> RobotModel:
     pin_model.gravity.linear = model_gravity(mj_model)  # the parser ignores <option gravity>
     pin_q_index = np.arange(mj_model.nq, dtype=np.intp)
     _check_engines_agree(mj_model, pin_model, pin_q_index, path)
-    _check_no_passive_forces(mj_model, path)
+    check_no_passive_forces(mj_model, path)
     cable_names = tuple(mj_model.tendon(i).name for i in range(mj_model.ntendon))
     if any(not name for name in cable_names):
         raise ModelError(f"{path}: every tendon needs a name (the cable's name)")
@@ -558,12 +558,27 @@ _PASSIVE_FIELDS = (
 )
 
 
-def _check_no_passive_forces(mj_model: mujoco.MjModel, path: Path) -> None:
+def check_no_passive_forces(
+    mj_model: mujoco.MjModel,
+    path: Path,
+    hint: str = (
+        "the plant's joint_friction and elasticity effects add friction, damping and cable "
+        "stiffness"
+    ),
+) -> None:
     """Refuse springs, damping, friction or gravity compensation set in the model file.
 
     MuJoCo would apply them in the simulated plant, and the nominal model the controller and
     the diagnosis use would not have them: the "ideal" plant would no longer be the nominal
     model. The plant's effects (joint friction, cable elasticity) add such forces on purpose.
+
+    Args:
+        mj_model: The model read from ``path``.
+        path: The model file (named in the error).
+        hint: Where such forces belong instead (the end of the error).
+
+    Raises:
+        ModelError: One is set (named, with its value and element).
     """
     for what, attribute, kind in _PASSIVE_FIELDS:
         values = np.asarray(getattr(mj_model, attribute), dtype=float).reshape(-1)
@@ -578,8 +593,7 @@ def _check_no_passive_forces(mj_model: mujoco.MjModel, path: Path) -> None:
             f"{path}: {what} is set ({values[k]:g} on {'joint' if kind == 'dof' else kind} "
             f"'{element.name}'); the nominal model (Pinocchio's dynamics, ideal cables) has "
             "none, so the simulated plant would differ from it even with no effect switched "
-            "on: leave it out of the model file (the plant's joint_friction and elasticity "
-            "effects add friction, damping and cable stiffness)"
+            f"on: leave it out of the model file ({hint})"
         )
 
 

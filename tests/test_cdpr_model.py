@@ -259,6 +259,22 @@ def test_load_check_names_the_mismatched_cable(model):
         ('<site site="a2"/><site site="b6"/>', '<site site="a2"/><site site="a3"/>', "cable_2"),
         ('<site site="a1"/>', '<site site="a1"/><site site="a0"/>', "exactly two sites"),
         ('<frame name="frame">', '<body name="frame">', "exactly one body"),
+        # forces MuJoCo would add on top of the plant's cables (the nominal model has none)
+        (
+            '<spatial name="cable_0">',
+            '<spatial name="cable_0" stiffness="2000" springlength="0.5">',
+            r"tendon stiffness is set \(2000 on tendon 'cable_0'\).*--plant",
+        ),
+        (
+            '<spatial name="cable_1">',
+            '<spatial name="cable_1" limited="true" range="0 0.9">',
+            r"cable 'cable_1' has a length range",
+        ),
+        (
+            '<freejoint name="platform_free"/>',
+            '<joint type="free" name="platform_free" damping="0.1"/>',
+            r"joint damping is set",
+        ),
     ],
 )
 def test_bad_model_files(tmp_path, old, new, message):
@@ -270,6 +286,21 @@ def test_bad_model_files(tmp_path, old, new, message):
     path = tmp_path / "bad.xml"
     path.write_text(text)
     with pytest.raises(ModelError, match=message):
+        load_cable_robot(path)
+
+
+def test_a_platform_that_can_touch_the_world_is_refused(tmp_path):
+    """A floor and a platform geom with contacts on loaded, and the run was 10.9 mm off."""
+    text = IPANEMA_MINI_PATH.read_text()
+    text = text.replace('contype="0" conaffinity="0"', 'contype="1" conaffinity="1"', 1)
+    text = text.replace(
+        '<body name="platform"',
+        '<geom name="floor" type="plane" size="1 1 0.1"/>\n    <body name="platform"',
+        1,
+    )
+    path = tmp_path / "floor.xml"
+    path.write_text(text)
+    with pytest.raises(ModelError, match=r"geom 'platform' can collide with geom 'floor'"):
         load_cable_robot(path)
 
 

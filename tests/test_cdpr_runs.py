@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from msarm.cdpr.robot_model import load_cable_robot
 from msarm.cli import app
-from msarm.errors import InputError
+from msarm.errors import InputError, MsarmWarning
 from msarm.plant.cdpr_config import DEFAULT_CDPR_PLANT
 from msarm.tasks.cdpr_compare import compare_cdpr
 from msarm.tasks.cdpr_runner import run_cdpr
@@ -709,9 +709,10 @@ def test_option_numbers_in_exponent_form_are_floats():
     assert options == {"f_max": 40.0, "dt": 0.001, "f_min": 5.0}
     assert controller_options(["f_max=4e1", "dt=1e-3", "f_min=5e0"], "hc-e") == options
     robot = load_cable_robot()
-    ctrl = check_cdpr_run(
-        robot, DEFAULT_CDPR_PLANT, "hc-e", get_cdpr_trajectory("triangle-12"), options
-    )
+    with pytest.warns(MsarmWarning, match=r"within \[5, 40\] N, beyond the model file's"):
+        ctrl = check_cdpr_run(
+            robot, DEFAULT_CDPR_PLANT, "hc-e", get_cdpr_trajectory("triangle-12"), options
+        )
     assert (ctrl.f_min, ctrl.f_max, ctrl.dt) == (5.0, 40.0, 0.001)
     assert controller_options(["delta_l_limit=null"], "nc") == {"delta_l_limit": None}
 
@@ -815,3 +816,34 @@ def test_every_run_metric_of_a_hand_made_run_is_its_hand_value(robot, triangle):
     # no force-controlled cable (IKC, NC): no force error; a run that stopped is not completed
     idle = _metrics(robot, triangle, marker, force, desired, controlled & False, False)
     assert math.isnan(idle.force_rms_error) and idle.completed is False
+
+
+def test_a_turned_platform_is_controlled_at_its_rotation(robot):
+    """The loop took the inverse kinematics at R = I whatever the trajectory's rotation: the
+    platform turned back and its cables went slack (0 N), with a position error that looked
+    fine. At its rotation (0.1 rad about z) every cable stays taut."""
+    from msarm.tasks.cdpr_trajectories import PathSegment, sample_path
+
+    path = sample_path(
+        [PathSegment.line([0.0, 0.0], [0.05, 0.0])], name="turned", hold=0.2, ramp_time=0.1
+    )
+    c, s = math.cos(0.1), math.sin(0.1)
+    turned = replace(path, rotation=np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]))
+    for controller in ("ikc", "hc-e"):
+        metrics = run_cdpr(robot, DEFAULT_CDPR_PLANT, controller, turned).metrics
+        assert metrics.completed
+        assert metrics.min_force > 3.0, controller
+
+
+def test_controller_bounds_beyond_the_robots_are_warned_about(robot, triangle):
+    """f_min=0 let a controller plan slack cables on a robot whose file says [5, 35] N; the run
+    left the bounds all the time with no message. The shipped [8, 35] N say nothing."""
+    import warnings
+
+    from msarm.tasks.cdpr_runner import check_cdpr_run
+
+    with pytest.warns(MsarmWarning, match=r"within \[0, 35\] N, beyond the model file's cable"):
+        check_cdpr_run(robot, DEFAULT_CDPR_PLANT, "hc-f", triangle, {"f_min": 0.0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_cdpr_run(robot, DEFAULT_CDPR_PLANT, "hc-f", triangle)

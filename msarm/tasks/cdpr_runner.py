@@ -297,6 +297,26 @@ def _warn_weak_drives(ctrl: CdprController, name: str, plant_config: CdprPlantCo
         )
 
 
+def _warn_bounds_beyond_the_robots(ctrl: CdprController, name: str, model: CableRobotModel) -> None:
+    """Warn when the controller distributes forces outside the model file's cable bounds.
+
+    The trajectory is checked against the controller's bounds only (the forces it plans): with
+    ``f_min=0`` a path whose distribution needs slack cables passed, and its run left the
+    file's [5, 35] N all the time with no message.
+    """
+    lower = np.broadcast_to(np.asarray(ctrl.f_min, dtype=float), model.f_min.shape)
+    upper = np.broadcast_to(np.asarray(ctrl.f_max, dtype=float), model.f_max.shape)
+    if np.any(lower < model.f_min) or np.any(upper > model.f_max):
+        warnings.warn(
+            f"controller {name!r} distributes forces within [{lower.min():g}, {upper.max():g}] "
+            f"N, beyond the model file's cable bounds [{model.f_min.min():g}, "
+            f"{model.f_max.max():g}] N ({model.path.name}): the forces it plans may leave the "
+            "range the cables are made for (metrics: time in bounds counts the file's)",
+            MsarmWarning,
+            stacklevel=3,
+        )
+
+
 def _check_cable_speeds(
     model: CableRobotModel, ctrl: CdprController, name: str, trajectory: CdprTrajectory
 ) -> None:
@@ -349,8 +369,9 @@ def check_cdpr_run(
 
     Warns:
         MsarmWarning: The controller models other winches, drives or friction than the
-            plant's (what its set values use, each named with both values); or the plant's
-            ``torque_limit / drum_radius`` is below the controller's lower force bound.
+            plant's (what its set values use, each named with both values); the plant's
+            ``torque_limit / drum_radius`` is below the controller's lower force bound; or
+            the controller's force bounds reach beyond the model file's.
     """
     ctrl = make_cdpr_controller(controller, model, **(controller_options or {}))
     if abs(trajectory.dt - ctrl.dt) > 1e-12 * ctrl.dt:
@@ -364,6 +385,7 @@ def check_cdpr_run(
     _check_cable_speeds(model, ctrl, controller, trajectory)
     _warn_other_winch(ctrl, controller, plant_config)
     _warn_weak_drives(ctrl, controller, plant_config)
+    _warn_bounds_beyond_the_robots(ctrl, controller, model)
     ctrl.reset()
     return ctrl
 
@@ -440,7 +462,11 @@ def run_cdpr(
     for k in range(n_samples):
         readings = plant.sense()
         command = ctrl.step(
-            trajectory.position[k], trajectory.velocity[k], trajectory.acceleration[k], readings
+            trajectory.position[k],
+            trajectory.velocity[k],
+            trajectory.acceleration[k],
+            readings,
+            R=trajectory.rotation,  # ignored before 2026-11-29: a turned pose ran at R = I
         )
         plant.command(command.l_set, command.v_ff, command.drive_mode)
         log["cable_length"][k] = readings.cable_length

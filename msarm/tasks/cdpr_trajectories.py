@@ -319,7 +319,8 @@ class CdprTrajectory:
         position: Platform position r in K_0 [m], shape (N, 3).
         velocity: dr/dt [m/s], shape (N, 3).
         acceleration: d^2r/dt^2 [m/s^2], shape (N, 3).
-        rotation: Platform rotation matrix (identity), shape (3, 3).
+        rotation: Platform rotation matrix, constant (the registry's paths: identity), shape
+            (3, 3).
         dt: Sample time [s].
         speed: Cruise speed [m/s].
         ramp_time: Duration of each speed ramp [s].
