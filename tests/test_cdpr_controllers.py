@@ -399,6 +399,16 @@ def test_nullspace_controller_keeps_pose_and_raises_low_forces(model):
     np.testing.assert_allclose(err[:3], [0.0, -6.0 - 4.0, 8.0])
 
 
+def test_nullspace_controller_refuses_inconsistent_force_levels(model):
+    """low_force = 50 > mean_force = 12 N was accepted: every cable would count as low."""
+    with pytest.raises(InputError, match=r"low_force <= mean_force <= f_max.*low_force=50, mean"):
+        make_cdpr_controller("nc", model, low_force=50.0, mean_force=12.0)
+    with pytest.raises(InputError, match=r"mean_force=40, f_max=35 N"):
+        make_cdpr_controller("nc", model, mean_force=40.0)
+    equal = make_cdpr_controller("nc", model, low_force=12.0, mean_force=12.0)
+    assert (equal.low_force, equal.mean_force) == (12.0, 12.0)
+
+
 # --------------------------------------------------------------------------- switching
 
 

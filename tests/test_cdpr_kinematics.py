@@ -1,9 +1,12 @@
 """CDPR geometry: inverse kinematics and structure matrix (paper 000, eq. 1-2)."""
 
+import doctest
+import warnings
+
 import numpy as np
 import pytest
 
-from msarm.cdpr import CableRobot
+from msarm.cdpr import CableRobot, kinematics
 from msarm.errors import InputError
 
 WIREX_LENGTH = 2.6148040079516472
@@ -104,11 +107,29 @@ def test_batch_matches_single_poses():
         (np.zeros((8, 2)), np.zeros((8, 3)), "frame_anchors"),
         (np.zeros((8, 3)), np.zeros((7, 3)), "same shape"),
         (np.full((8, 3), np.nan), np.zeros((8, 3)), "finite"),
+        # complex (only numpy's ComplexWarning before), numeric strings (accepted before),
+        # ragged rows (a bare numpy ValueError before)
+        (np.ones((8, 3)) + 1j, np.zeros((8, 3)), r"frame_anchors .*\(m, 3\) of real .*complex"),
+        (np.zeros((8, 3)), np.full((8, 3), "0.1"), r"platform_anchors .*real numbers.*strings"),
+        ([[0.0, 0.0, 1.0], [0.0, 1.0]], np.zeros((2, 3)), r"frame_anchors .*different lengths"),
+        (np.zeros((2, 3)), [[0.0, 0.0], [0.0, 1.0, 2.0]], r"platform_anchors .*\(m, 3\)"),
     ],
 )
 def test_bad_anchors(frame, platform, match):
-    with pytest.raises(InputError, match=match):
-        CableRobot(frame, platform)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an InputError, not a warning
+        with pytest.raises(InputError, match=match):
+            CableRobot(frame, platform)
+
+
+def test_the_class_example_runs_and_holds_the_rotation():
+    """The docstring's robot: A^T of rank 6 (the former 0.1 * corners platform had rank 3
+    everywhere, its cables all meeting in one point)."""
+    results = doctest.testmod(kinematics, extraglobs={"np": np})
+    assert results.attempted >= 5 and results.failed == 0
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (0, 2)])
+    old = CableRobot(corners, 0.1 * corners).structure_matrix(np.array([0.0, 0.0, 1.0]), np.eye(3))
+    assert np.linalg.matrix_rank(old) == 3
 
 
 def test_bad_poses():

@@ -494,3 +494,25 @@ def test_a_transposed_structure_matrix_is_named(model):
         is_wrench_feasible(At.T, w, model.f_min, model.f_max)
     with pytest.raises(InputError, match=r"f_min has 6 entries .* m = 8 columns"):
         is_wrench_feasible(At, w, model.f_min[:6], model.f_max)
+
+
+def test_feasibility_names_too_few_cables_and_a_wrench_of_the_wrong_size(model):
+    """A 4-cable robot got "M must have shape (N, n, m) with 1 <= n <= m, got (1, 6, 4)"; a
+    3-vector wrench an error blaming the structure matrix ("expected (n, m) with n = 3")."""
+    top = np.array([[-1.0, -1.0, 2.0], [1.0, -1.0, 2.0], [1.0, 1.0, 2.0], [-1.0, 1.0, 2.0]])
+    four = dataclasses.replace(
+        model,
+        robot=CableRobot(top, 0.1 * top * [1.0, 1.0, 0.0]),
+        cable_names=("c0", "c1", "c2", "c3"),
+        f_min=np.full(4, 5.0),
+        f_max=np.full(4, 35.0),
+    )
+    r = np.array([0.0, 0.0, 1.0])
+    with pytest.raises(InputError, match=r"needs at least 6 cables .* it has 4"):
+        four.is_feasible(r, np.eye(3))
+    with pytest.raises(InputError, match=r"needs at least 6 cables .* it has 4"):
+        four.first_infeasible(r[None, :])
+    centre = model.workspace_center
+    with pytest.raises(InputError, match=r"wrench must have shape \(6,\) or \(k, 6\) .*got \(3,\)"):
+        model.is_feasible(centre, np.eye(3), [0.0, 0.0, -2.45])
+    assert model.is_feasible(centre, np.eye(3), model.platform_wrench(centre, np.eye(3)))

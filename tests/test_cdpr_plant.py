@@ -421,6 +421,22 @@ def test_bad_input_is_refused(cdpr):
         CdprPlantConfig(timestep=0.002)
 
 
+def test_a_plant_timestep_below_the_documented_minimum_is_refused(tmp_path):
+    """1e-9 s (a million plant steps a 1 ms cycle) was accepted from a plant file."""
+    from msarm.errors import ConfigError
+    from msarm.io.config import load_config
+    from msarm.plant.cdpr_config import MAX_TIMESTEP, MIN_TIMESTEP
+
+    assert (MIN_TIMESTEP, MAX_TIMESTEP) == (1e-5, 1e-3)
+    path = tmp_path / "fine.yaml"
+    path.write_text("timestep: 1.0e-9\n")
+    with pytest.raises(ConfigError, match=r"timestep must be in \[1e-05, 0.001\] s .*got 1e-09"):
+        load_config(path, CdprPlantConfig)
+    assert CdprPlantConfig(timestep=MIN_TIMESTEP).timestep == 1e-5  # the bound itself is fine
+    with pytest.raises(ValueError, match="timestep"):
+        CdprPlantConfig(timestep=0.99 * MIN_TIMESTEP)
+
+
 def test_a_nan_platform_speed_stops_the_run_though_mujoco_resets_its_state(cdpr):
     """MuJoCo resets a bad state silently (time included); the plant stops, naming it."""
     from msarm.plant.arm_plant import SimulationDivergedError

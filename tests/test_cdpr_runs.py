@@ -495,6 +495,38 @@ def test_the_forces_plot_names_controller_and_trajectory_once(robot, triangle):
     assert "default plant, seed 0, no options (" in forces_title(run, "test 21", "default", 0, {})
 
 
+def test_the_forces_plot_fits_any_cable_count_and_every_peak(tmp_path, monkeypatch):
+    """A 9-cable run crashed the fixed 2 x 4 grid (zip strict); a 129 N peak was cut off by
+    the fixed 0-40 N axis."""
+    from types import SimpleNamespace
+
+    from msarm.tasks.cdpr_compare import plot_forces
+    from msarm.tasks.cdpr_runner import CdprMetrics, CdprRun
+
+    figures = _saved_figures(monkeypatch)
+    names = [f"cable_{i}" for i in range(9)]
+    t = np.arange(0.0, 0.2, 1e-3)
+    flat = np.full(len(t), 12.0)
+    columns = {"t": t, **{f"f_desired.{n}": flat for n in names}}
+    columns.update({f"h.{n}": np.zeros(len(t)) for n in names})
+    truth = {"t": t, **{f"tension.{n}": flat.copy() for n in names}}
+    truth["tension.cable_8"][100] = 129.0
+    run = CdprRun(
+        "nc", "made-up", columns, truth, CdprMetrics(1.0, 0.1, 99.0, 12.0, 129.0, 0.1, True)
+    )
+    model = SimpleNamespace(
+        n_cables=9, cable_names=tuple(names), f_min=np.full(9, 5.0), f_max=np.full(9, 35.0)
+    )
+    plot_forces(run, model, tmp_path / "forces.png")
+    (fig,) = figures
+    assert len(fig.axes) == 9  # 4 + 4 + 1, the empty places removed
+    bottom, top = fig.axes[0].get_ylim()
+    assert bottom == 0.0 and top > 129.0
+    assert all(ax.get_ylim() == (bottom, top) for ax in fig.axes)  # one shared axis
+    assert len(fig.axes[8].get_lines()) == 4  # force, desired and both bounds
+    assert fig.axes[8].get_xlabel() == "time [s]" and fig.axes[7].get_xlabel() == "time [s]"
+
+
 def _saved_figures(monkeypatch) -> list:
     """The figures ``msarm.plots.save_figure`` writes from now on (still written)."""
     import msarm.plots

@@ -203,12 +203,13 @@ def test_map_sigma_below_the_error_bound_counts_only_the_position_controlled_cab
 def test_map_margin_is_the_worst_corner_distance_to_either_bound():
     """margin = min over the error-box corners of the distance of every tension to its bounds.
 
-    A negative lower bound (the allocation's arithmetic allows it) keeps the minimum-norm
-    tensions far from f_min, so at some poses the upper bound is the one that binds."""
+    The minimum-norm tensions sit on f_min = 0 N at every feasible pose here, but at the
+    grid's edge the largest reach 119.1 N, within the error of f_max = 120 N, so there the
+    upper bound is the one that binds."""
     robot = _box_robot()
     w = np.array([0.0, 0.0, -2.0 * 9.81, 0.0, 0.0, 0.0])
     x, y, z = [-0.6, -0.2, 0.2, 0.6], [-0.4, 0.0, 0.4], [0.6, 1.0, 1.4]
-    lo, hi = -20.0, 20.0
+    lo, hi = 0.0, 120.0
     m = sensitivity_map(robot, (0, 3), x, y, z, wrench=w, f_min=lo, f_max=hi)
     At = robot.structure_matrix(m.positions.reshape(-1, 3), np.eye(3))
     forces, feasible, margin = m.forces.reshape(-1, 8), m.feasible.ravel(), m.margin.ravel()
@@ -228,6 +229,22 @@ def test_map_margin_is_the_worst_corner_distance_to_either_bound():
     t = float(m.sigma.ravel()[k])
     assert not m.acceptable(t).ravel()[k]
     assert m.acceptable(float(np.nextafter(t, np.inf))).ravel()[k]
+
+
+def test_sensitivity_map_refuses_pushing_cables_and_bounds_of_another_length():
+    """Bounds are checked as CableRobotModel's: f_min = -5 N gave a feasible map with forces
+    down to -1.3 N (cables pushing), bounds of 3 entries a bare numpy broadcast error."""
+    robot = _box_robot()
+    kwargs = {"wrench": np.array([0.0, 0.0, -2.0 * 9.81, 0.0, 0.0, 0.0])}
+    grid = ([0.0], [0.0], [1.0])
+    with pytest.raises(InputError, match=r"f_min must be finite and >= 0 N .*got -5"):
+        sensitivity_map(robot, (0, 3), *grid, f_min=-5.0, f_max=35.0, **kwargs)
+    with pytest.raises(InputError, match=r"f_max must be a number or of shape \(8,\) \[N\]"):
+        sensitivity_map(robot, (0, 3), *grid, f_min=5.0, f_max=np.full(3, 35.0), **kwargs)
+    with pytest.raises(InputError, match=r"f_min must be <= f_max, got f_min = 40.0"):
+        sensitivity_map(robot, (0, 3), *grid, f_min=40.0, f_max=35.0, **kwargs)
+    ok = sensitivity_map(robot, (0, 3), *grid, f_min=np.full(8, 5.0), f_max=35.0, **kwargs)
+    assert ok.forces.min() >= 5.0 - 1e-9
 
 
 def test_sensitivity_refuses_fractional_indices_and_pair_table_refuses_a_batch():
@@ -313,6 +330,36 @@ def test_forward_kinematics_from_a_far_start_needs_the_step_halving():
     result = forward_kinematics(robot, lengths, r0=np.array([-1.5, 1.2, 1.8]))
     assert np.abs(result.r - r).max() < 1e-9
     assert np.abs(rotation_vector(result.R)).max() < 1e-9
+
+
+def test_forward_kinematics_refuses_lengths_that_do_not_determine_the_pose():
+    """Where the length Jacobian A has rank < 6 the least-squares steps are minimum-norm ones
+    and ended at an arbitrary pose with a zero residual: 4 cables gave r off by 2 mm and a
+    rotation of 0.0017 rad; 8 cables on one platform point leave the rotation free."""
+    top = np.array([[-1.0, -1.0, 2.0], [1.0, -1.0, 2.0], [1.0, 1.0, 2.0], [-1.0, 1.0, 2.0]])
+    four = CableRobot(top, 0.1 * top * [1.0, 1.0, 0.0])
+    r = np.array([0.2, 0.1, 1.0])
+    with pytest.raises(
+        ForwardKinematicsError, match=r"4 cables do not determine .* rank at most 4"
+    ):
+        forward_kinematics(four, four.cable_lengths(r, np.eye(3)), r0=[0.2, 0.1, 0.9])
+    point = CableRobot(_box_robot().frame_anchors, np.zeros((8, 3)))
+    lengths = point.cable_lengths(np.array([0.1, 0.0, 1.0]), np.eye(3))
+    with pytest.raises(ForwardKinematicsError, match=r"do not determine the pose .*rank 3 < 6"):
+        forward_kinematics(point, lengths)
+    # the same frame with a real platform: rank 6, the pose is found
+    robot = _box_robot()
+    result = forward_kinematics(robot, robot.cable_lengths(np.array([0.1, 0.0, 1.0]), np.eye(3)))
+    np.testing.assert_allclose(result.r, [0.1, 0.0, 1.0], atol=1e-12)
+
+
+def test_forward_kinematics_of_unreachable_lengths_says_they_may_be():
+    """Lengths no pose has (all 100 times too short) do not converge; the message names that
+    cause beside a far start."""
+    robot = _box_robot()
+    lengths = 0.01 * robot.cable_lengths(np.array([0.2, 0.1, 1.0]), np.eye(3))
+    with pytest.raises(ForwardKinematicsError, match="may be unreachable or inconsistent"):
+        forward_kinematics(robot, lengths)
 
 
 # --- force estimation (eq. 3) ---------------------------------------------------------------

@@ -46,6 +46,7 @@ __all__ = [
     "check_bound_order",
     "check_tick",
     "snap_to_bounds",
+    "tension_bounds",
     "validate_batch",
     "validate_tick",
 ]
@@ -359,6 +360,38 @@ def check_bound_order(f_min: FloatArray, f_max: FloatArray) -> None:
             f"f_min must be <= f_max, got f_min = {f_min[idx]} > f_max = {f_max[idx]} N at "
             f"index {_where(bad)}"
         )
+
+
+def tension_bounds(
+    f_min: float | ArrayLike, f_max: float | ArrayLike, m: int
+) -> tuple[FloatArray, FloatArray]:
+    """Validated force bounds of ``m`` cables, which only pull [N], shape (m,) each.
+
+    Args:
+        f_min: Lower force bound [N], a number or shape (m,), finite and >= 0.
+        f_max: Upper force bound [N], a number or shape (m,), finite and >= f_min.
+        m: Number of cables.
+
+    Returns:
+        ``(f_min, f_max)`` as new float64 arrays of shape (m,).
+
+    Raises:
+        InputError: Naming the bound: not a number or of another length than m, not finite
+            or negative (a cable cannot push), or f_min > f_max (the first index named).
+    """
+    out = []
+    for name, value in (("f_min", f_min), ("f_max", f_max)):
+        try:
+            arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (m,))
+        except (TypeError, ValueError):
+            raise InputError(
+                f"{name} must be a number or of shape ({m},) [N], got {value!r}"
+            ) from None
+        if not np.isfinite(arr).all() or np.any(arr < 0.0):
+            raise InputError(f"{name} must be finite and >= 0 N (cables only pull), got {value!r}")
+        out.append(arr.astype(np.float64))
+    check_bound_order(out[0], out[1])
+    return out[0], out[1]
 
 
 def check_tick(

@@ -11,6 +11,13 @@ with respect to them is ``-A`` (``A^T`` is ``CableRobot.structure_matrix``: a pl
 ``A (dr, dtheta) = e`` in the least-squares sense and is halved while it does not lower
 ``||e||``. For consistent lengths the iteration converges quadratically.
 
+The lengths determine the pose only where ``A`` (m x 6) has rank 6: at least six cables
+whose lines are independent there. Where it has not (fewer than six cables, or a degenerate
+geometry such as all platform anchors at one point, which leaves the rotation free), the
+least-squares steps are minimum-norm ones and would end at an arbitrary pose with a zero
+residual; :func:`forward_kinematics` refuses such a pose instead. ``A``'s rank counts its
+singular values above :data:`RANK_RTOL` times the largest.
+
 Platform wrench: the external wrench ``w`` of ``A^T f + w = 0`` produced by the platform's
 own weight and inertia (Newton-Euler), force [N] and moment about the platform reference
 point r [N m], both in K_0.
@@ -29,6 +36,7 @@ from msarm.errors import InputError, MsarmError
 FloatArray = NDArray[np.float64]
 
 __all__ = [
+    "RANK_RTOL",
     "STANDARD_GRAVITY",
     "ForwardKinematicsError",
     "ForwardKinematicsResult",
@@ -44,10 +52,16 @@ __all__ = [
 #: Gravity vector in K_0 [m/s^2] (z up), the default of MuJoCo and Pinocchio.
 STANDARD_GRAVITY = np.array([0.0, 0.0, -9.81])
 _MAX_HALVINGS = 30
+#: Singular values of the length Jacobian A below this times its largest count as zero in
+#: its rank [-]: there a length error of 1e-12 m would move the pose by about 1e-3 (m or rad).
+RANK_RTOL = 1e-9
 
 
 class ForwardKinematicsError(MsarmError, RuntimeError):
-    """Forward kinematics did not converge (iterations, step and residual in the message)."""
+    """Forward kinematics failed: no convergence, or lengths that do not determine the pose.
+
+    The message names the iterations, step and residual, or the rank of the length Jacobian.
+    """
 
 
 @dataclass(frozen=True)
@@ -253,7 +267,10 @@ def forward_kinematics(
         InputError: On wrong shapes, NaN or infinite values, non-positive lengths, an invalid
             start pose, ``tol <= 0`` or ``max_iter < 1``.
         ForwardKinematicsError: When the iteration does not converge within ``max_iter``
-            steps, stalls (no step length lowers the residual), or runs into a singular pose.
+            steps, stalls (no step length lowers the residual), or runs into a singular pose;
+            when the robot has fewer than 6 cables, or the length Jacobian ``A`` has rank
+            below 6 at the pose found (singular values below :data:`RANK_RTOL` times the
+            largest count as zero): the lengths do not determine the pose there.
     """
     l_meas = np.asarray(lengths, dtype=np.float64)
     m = robot.n_cables
@@ -269,6 +286,11 @@ def forward_kinematics(
         raise InputError(f"max_iter must be an integer >= 1, got {max_iter}")
     r = robot.frame_anchors.mean(axis=0) if r0 is None else _vector(r0, "r0", "m")
     R = np.eye(3) if R0 is None else _rotation(R0, "R0")
+    if m < 6:
+        raise ForwardKinematicsError(
+            f"forward kinematics: the lengths of {m} cables do not determine the 6-DOF pose "
+            f"(the length Jacobian has rank at most {m}); it needs at least 6 independent cables"
+        )
 
     def residual(r_: FloatArray, R_: FloatArray) -> tuple[FloatArray, FloatArray]:
         try:
@@ -292,7 +314,8 @@ def forward_kinematics(
         step_norm = float(np.abs(delta).max())
         if step_norm <= tol:
             r, R = r + delta[:3], rotation_matrix(delta[3:]) @ R
-            e, _ = residual(r, R)
+            e, A = residual(r, R)
+            _check_rank(A, r)
             return ForwardKinematicsResult(r, R, iteration, float(np.abs(e).max()))
         t = 1.0
         for _ in range(_MAX_HALVINGS):
@@ -306,14 +329,31 @@ def forward_kinematics(
             raise ForwardKinematicsError(
                 f"forward kinematics stalled at iteration {iteration}: no step along the "
                 f"Newton direction (|step| = {step_norm:.3g}) lowers the length residual "
-                f"{np.sqrt(cost):.3g} m at r={r}; the lengths may be inconsistent"
+                f"{np.sqrt(cost):.3g} m at r={r}; the lengths may be unreachable or inconsistent"
             )
         r, R, e, A, cost = r_try, R_try, e_try, A_try, cost_try
     raise ForwardKinematicsError(
         f"forward kinematics did not converge in {max_iter} iterations: last step "
         f"{step_norm:.3g} (tol {tol:.3g}), largest length residual {np.abs(e).max():.3g} m at "
-        f"r={r}; start closer to the pose (r0, R0) or raise max_iter"
+        f"r={r}; start closer to the pose (r0, R0) or raise max_iter, or the lengths may be "
+        "unreachable or inconsistent (no pose has them)"
     )
+
+
+def _check_rank(A: FloatArray, r: FloatArray) -> None:
+    """Refuse a pose where the length Jacobian A (m, 6) has rank below 6 (see RANK_RTOL)."""
+    s = np.linalg.svd(A, compute_uv=False)
+    rank = int(np.count_nonzero(s > RANK_RTOL * s[0]))
+    if rank < 6:
+        raise ForwardKinematicsError(
+            "forward kinematics: the cable lengths do not determine the pose at "
+            f"r={np.array2string(r, precision=4, suppress_small=True)}: the length Jacobian "
+            f"has rank {rank} < 6 "
+            f"(singular values {np.array2string(s, precision=3)}; below {RANK_RTOL:g} times "
+            "the largest count as zero), so fewer than 6 cables are independent there: a "
+            "degenerate geometry (e.g. all platform anchors at one point leave the rotation "
+            "free)"
+        )
 
 
 def _broadcast_vectors(name: str, value: ArrayLike | None, unit: str) -> FloatArray:

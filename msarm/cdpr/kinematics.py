@@ -22,6 +22,7 @@ carry a leading axis of length ``N``.
 from __future__ import annotations
 
 import math
+import reprlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,8 +52,22 @@ class CableKinematics:
     platform_anchors_world: FloatArray
 
 
+_KINDS = {"b": "booleans", "c": "complex numbers", "U": "strings", "S": "bytes", "O": "objects"}
+
+
 def _anchor_array(value: ArrayLike, name: str) -> FloatArray:
-    array = np.array(value, dtype=np.float64)
+    """A read-only float copy of anchors; raise InputError unless (m, 3) real finite numbers."""
+    expected = f"{name} must be an array of shape (m, 3) of real numbers [m]"
+    try:
+        raw = np.asarray(value)
+    except ValueError:  # numpy refuses ragged nested sequences
+        raise InputError(
+            f"{expected}, got rows of different lengths: {reprlib.repr(value)}"
+        ) from None
+    if raw.dtype.kind not in "iuf":
+        kind = _KINDS.get(raw.dtype.kind, f"{raw.dtype} values")
+        raise InputError(f"{expected}, got {kind} of shape {raw.shape}")
+    array = np.array(raw, dtype=np.float64)
     if array.ndim != 2 or array.shape[1] != 3 or array.shape[0] < 1:
         raise InputError(f"{name} must have shape (m, 3) [m], got {array.shape}")
     if not np.all(np.isfinite(array)):
@@ -101,13 +116,20 @@ class CableRobot:
             shape (m, 3), in the same cable order.
 
     Raises:
-        InputError: If the anchors have the wrong shape, differ in count or are not finite.
+        InputError: If the anchors have the wrong shape (ragged rows included), differ in
+            count, are not finite or not real numbers (complex, boolean, strings).
 
     Example:
+        A 2 m cube of frame anchors and a 0.2 m cube of platform anchors turned 90 degrees
+        about z (a scaled copy of the frame, such as ``0.1 * corners``, would make all
+        cables meet in one point at every pose: A^T of rank 3, the rotation not held):
+
         >>> corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (0, 2)])
-        >>> robot = CableRobot(corners, 0.1 * corners)  # frame and platform anchors [m]
-        >>> robot.structure_matrix(np.array([0.0, 0.0, 1.0]), np.eye(3)).shape  # A^T, (6, m)
-        (6, 8)
+        >>> plate = 0.1 * np.column_stack([-corners[:, 1], corners[:, 0], corners[:, 2] - 1])
+        >>> robot = CableRobot(corners, plate)  # frame and platform anchors [m]
+        >>> At = robot.structure_matrix(np.array([0.0, 0.0, 1.0]), np.eye(3))  # A^T, (6, m)
+        >>> At.shape, int(np.linalg.matrix_rank(At))
+        ((6, 8), 6)
     """
 
     def __init__(self, frame_anchors: ArrayLike, platform_anchors: ArrayLike) -> None:

@@ -42,7 +42,7 @@ import numpy as np
 import pinocchio
 from numpy.typing import ArrayLike, NDArray
 
-from msarm.allocation.problem import check_bound_order
+from msarm.allocation.problem import tension_bounds
 from msarm.allocation.workspace import feasibility_batch, is_wrench_feasible
 from msarm.cdpr.forward_kinematics import (
     ForwardKinematicsResult,
@@ -362,11 +362,30 @@ class CableRobotModel:
             True when forces within [f_min, f_max] meet ``A^T f + w = 0`` for every wrench.
 
         Raises:
-            InputError: On an invalid pose or wrench.
+            InputError: On an invalid pose or wrench, or a robot of fewer than 6 cables.
         """
-        w = self.platform_wrench(r, R) if wrench is None else wrench
+        self._check_cable_count()
+        if wrench is None:
+            w = self.platform_wrench(r, R)
+        else:
+            w = np.asarray(wrench, dtype=np.float64)
+            if w.ndim not in (1, 2) or w.shape[-1] != 6 or w.size == 0:
+                raise InputError(
+                    f"wrench must have shape (6,) or (k, 6) [N, N m] (force, moment about r), "
+                    f"got {w.shape}"
+                )
         At = self.robot.structure_matrix(r, R)
         return is_wrench_feasible(At, w, self.f_min, self.f_max, tol=tol)
+
+    def _check_cable_count(self) -> None:
+        """Refuse wrench feasibility for a robot of fewer cables than the platform's 6 DOF."""
+        if self.n_cables < 6:
+            raise InputError(
+                f"wrench feasibility of {self.name} needs at least 6 cables for the 6-DOF "
+                f"platform, it has {self.n_cables}: with fewer, A^T f + w = 0 has more "
+                "equations than forces and holds only particular wrenches (an "
+                "under-constrained robot), which msarm's feasibility test does not cover"
+            )
 
     def feasible_poses(
         self,
@@ -396,8 +415,10 @@ class CableRobotModel:
             Shape (N,) bool.
 
         Raises:
-            InputError: On invalid poses or wrenches.
+            InputError: On invalid poses, wrenches or bounds, or a robot of fewer than 6
+                cables.
         """
+        self._check_cable_count()
         r = np.asarray(positions, dtype=np.float64)
         if r.ndim != 2 or r.shape[1] != 3 or r.shape[0] < 1:
             raise InputError(f"positions must have shape (N, 3) [m], got {r.shape}")
@@ -420,23 +441,16 @@ class CableRobotModel:
     def _bounds(
         self, f_min: float | ArrayLike | None, f_max: float | ArrayLike | None
     ) -> tuple[FloatArray, FloatArray]:
-        """The force bounds [N], shape (m,) each: the file's where None."""
-        out = []
-        for name, value, default in (("f_min", f_min, self.f_min), ("f_max", f_max, self.f_max)):
-            if value is None:
-                out.append(np.asarray(default, dtype=np.float64))
-                continue
-            try:
-                arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (self.n_cables,))
-            except (TypeError, ValueError):
-                raise InputError(
-                    f"{name} must be a number or of shape ({self.n_cables},) [N], got {value!r}"
-                ) from None
-            if not np.isfinite(arr).all() or np.any(arr < 0.0):
-                raise InputError(f"{name} must be finite and >= 0 N, got {value!r}")
-            out.append(arr.astype(np.float64))
-        check_bound_order(out[0], out[1])
-        return out[0], out[1]
+        """The force bounds [N], shape (m,) each: the file's where None.
+
+        Raises:
+            InputError: As :func:`msarm.allocation.problem.tension_bounds`.
+        """
+        return tension_bounds(
+            self.f_min if f_min is None else f_min,
+            self.f_max if f_max is None else f_max,
+            self.n_cables,
+        )
 
     def first_infeasible(
         self,

@@ -289,8 +289,8 @@ def sensitivity_map(
         y: Grid y coordinates [m], shape (ny,).
         z: Grid z coordinates [m], shape (nz,).
         wrench: External wrench on the platform (e.g. its weight) [N, N m], shape (6,), K_0.
-        f_min: Lower cable force bounds [N], shape (m,) or scalar.
-        f_max: Upper cable force bounds [N], shape (m,) or scalar.
+        f_min: Lower cable force bounds [N], shape (m,) or scalar, >= 0 (cables only pull).
+        f_max: Upper cable force bounds [N], shape (m,) or scalar, >= f_min.
         rotation: Platform rotation, shape (3, 3); identity (paper 000's R = I_3) if None.
         error: Bound e on each force-controlled tension's error [N], > 0.
         solver: Allocation solver name for the minimum-2-norm distribution (an exact one).
@@ -299,12 +299,15 @@ def sensitivity_map(
         The map; see :class:`SensitivityMap`.
 
     Raises:
-        InputError: On invalid axes, pose, wrench, bounds, cable set or error bound.
+        InputError: On invalid axes, pose, wrench, bounds (as
+            :func:`msarm.allocation.problem.tension_bounds`: not of shape (m,) or a number,
+            not finite, negative, or f_min > f_max), cable set or error bound.
     """
     # Imported here, not at module level: msarm.allocation imports msarm.cdpr.kinematics, so a
     # top-level import would make ``msarm.cdpr`` and ``msarm.allocation`` import each other
     # once the package exports this module.
     from msarm.allocation import make_allocator
+    from msarm.allocation.problem import tension_bounds
 
     axes = [_axis(v, n) for n, v in (("x", x), ("y", y), ("z", z))]
     R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
@@ -314,14 +317,13 @@ def sensitivity_map(
     e = _error(error)
     m = robot.n_cables
     c, _ = _split(force_controlled, m)
+    lo, hi = tension_bounds(f_min, f_max, m)
     shape = tuple(a.size for a in axes)
     positions = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     At = robot.structure_matrix(positions, R)  # (N, 6, m)
     s = cable_sensitivities(At, c, e)  # (N, m)
     allocator = make_allocator(m, N_DOF, solver=solver)
     count = positions.shape[0]
-    lo = np.broadcast_to(np.asarray(f_min, dtype=np.float64), (m,))
-    hi = np.broadcast_to(np.asarray(f_max, dtype=np.float64), (m,))
     if hasattr(allocator, "solve_batch"):
         result = allocator.solve_batch(At, np.broadcast_to(-w, (count, N_DOF)), lo, hi)
         forces, feasible = result.f, np.asarray(result.feasible, dtype=bool)

@@ -1163,8 +1163,8 @@ class NullspaceController(CdprController):
     Args:
         robot: Cable geometry (m > 6).
         platform: Platform mass properties (only for the reported desired forces).
-        mean_force: f_bar [N] (12 N).
-        low_force: f'_min [N] (7 N).
+        mean_force: f_bar [N] (12 N), at most ``f_max``.
+        low_force: f'_min [N] (7 N), at most ``mean_force``.
         low_weight: k_low, extra weight of the error below ``low_force`` [-], >= 0.
         k_i: Integral gain [m/(N s)], >= 0 (default 4.3e-3, K_HL / T_i of HC-f's Table 2).
         k_p: Proportional gain [m/N], >= 0 (default 0).
@@ -1172,6 +1172,11 @@ class NullspaceController(CdprController):
         delta_l_limit: Bound on max |dl| [m]; None: no bound.
         **options: ``winch``, ``f_min``, ``f_max``, ``dt``, ``solver`` of
             :class:`CdprController`.
+
+    Raises:
+        InputError: As :class:`CdprController`; with 6 cables or fewer; a negative or
+            non-finite level, weight or gain; ``low_force > mean_force`` or
+            ``mean_force > f_max``; a ``delta_l_limit`` that is not > 0.
     """
 
     name: ClassVar[str] = "nc"
@@ -1203,6 +1208,13 @@ class NullspaceController(CdprController):
         for key, value in values.items():
             if not (math.isfinite(value) and value >= 0.0):
                 raise InputError(f"NC {key} must be finite and >= 0, got {value}")
+        if not low_force <= mean_force <= self.f_max:
+            raise InputError(
+                f"NC force levels must meet low_force <= mean_force <= f_max: the cables are "
+                f"kept near mean_force and pulled up harder below low_force, within the "
+                f"distribution's upper bound; got low_force={low_force:g}, "
+                f"mean_force={mean_force:g}, f_max={self.f_max:g} N"
+            )
         if delta_l_limit is not None and not (math.isfinite(delta_l_limit) and delta_l_limit > 0.0):
             raise InputError(
                 f"delta_l_limit must be finite and > 0 m (or None), got {delta_l_limit}"

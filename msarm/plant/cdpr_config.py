@@ -61,6 +61,8 @@ __all__ = [
     "DEFAULT_CDPR_PLANT",
     "DRIVE_MODES",
     "IDEAL_CDPR_PLANT",
+    "MAX_TIMESTEP",
+    "MIN_TIMESTEP",
     "CableConfig",
     "CdprFrictionConfig",
     "CdprNoiseConfig",
@@ -74,6 +76,12 @@ __all__ = [
 ]
 
 DriveMode = Literal["pi", "p"]
+#: Coarsest plant time step [s]: the PLC cycle of paper 000 (1 ms); the plant steps
+#: ``1 ms / timestep`` times a control cycle, so a step must divide it (checked by the run).
+MAX_TIMESTEP = 0.001
+#: Finest plant time step [s]: 100 plant steps a 1 ms cycle. A finer one (e.g. 1e-9 s, a
+#: million steps a cycle, 1e10 for a 10 s trajectory) would make a run practically endless.
+MIN_TIMESTEP = 1.0e-5
 #: The velocity-loop modes of a drive: PI (default) or pure P (HC-e, paper 000 Sec. 3).
 DRIVE_MODES: tuple[str, ...] = ("pi", "p")
 
@@ -270,7 +278,9 @@ class CdprPlantConfig:
 
     Attributes:
         name: Name of the plant (logged).
-        timestep: Plant, PLC and MuJoCo time step [s] (paper 000: 1 ms).
+        timestep: Plant, PLC and MuJoCo time step [s] (paper 000: 1 ms), in
+            [:data:`MIN_TIMESTEP`, :data:`MAX_TIMESTEP`] = [1e-5, 1e-3] s; a run also needs it
+            to divide the controller's 1 ms cycle.
         winch: Winches.
         drive: PLC position loop and drive velocity loop.
         cable: Cable elasticity.
@@ -291,8 +301,12 @@ class CdprPlantConfig:
     def __post_init__(self) -> None:
         check_field_types(self)
         check_numbers(self, positive=("timestep",))
-        if not self.timestep <= 0.001:
-            raise ValueError(f"timestep must be in (0, 0.001] s, got {self.timestep}")
+        if not MIN_TIMESTEP <= self.timestep <= MAX_TIMESTEP:
+            raise ValueError(
+                f"timestep must be in [{MIN_TIMESTEP:g}, {MAX_TIMESTEP:g}] s (1 to "
+                f"{round(MAX_TIMESTEP / MIN_TIMESTEP)} plant steps a 1 ms control cycle), got "
+                f"{self.timestep:g}"
+            )
         check_plant_name(self.name)
 
 

@@ -331,6 +331,9 @@ def plot_forces(
 ) -> Path:
     """Cable forces over time (as paper 000 Fig. 10, 11 and 13), bounds drawn.
 
+    One plot per cable, four to a row; the shared force axis runs from 0 N (or the lowest
+    force) to above the largest force and bound, so no peak is cut off.
+
     Solid: the platform-side forces the simulation computes (its ground truth, not a sensor
     reading); dashed: the force distribution's desired forces; shaded: while the cable is
     force controlled.
@@ -349,8 +352,22 @@ def plot_forces(
         The path written.
     """
     t = run.columns["t"]
-    fig, axes = plt.subplots(2, 4, figsize=(15, 6), sharex=True, sharey=True, layout="constrained")
-    for i, (ax, name) in enumerate(zip(axes.flat, model.cable_names, strict=True)):
+    m = model.n_cables
+    cols = min(4, m)
+    rows = -(-m // cols)
+    fig, grid = plt.subplots(
+        rows,
+        cols,
+        figsize=(15, 3 * rows),
+        sharex=True,
+        sharey=True,
+        squeeze=False,
+        layout="constrained",
+    )
+    axes = grid.flat[:m]
+    for ax in grid.flat[m:]:  # the last row's empty places
+        ax.remove()
+    for i, (ax, name) in enumerate(zip(axes, model.cable_names, strict=True)):
         ax.plot(t, run.truth[f"tension.{name}"], lw=1.0, label="true force (simulation)")
         ax.plot(t, run.columns[f"f_desired.{name}"], "k--", lw=0.8, label="desired")
         ax.axhline(float(model.f_min[i]), color="tab:red", ls=":", lw=0.8)
@@ -367,11 +384,18 @@ def plot_forces(
                 transform=ax.get_xaxis_transform(),
             )
         ax.set_title(f"{name} (paper: cable {i + 1})", fontsize=9)
-        ax.set_ylim(0, 40)
-    axes[0, 0].legend(fontsize=7)
-    for ax in axes[1]:
-        ax.set_xlabel("time [s]")
-    for ax in axes[:, 0]:
+        if i + cols >= m:  # no plot below it: its time axis is the column's
+            ax.xaxis.set_tick_params(labelbottom=True)
+            ax.set_xlabel("time [s]")
+    # From 0 N (or the lowest force) to above the largest force and bound: no peak is cut.
+    drawn = [run.truth[f"tension.{n}"] for n in model.cable_names]
+    drawn += [run.columns[f"f_desired.{n}"] for n in model.cable_names]
+    values = np.concatenate([np.ravel(v) for v in drawn] + [model.f_min, model.f_max])
+    values = values[np.isfinite(values)]
+    low, high = min(0.0, float(values.min())), float(values.max())
+    axes[0].set_ylim(low, high + 0.1 * (high - low))
+    axes[0].legend(fontsize=7)
+    for ax in grid[:, 0]:
         ax.set_ylabel("N")
     fig.suptitle(forces_title(run, title, plant, seed, options))
     return plots.save_figure(fig, path)
