@@ -557,8 +557,8 @@ def fit(
         The fitted :class:`FitResult`.
 
     Raises:
-        InputError: Wrong shapes, non-finite values, or fewer training samples than
-            parameters.
+        InputError: Wrong shapes, non-finite values, or fewer training residual values
+            (samples times the term's width, its channels) than parameters.
     """
     residual = _check_residual(signals, residual, effect)
     mask = _check_mask(signals, train_mask, "train_mask")
@@ -566,7 +566,9 @@ def fit(
     n_train = int(mask.sum())
     if n_train * effect.width(signals) < effect.n_parameters:
         raise InputError(
-            f"train_mask: {n_train} samples for {effect.n_parameters} parameters of {effect.name}"
+            f"train_mask: {n_train} samples of {effect.width(signals)} channel(s) give "
+            f"{n_train * effect.width(signals)} residual values for {effect.n_parameters} "
+            f"parameters of {effect.name}; expected at least as many values as parameters"
         )
     r = residual[mask]
     if effect.linear:  # the design on the whole runs (terms with memory), then the samples

@@ -106,7 +106,7 @@ class PhaseSettings:
         reversal_speed: A joint reverses when its velocity passes from above this to below
             its negative (or back) [rad/s], straight through or after a stop.
         reversal_window: Half width of the window in which a reversal counts [s] (see
-            :func:`motion_phases`).
+            :func:`motion_phases`), rounded to whole samples (at least one).
         reversal_pause: Longest stop between the two ways that still makes a reversal [s]
             (a reach-and-hold task's joint goes out and back through a hold).
         acceleration: Joint acceleration from which a sample is in the acceleration phase
