@@ -273,7 +273,7 @@ def test_results_of_other_settings_are_replaced_with_a_warning(fake_bench, tmp_p
     other = replace(BenchSettings(), n_boot=3)
     with pytest.warns(
         BenchCacheWarning,
-        match=r"results\.json: holds the results of other settings \(n_boot differ\); this "
+        match=r"results\.json: holds the results of other settings \(n_boot differs\); this "
         "run's results replace them",
     ):
         run_diagnosis_benchmark(model, tmp_path, other)

@@ -9,7 +9,9 @@ Modules:
   and leaves them out as a dropout, with a warning; ``log_check`` says what the diagnosis
   can make of a log before it runs (``msarm log check``).
 - ``where``: the residual energy broken down by channel, phase of motion, load and region of
-  posture, as a ranked table and a heat map.
+  posture, as a ranked table and a heat map; ``noise_floor`` estimates the sensors' white
+  noise from a log and the joint-torque residual it alone makes, which the breakdown takes
+  off before it names hot spots.
 - ``signals``, ``effects``, ``cable_effects``, ``fitting``: the library of candidate effects
   (joint friction: Coulomb, viscous, Stribeck, Dahl; capstan sheath friction; mass error
   through Pinocchio's regressor; load-cell bias and scale; winch friction, motor cogging and

@@ -200,6 +200,9 @@ class Residuals:
         jacobian: Nominal cable Jacobians ``J_c(q)`` [m/rad], shape ``(T, m, n)``; likewise.
         wrap: Wrap angles ``Theta(q)`` of the cables' paths [rad], shape ``(T, m)``;
             likewise.
+        target: The filter the residuals were made with (``ResidualSpec.target``), for the
+            noise floor (:mod:`msarm.diagnose.noise_floor`); None: the default
+            :class:`~msarm.compensation.target.TargetSpec`.
     """
 
     source: str
@@ -223,6 +226,7 @@ class Residuals:
     lengths: FloatArray | None = None
     jacobian: FloatArray | None = None
     wrap: FloatArray | None = None
+    target: TargetSpec | None = None
 
     def __len__(self) -> int:
         """Number of samples ``T``."""
@@ -453,6 +457,7 @@ def residuals_from_log(
         lengths=out["lengths"],
         jacobian=out["jacobian"],
         wrap=out["wrap"],
+        target=spec.target,
     )
 
 

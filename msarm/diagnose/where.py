@@ -39,10 +39,35 @@ energy, so that its shares sum to 100 %:
 
 Each row has the share of the energy [%], the share of time (samples) [%] and the energy
 density: share of energy / share of time. A density above 1 means the gap concentrates there
-(for channels: above an even split between channels). A phase or posture cell is a hot spot
-only with a margin (:attr:`PhaseSettings.hot_spot_density`, 1.2, and
-:attr:`PhaseSettings.hot_spot_samples` samples or more): on a plant with sensor noise alone
-the densities scatter about 1 (1.01 and the like), which is no concentration.
+(for channels: above an even split between channels).
+
+The sensors' noise alone makes a residual, and for the joint torque it does not spread evenly:
+the encoders' noise reaches it through the filtered accelerations times the mass matrix, which
+is several times larger with the arm nearly straight than flexed, so on plants with sensor
+noise alone the posture cells about the home posture (where the tasks start with a hold) had
+densities of 1.4-3.0 and were named hot spots (22 of 22 logs of msarm's arm). With the model
+given, :func:`break_down` estimates each sensor's white-noise level from the logs and the
+energy it alone is expected to put in each row (:mod:`msarm.diagnose.noise_floor`;
+``joint_torque`` only: :data:`~msarm.diagnose.noise_floor.NOISE_FLOOR_KINDS` says why not the
+others). Rows then also have that ``noise_energy``, the ``excess_energy`` beyond it and the
+*excess density*: the row's share of the total excess over its share of the samples. The
+excess is taken away from the filter's edges (the half window at each end of each stretch of
+log, about 1 % of the samples), where the noise alone makes a residual up to 34 times larger
+than elsewhere, decided by a handful of noise values: one such edge made a cell of 431
+samples 2.3 times its expected noise energy on a noise-level plant. A phase or posture cell
+is a hot spot only with margins (:class:`PhaseSettings`): an excess density of
+``hot_spot_density`` (1.2) or more; an excess of ``hot_spot_noise_ratio - 1`` (0.5) times
+the row's expected noise energy or more (the floor's own error: measured over expected noise
+energy was 0.51-1.37 per cell on noise-only logs) and of ``hot_spot_noise_sigmas`` (3)
+standard deviations of that noise energy or more (its scatter over few samples); and
+``hot_spot_samples`` (100) samples or more. On 22 noise-only logs of msarm's arm, alone and
+pooled (300 candidate rows), the largest excess was 0.34 times the expected noise energy and
+2.1 standard deviations of it; on 56 logs of plants whose effects leave the joint torque
+nearly alone (elasticity, winch friction, a command delay; 778 rows), 0.42 and 2.5.
+Without a noise floor (other kinds, or no model) the noise energy is 0, the excess energy
+and density are the energy and density, and the rule is the one before: on a plant with
+sensor noise alone the drive residual's densities scatter about 1 (1.01 and the like),
+which is no concentration.
 """
 
 from __future__ import annotations
@@ -55,6 +80,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from msarm.diagnose.noise_floor import (
+    NOISE_FLOOR_KINDS,
+    SensorNoise,
+    joint_torque_noise,
+    sensor_noise,
+)
 from msarm.diagnose.residuals import (
     RESIDUAL_UNITS,
     Residuals,
@@ -68,6 +99,8 @@ from msarm.model import RobotModel
 __all__ = [
     "GROUPS",
     "HOT_SPOT_DENSITY",
+    "HOT_SPOT_NOISE_RATIO",
+    "HOT_SPOT_NOISE_SIGMAS",
     "HOT_SPOT_SAMPLES",
     "LOAD_PHASES",
     "MOTION_PHASES",
@@ -95,6 +128,15 @@ HOT_SPOT_DENSITY = 1.2
 #: Least number of samples of a hot spot (:attr:`PhaseSettings.hot_spot_samples`): 0.4 s at
 #: 250 Hz.
 HOT_SPOT_SAMPLES = 100
+#: A hot spot's excess energy is at least this minus 1 times the energy the sensors' noise
+#: alone would put there (its energy about this many times that;
+#: :attr:`PhaseSettings.hot_spot_noise_ratio`) [-]. On 22 noise-only logs of msarm's arm the
+#: measured energy of the phases and posture cells of 100 samples or more was 0.51-1.37 times
+#: the expected one (150 cells; 10th-90th percentile 0.75-1.15).
+HOT_SPOT_NOISE_RATIO = 1.5
+#: Least excess of a hot spot's energy over its expected noise energy, in standard deviations
+#: of that noise energy (:attr:`PhaseSettings.hot_spot_noise_sigmas`) [-].
+HOT_SPOT_NOISE_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -115,8 +157,16 @@ class PhaseSettings:
         high_load_percentile: Percentile of the per-sample largest tension above which a
             sample is under high load [%].
         hot_spot_density: Least energy density of a hot spot [-] (:meth:`GapBreakdown.hot_spots`):
-            a margin above 1, which noise alone scatters about.
+            a margin above 1, which noise alone scatters about; with a noise floor, the
+            density of the energy beyond the sensors' noise (``excess_density``).
         hot_spot_samples: Least number of samples of a hot spot.
+        hot_spot_noise_ratio: A hot spot's excess energy is at least ``hot_spot_noise_ratio -
+            1`` times its expected noise energy [-] (its energy about ``hot_spot_noise_ratio``
+            times it; rows with a noise floor: a margin for the floor's own error).
+        hot_spot_noise_sigmas: Least excess of a hot spot's energy over its expected noise
+            energy, in standard deviations of that noise energy [-] (rows with a noise floor:
+            a noise energy over few samples, or over the filter's edges at a log's ends,
+            scatters widely).
     """
 
     hold_speed: float = 0.05
@@ -128,6 +178,8 @@ class PhaseSettings:
     high_load_percentile: float = 90.0
     hot_spot_density: float = HOT_SPOT_DENSITY
     hot_spot_samples: int = HOT_SPOT_SAMPLES
+    hot_spot_noise_ratio: float = HOT_SPOT_NOISE_RATIO
+    hot_spot_noise_sigmas: float = HOT_SPOT_NOISE_SIGMAS
 
     def __post_init__(self) -> None:
         for name in (
@@ -147,6 +199,12 @@ class PhaseSettings:
             raise InputError(f"hot_spot_density must be >= 1, got {self.hot_spot_density}")
         if not self.hot_spot_samples >= 1:
             raise InputError(f"hot_spot_samples must be >= 1, got {self.hot_spot_samples}")
+        if not self.hot_spot_noise_ratio >= 1:
+            raise InputError(f"hot_spot_noise_ratio must be >= 1, got {self.hot_spot_noise_ratio}")
+        if not self.hot_spot_noise_sigmas >= 0:
+            raise InputError(
+                f"hot_spot_noise_sigmas must be >= 0, got {self.hot_spot_noise_sigmas}"
+            )
 
 
 @dataclass(frozen=True)
@@ -161,6 +219,21 @@ class BreakdownRow:
         time_share: Share of the samples [%] (channels: an even split).
         density: ``share / time_share`` (1: as much as the average).
         samples: Number of samples (channels: all of them).
+        noise_energy: Energy the sensors' white noise alone is expected to put in the row
+            [unit^2] (:mod:`msarm.diagnose.noise_floor`); 0 without a noise floor.
+        excess_energy: The row's energy beyond its expected noise energy [unit^2], over its
+            samples away from the filter's edges (the half window at each end of a stretch
+            of log, where the noise alone makes a residual up to 34 times larger and too
+            scattered to be taken off: those samples count at their expected noise); below
+            0 where the row has less than the noise would make. By default (None) the
+            energy: no noise floor.
+        excess_density: Density of the energy beyond the noise: the row's share of the total
+            ``excess_energy`` over its share of the samples away from the filter's edges
+            (channels: an even split) [-]; NaN when the total is within the noise (no
+            excess). By default (None) the density: no noise floor.
+        noise_std: Standard deviation of the row's noise energy over its samples away from
+            the filter's edges [unit^2] (an upper bound for a row of scattered samples,
+            :class:`~msarm.diagnose.noise_floor.NoiseFloor`); 0 without a noise floor.
     """
 
     group: str
@@ -170,6 +243,16 @@ class BreakdownRow:
     time_share: float
     density: float
     samples: int
+    noise_energy: float = 0.0
+    excess_energy: float | None = None
+    excess_density: float | None = None
+    noise_std: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.excess_energy is None:  # no noise floor
+            object.__setattr__(self, "excess_energy", self.energy)
+        if self.excess_density is None:
+            object.__setattr__(self, "excess_density", self.density)
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,6 +274,12 @@ class GapBreakdown:
             where the cell has no samples. Axis 0 is the first joint.
         posture_samples: Samples in each grid cell, shape ``(bins, bins)``.
         settings: The phase thresholds used.
+        noise_energy: Energy the sensors' white noise alone is expected to make over all
+            samples and channels [unit^2]; 0 without a noise floor (a kind not in
+            :data:`~msarm.diagnose.noise_floor.NOISE_FLOOR_KINDS`, or no model given).
+        sensor_noise: The white-noise levels estimated from the logs, by log column
+            (``q.<joint>`` [rad], ``tension_motor.<cable>`` [N]; over several logs the RMS
+            weighted by their samples); empty without a noise floor.
     """
 
     kind: str
@@ -205,6 +294,8 @@ class GapBreakdown:
     posture_rms: FloatArray
     posture_samples: NDArray[np.int64]
     settings: PhaseSettings = field(default_factory=PhaseSettings)
+    noise_energy: float = 0.0
+    sensor_noise: dict[str, float] = field(default_factory=dict)
 
     def group(self, name: str) -> list[BreakdownRow]:
         """The rows of one group, largest share first.
@@ -225,16 +316,21 @@ class GapBreakdown:
         return next((r.density for r in self.group(group) if r.where == where), float("nan"))
 
     def hot_spots(self, count: int = 5, min_time_share: float = 5.0) -> list[BreakdownRow]:
-        """Phases and posture cells where the gap concentrates most, densest first.
+        """Phases and posture cells where the gap concentrates most beyond the sensors' noise.
 
         Args:
             count: Number of rows at most.
             min_time_share: Rows with less time share [%] are left out (too few samples).
 
         Returns:
-            Rows of the ``motion``, ``load`` and ``posture`` groups with a density of at least
-            ``settings.hot_spot_density`` and at least ``settings.hot_spot_samples`` samples;
-            none where the gap does not concentrate (a plant with sensor noise alone).
+            Rows of the ``motion``, ``load`` and ``posture`` groups with an excess density of
+            at least ``settings.hot_spot_density``, an ``excess_energy`` of at least
+            ``settings.hot_spot_noise_ratio - 1`` times their expected noise energy and of at
+            least ``settings.hot_spot_noise_sigmas`` standard deviations of it, and at least
+            ``settings.hot_spot_samples`` samples, largest excess density first (without a
+            noise floor: the density, and no noise condition); none where the gap does not
+            concentrate beyond what the sensors' noise explains (a plant with sensor noise
+            alone).
         """
         s = self.settings
         rows = [
@@ -243,9 +339,14 @@ class GapBreakdown:
             if r.group != "channel"
             and r.time_share >= min_time_share
             and r.samples >= s.hot_spot_samples
-            and r.density >= s.hot_spot_density
+            and r.excess_density >= s.hot_spot_density
+            and r.excess_energy
+            >= max(
+                (s.hot_spot_noise_ratio - 1.0) * r.noise_energy,
+                s.hot_spot_noise_sigmas * r.noise_std,
+            )
         ]
-        return sorted(rows, key=lambda r: r.density, reverse=True)[:count]
+        return sorted(rows, key=lambda r: r.excess_density, reverse=True)[:count]
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dict of the breakdown (``None`` for an empty cell, never NaN).
@@ -254,11 +355,15 @@ class GapBreakdown:
             ``kind``, ``unit``, ``sources``, ``samples``, ``total_energy`` [unit^2], ``rms``
             [unit], ``settings`` (the phase thresholds, :class:`PhaseSettings`), ``rows``
             (each row's ``group``, ``where``, ``energy`` [unit^2], ``share`` and
-            ``time_share`` [%], ``density``, ``samples`` and ``rms`` [unit]: a channel's RMS
-            over its samples, a phase's or cell's over its samples and all channels),
-            ``hot_spots`` (``group`` and ``where`` of each, densest first) and ``posture``
-            (the grid's ``joints``, bin ``edges`` [rad], ``rms`` [unit] and ``samples`` per
-            cell, ``None`` for a cell without samples).
+            ``time_share`` [%], ``density``, ``samples``, ``rms`` [unit]: a channel's RMS
+            over its samples, a phase's or cell's over its samples and all channels,
+            ``noise_energy``, ``excess_energy`` and ``noise_std`` [unit^2] and
+            ``excess_density``), ``hot_spots`` (``group`` and ``where`` of each, largest
+            excess density first), ``noise_energy`` [unit^2] (all samples; 0 without a noise
+            floor), ``sensor_noise`` (the estimated white-noise std by log column,
+            ``q.<joint>`` [rad] and ``tension_motor.<cable>`` [N]; empty without a noise
+            floor) and ``posture`` (the grid's ``joints``, bin ``edges`` [rad], ``rms``
+            [unit] and ``samples`` per cell, ``None`` for a cell without samples).
         """
         n_channels = max(1, len(self.group("channel")))
 
@@ -287,10 +392,16 @@ class GapBreakdown:
                     "density": number(r.density),
                     "samples": int(r.samples),
                     "rms": rms(r),
+                    "noise_energy": number(r.noise_energy),
+                    "excess_energy": number(r.excess_energy),
+                    "noise_std": number(r.noise_std),
+                    "excess_density": number(r.excess_density),
                 }
                 for r in self.rows
             ],
             "hot_spots": [{"group": r.group, "where": r.where} for r in self.hot_spots()],
+            "noise_energy": number(self.noise_energy),
+            "sensor_noise": {name: number(value) for name, value in self.sensor_noise.items()},
             "posture": {
                 "joints": list(self.posture_joints),
                 "edges": [[float(e) for e in edges] for edges in self.posture_edges],
@@ -302,12 +413,13 @@ class GapBreakdown:
     def to_markdown(self) -> str:
         """The breakdown as Markdown: a summary, the hot spots, one table per group."""
         s = self.settings
+        floor = self.noise_energy > 0
+        squared = f"{f'({self.unit})' if ' ' in self.unit else self.unit}^2"
         lines = [
             f"## Where the gap lies: {self.kind} residual [{self.unit}]",
             "",
             f"{len(self.sources)} log(s), {self.samples} samples; residual RMS "
-            f"{self.rms:.4g} {self.unit}, energy {self.total_energy:.4g} "
-            f"{f'({self.unit})' if ' ' in self.unit else self.unit}^2.",
+            f"{self.rms:.4g} {self.unit}, energy {self.total_energy:.4g} {squared}.",
             "",
             "Density = share of energy / share of time (> 1: the gap concentrates there). "
             "Each sample is counted in one motion phase and one load phase (first match of "
@@ -317,39 +429,106 @@ class GapBreakdown:
             f"acceleration |qdd| >= {s.acceleration:g} rad/s^2, low tension < "
             f"{s.low_tension:g} N, high load > p{s.high_load_percentile:g} of the largest "
             f"tension; a hot spot has a density >= {s.hot_spot_density:g} over >= "
-            f"{s.hot_spot_samples} samples.",
+            f"{s.hot_spot_samples} samples"
+            + (
+                " (the excess density: that of the energy beyond the sensors' noise, away from "
+                "the filter's edges) and an excess of >= "
+                f"{s.hot_spot_noise_ratio - 1.0:g} times its expected noise energy and >= "
+                f"{s.hot_spot_noise_sigmas:g} standard deviations of it."
+                if floor
+                else "."
+            ),
             "",
         ]
+        if floor:
+            levels = {"q.": ("encoders", "rad"), "tension_motor.": ("load cells", "N")}
+            said = []
+            for prefix, (what, unit) in levels.items():
+                values = [v for k, v in self.sensor_noise.items() if k.startswith(prefix)]
+                if values:
+                    said.append(f"{what} {min(values):.3g} to {max(values):.3g} {unit}")
+            lines += [
+                f"Noise floor: the sensors' white noise (estimated from the logs: "
+                f"{', '.join(said)} std) alone is expected to make an energy of "
+                f"{self.noise_energy:.4g} {squared}, "
+                f"{100.0 * self.noise_energy / self.total_energy:.0f} % of the residual's; "
+                "it is taken off each row before hot spots are named.",
+                "",
+            ]
         hot = self.hot_spots()
         if hot:
             lines.append(
                 "Hot spots: "
                 + "; ".join(
-                    f"{r.group} {r.where} (x{r.density:.2f}, {r.share:.1f} % of the energy)"
+                    (
+                        f"{r.group} {r.where} (x{r.excess_density:.2f} beyond the sensors' "
+                        f"noise, {r.share:.1f} % of the energy, "
+                        f"{r.energy / r.noise_energy:.1f} times its expected noise)"
+                    )
+                    if floor and r.noise_energy > 0
+                    else f"{r.group} {r.where} (x{r.density:.2f}, {r.share:.1f} % of the energy)"
                     for r in hot
                 )
                 + "."
             )
+        elif floor and self.total_energy < s.hot_spot_noise_ratio * self.noise_energy:
+            lines.append(
+                f"Hot spots: none, no concentration beyond the sensors' noise (the residual's "
+                f"energy is {self.total_energy / self.noise_energy:.2f} times what the noise "
+                "alone is expected to make)."
+            )
         else:
             lines.append(
                 f"Hot spots: none, no concentration (no phase or posture cell has a density "
-                f"of {s.hot_spot_density:g} or more over {s.hot_spot_samples} samples or more)."
+                f"of {s.hot_spot_density:g} or more over {s.hot_spot_samples} samples or more"
+                + (
+                    " beyond the sensors' noise, with an excess of "
+                    f"{s.hot_spot_noise_ratio - 1.0:g} times its expected noise energy and "
+                    f"{s.hot_spot_noise_sigmas:g} standard deviations of it)."
+                    if floor
+                    else ")."
+                )
             )
         lines.append("")
         for name in GROUPS:
-            lines += [
-                f"### By {name}",
-                "",
-                "| where | energy share [%] | time share [%] | density | samples |",
-                "|---|---:|---:|---:|---:|",
-            ]
-            lines += [
-                f"| {r.where} | {r.share:.1f} | {r.time_share:.1f} | {r.density:.2f} | "
-                f"{r.samples} |"
-                for r in self.group(name)
-            ]
+            if floor:
+                lines += [
+                    f"### By {name}",
+                    "",
+                    "| where | energy share [%] | time share [%] | density | samples | "
+                    "noise [% of energy] | excess density |",
+                    "|---|---:|---:|---:|---:|---:|---:|",
+                ]
+                lines += [
+                    f"| {r.where} | {r.share:.1f} | {r.time_share:.1f} | {r.density:.2f} | "
+                    f"{r.samples} | {_percent(r.noise_energy, r.energy)} | "
+                    f"{_number(r.excess_density)} |"
+                    for r in self.group(name)
+                ]
+            else:
+                lines += [
+                    f"### By {name}",
+                    "",
+                    "| where | energy share [%] | time share [%] | density | samples |",
+                    "|---|---:|---:|---:|---:|",
+                ]
+                lines += [
+                    f"| {r.where} | {r.share:.1f} | {r.time_share:.1f} | {r.density:.2f} | "
+                    f"{r.samples} |"
+                    for r in self.group(name)
+                ]
             lines.append("")
         return "\n".join(lines)
+
+
+def _number(value: float) -> str:
+    """A density with two decimals; "-" for NaN (nothing beyond the noise)."""
+    return f"{value:.2f}" if np.isfinite(value) else "-"
+
+
+def _percent(part: float, whole: float) -> str:
+    """``part`` as a percentage of ``whole``, no decimals; "-" when ``whole`` is not > 0."""
+    return f"{100.0 * part / whole:.0f}" if whole > 0 else "-"
 
 
 def motion_phases(residuals: Residuals, settings: PhaseSettings | None = None) -> NDArray:
@@ -427,6 +606,7 @@ def break_down(
     posture_joints: tuple[str, str] | None = None,
     bins: int = 5,
     model: RobotModel | None = None,
+    noise_floor: bool = True,
 ) -> GapBreakdown:
     """Break the residual energy of one or more logs down by channel, phase and posture.
 
@@ -438,15 +618,22 @@ def break_down(
         posture_joints: The two joints of the posture grid; default the two with the largest
             standard deviation of ``q``.
         bins: Bins over each joint of the grid.
-        model: The robot, for the joint ranges of the grid; without it the grid spans the
-            logged range.
+        model: The robot, for the joint ranges of the grid (without it the grid spans the
+            logged range) and, a :class:`~msarm.model.RobotModel`, for the noise floor of the
+            kinds that have one (:data:`~msarm.diagnose.noise_floor.NOISE_FLOOR_KINDS`: the
+            sensors' white noise estimated from each log and the energy it alone is expected
+            to put in each row, :func:`~msarm.diagnose.noise_floor.joint_torque_noise`);
+            without it, no floor.
+        noise_floor: Take the noise floor off (with ``model``, for those kinds); False: the
+            breakdown without it (``noise_energy`` 0, ``excess_density`` the density).
 
     Returns:
         The breakdown.
 
     Raises:
         InputError: No logs, logs of different robots, an unknown kind or joint, no valid
-            sample, or a residual that is zero everywhere.
+            sample, a residual that is zero everywhere, or (with a noise floor) a model
+            whose joints or cables are not the logs'.
     """
     runs = [residuals] if isinstance(residuals, Residuals) else list(residuals)
     if not runs:
@@ -462,21 +649,40 @@ def break_down(
                 "names differ)"
             )
     channels = first.channel_names(kind)
+    floor = noise_floor and isinstance(model, RobotModel) and kind in NOISE_FLOOR_KINDS
     parts = []
+    levels: list[SensorNoise] = []
     for run in runs:
         keep = run.valid
+        scored = run.scored(kind)  # cable lengths about each log's mean, as the diagnosis
+        if floor:
+            levels.append(sensor_noise(run))
+            made = joint_torque_noise(model, run, levels[-1])
+            expected = made.energy[keep]
+            spread = np.column_stack([made.variance[keep], made.channel_variance[keep]])
+            edge = made.edge[keep]
+        else:
+            expected = np.zeros_like(scored)
+            spread = np.zeros((len(scored), scored.shape[1] + 1))
+            edge = np.zeros(len(scored), dtype=bool)
         parts.append(
             (
-                run.scored(kind),  # cable lengths about each log's mean, as the diagnosis
+                scored,
                 run.q[keep],
                 run.tension[keep],
                 motion_phases(run, settings)[keep],
+                expected,
+                spread,
+                edge,
             )
         )
     residual = np.concatenate([p[0] for p in parts])
     q = np.concatenate([p[1] for p in parts])
     tension = np.concatenate([p[2] for p in parts])
     motion = np.concatenate([p[3] for p in parts])
+    noise = np.concatenate([p[4] for p in parts])
+    spread = np.concatenate([p[5] for p in parts])  # total, then each channel [unit^4]
+    interior = ~np.concatenate([p[6] for p in parts])
     if len(residual) == 0:
         raise InputError("no valid sample in the logs")
     energy = residual**2
@@ -485,23 +691,82 @@ def break_down(
     if not total > 0:
         raise InputError(f"the {kind} residual is zero everywhere: nothing to break down")
     n_samples = len(per_sample)
+    # the noise floor's statistics of each sample: its expected noise energy; and, away from
+    # the filter's edges, its energy beyond that, the variance of its noise energy, and 1
+    noise_per_sample = noise.sum(axis=1)
+    floor_stats = np.column_stack(
+        [
+            noise_per_sample,
+            np.where(interior, per_sample - noise_per_sample, 0.0),
+            np.where(interior, spread[:, 0], 0.0),
+            interior.astype(float),
+        ]
+    )
+    channel_beyond = np.where(interior[:, None], energy - noise, 0.0)
+    channel_spread = np.where(interior[:, None], spread[:, 1:], 0.0)
+    total_noise = float(noise_per_sample.sum())
+    total_beyond = float(floor_stats[:, 1].sum())
+    n_interior = float(floor_stats[:, 3].sum())
 
     rows: list[BreakdownRow] = []
 
-    def add(group: str, where: str, value: float, count: int, time_share: float) -> None:
+    def add(
+        group: str,
+        where: str,
+        value: float,
+        count: int,
+        time_share: float,
+        stats: FloatArray,
+    ) -> None:
+        """One row: ``stats`` are its sums of ``floor_stats``' columns (channels: alike)."""
         share = 100.0 * value / total
         density = share / time_share if time_share > 0 else float("nan")
-        rows.append(BreakdownRow(group, where, value, share, time_share, density, count))
+        expected, beyond, variance, away = (float(v) for v in stats)
+        if not floor:
+            rows.append(BreakdownRow(group, where, value, share, time_share, density, count))
+            return
+        away_share = 100.0 * away / n_interior if n_interior > 0 else 0.0
+        if group == "channel":
+            away_share = time_share
+        if total_beyond > 0 and away_share > 0:
+            excess_density = 100.0 * beyond / total_beyond / away_share
+        else:
+            excess_density = float("nan")  # nothing beyond the noise
+        rows.append(
+            BreakdownRow(
+                group,
+                where,
+                value,
+                share,
+                time_share,
+                density,
+                count,
+                noise_energy=expected,
+                excess_energy=beyond,
+                excess_density=excess_density,
+                noise_std=float(np.sqrt(max(variance, 0.0))),
+            )
+        )
 
     for j, name in enumerate(channels):
-        add("channel", name, float(energy[:, j].sum()), n_samples, 100.0 / len(channels))
+        stats = np.array(
+            [noise[:, j].sum(), channel_beyond[:, j].sum(), channel_spread[:, j].sum(), 0.0]
+        )
+        add("channel", name, float(energy[:, j].sum()), n_samples, 100.0 / len(channels), stats)
     load = load_phases(tension, settings)
     for group, labels, index in (("motion", MOTION_PHASES, motion), ("load", LOAD_PHASES, load)):
         for p, name in enumerate(labels):
             mask = index == p
             count = int(mask.sum())
             if count:
-                add(group, name, float(per_sample[mask].sum()), count, 100.0 * count / n_samples)
+                add(
+                    group,
+                    name,
+                    float(per_sample[mask].sum()),
+                    count,
+                    100.0 * count / n_samples,
+                    floor_stats[mask].sum(axis=0),
+                )
 
     joint_names = list(first.joint_names)
     if posture_joints is None:
@@ -524,8 +789,10 @@ def break_down(
         edges.append(e)
         cells.append(np.clip(np.searchsorted(e, q[:, j], side="right") - 1, 0, bins - 1))
     grid_energy = np.zeros((bins, bins))
+    grid_stats = np.zeros((bins, bins, floor_stats.shape[1]))
     grid_count = np.zeros((bins, bins), dtype=np.int64)
     np.add.at(grid_energy, (cells[0], cells[1]), per_sample)
+    np.add.at(grid_stats, (cells[0], cells[1]), floor_stats)
     np.add.at(grid_count, (cells[0], cells[1]), 1)
     with np.errstate(invalid="ignore", divide="ignore"):
         grid_rms = np.sqrt(grid_energy / (grid_count * len(channels)))
@@ -539,7 +806,14 @@ def break_down(
                     f"{b} [{edges[1][k]:.2f}, {edges[1][k + 1]:.2f}]"
                 )
                 count = int(grid_count[i, k])
-                add("posture", where, float(grid_energy[i, k]), count, 100.0 * count / n_samples)
+                add(
+                    "posture",
+                    where,
+                    float(grid_energy[i, k]),
+                    count,
+                    100.0 * count / n_samples,
+                    grid_stats[i, k],
+                )
 
     ordered = tuple(
         row
@@ -559,7 +833,28 @@ def break_down(
         posture_rms=grid_rms,
         posture_samples=grid_count,
         settings=settings,
+        noise_energy=total_noise,
+        sensor_noise=_pooled_levels(levels, first.joint_names, first.cable_names),
     )
+
+
+def _pooled_levels(
+    levels: Sequence[SensorNoise], joints: Sequence[str], cables: Sequence[str]
+) -> dict[str, float]:
+    """The logs' noise levels by log column: the RMS over the logs, weighted by samples."""
+    weights = np.array([level.samples for level in levels], dtype=float)
+    if not weights.sum() > 0:
+        return {}
+    weights /= weights.sum()
+    out = {}
+    for prefix, names, values in (
+        ("q", joints, [level.joint for level in levels]),
+        ("tension_motor", cables, [level.tension for level in levels]),
+    ):
+        squares = np.nan_to_num(np.asarray(values)) ** 2  # a log without samples: weight 0
+        pooled = np.sqrt(np.einsum("l,lk->k", weights, squares))
+        out.update({f"{prefix}.{name}": float(v) for name, v in zip(names, pooled, strict=True)})
+    return out
 
 
 def diagnose_where(
