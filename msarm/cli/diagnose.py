@@ -325,7 +325,8 @@ def diagnose_command(
         typer.Option(
             metavar="SAMPLES",
             help=r"Savitzky-Golay window of the joint-angle derivatives \[samples], odd, >= 5 "
-            "(25 = 0.1 s at 250 Hz; scale it with the sample rate).",
+            "(25 = 0.1 s at 250 Hz; scale it with the sample rate; spans above 0.15 s bias "
+            "the residual and are warned about).",
         ),
     ] = 25,
     model_path: Annotated[

@@ -95,8 +95,11 @@ MIN_CHECKED_TRAVEL = 2e-3
 #: is warned about (a unit slip: degrees read as radians put a 90 deg posture at 90 rad).
 JOINT_RANGE_MARGIN = 0.5
 #: Time spans [s] of the derivative filter's window outside which a log is warned about
-#: (msarm's default: 25 samples at 250 Hz, 0.1 s).
-FILTER_SPAN_S = (0.01, 1.0)
+#: (msarm's default: 25 samples at 250 Hz, 0.1 s). Above 0.15 s the residual takes a bias of
+#: the filter itself: the inverse dynamics of the smoothed motion are not the smoothed
+#: inverse dynamics (the dynamics are nonlinear in the motion), and on a plant with sensor
+#: noise alone windows of 0.18, 0.2 and 0.3 s named a mass error (0.14 s and less: nothing).
+FILTER_SPAN_S = (0.01, 0.15)
 #: A step of ``t`` longer than this many nominal sample periods is a gap.
 GAP_FACTOR = 1.5
 #: The mean step of ``t`` (gaps left out, :func:`~msarm.io.logs.nominal_step`) may differ
@@ -691,7 +694,12 @@ def _warn_filter_span(source: str, window: int, sample_rate_hz: float) -> None:
         return
     suggested = max(2 * round(0.05 * sample_rate_hz) + 1, 5)  # about 0.1 s, odd
     if span > high:
-        beyond, effect = f"more than {high:g} s", "smoothed over most of a motion"
+        beyond = f"more than {high:g} s"
+        effect = (
+            "smoothed over much of a motion, and the joint-torque residual takes a bias from "
+            "the filter itself (on a plant with sensor noise alone a 0.2 s window named a mass "
+            "error)"
+        )
     else:
         beyond, effect = f"less than {low:g} s", "mostly the encoders' noise"
     warnings.warn(
