@@ -17,7 +17,14 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["Terminated", "clear", "on_sigterm", "raise_if_terminated", "sigterm_raises"]
+__all__ = [
+    "Terminated",
+    "clear",
+    "on_sigterm",
+    "raise_if_terminated",
+    "sigterm_raises",
+    "signals_held",
+]
 
 #: The exit code of a SIGTERM received and not yet acted on (None: none received).
 _pending: int | None = None
@@ -83,3 +90,39 @@ def sigterm_raises() -> Iterator[None]:
     finally:
         signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
         clear()
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back within the block; they act when it ends.
+
+    For a few quick steps that must happen all or none, such as moving a report's files into
+    place: a Ctrl-C or SIGTERM between two of them would leave a mix of two reports. Within
+    the block the two signals are only recorded; when it ends (also when it raises) the
+    previous handlers are put back and each recorded signal is raised again, so that its
+    handler acts then (a ``KeyboardInterrupt``, :class:`Terminated`, or the process ends).
+    Outside the main thread, where no handler can be set, the block runs as it is.
+
+    Yields:
+        Nothing; the block runs with the two signals recorded, not acted on.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def record(signum: int, frame: object) -> None:
+        received.append(signum)
+
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {number: signal.signal(number, record) for number in held}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, signal.SIG_DFL if handler is None else handler)
+        for number in dict.fromkeys(received):
+            signal.raise_signal(number)

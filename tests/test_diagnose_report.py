@@ -413,3 +413,34 @@ def test_a_report_replaces_the_last_one_whole_or_not_at_all(
     assert json.loads(second["json"].read_text())["selected"] == []
     with pytest.raises(InputError, match="extra_files"):
         write_report(diagnosis, out, extra_files={"report.md": b"x"})
+
+
+def test_a_signal_during_the_moves_acts_after_the_last_one(
+    diagnosis, nothing_selected, tmp_path, monkeypatch
+):
+    """A Ctrl-C between two moves left the new plots beside the old report.md and JSON (and
+    the old report's heat map of another residual deleted): the signal now waits for them."""
+    import os
+    import signal
+
+    import msarm.diagnose.report as report
+
+    out = tmp_path / "report"
+    write_report(diagnosis, out)
+    (out / "where-drive.png").write_bytes(PNG)  # a map of a residual the next one lacks
+    real = os.replace
+    calls = []
+
+    def replace_and_interrupt(source, target):
+        if Path(target).parent == out:  # a move into place (not a write into the staging)
+            calls.append(target)
+            if len(calls) == 2:
+                os.kill(os.getpid(), signal.SIGINT)  # held back until every file is in place
+        real(source, target)
+
+    monkeypatch.setattr(report.os, "replace", replace_and_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        write_report(nothing_selected, out)
+    assert len(calls) == len(REPORT_FILES)
+    assert json.loads((out / "diagnosis.json").read_text())["selected"] == []  # the new one
+    assert {p.name for p in out.iterdir()} == set(REPORT_FILES.values())  # stale map gone

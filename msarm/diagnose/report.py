@@ -38,6 +38,7 @@ from msarm.diagnose.builder import GROUP_UNITS
 from msarm.diagnose.result import Diagnosis, SelectedEffect
 from msarm.diagnose.where import GapBreakdown, plot_heatmap
 from msarm.errors import InputError
+from msarm.interrupts import signals_held
 from msarm.io.atomic import STALE_TEMP_AGE_S, write_bytes_atomic, write_json_atomic
 
 __all__ = ["REPORT_FILES", "plot_gap", "plot_waterfall", "render_html", "write_report"]
@@ -438,10 +439,11 @@ def write_report(
 
     See the module docstring for the files. The report is written whole into a hidden
     staging folder inside ``out_dir`` first, then its files are moved into place (the JSON
-    last), so that an interrupted run leaves the previous report as it was rather than a mix
-    of two; the folder is created if needed. A previous report's files are replaced, and its
-    heat maps of residuals this diagnosis does not have are removed (they would be mistaken
-    for this one's).
+    last, SIGINT and SIGTERM held back until every move is done,
+    :func:`msarm.interrupts.signals_held`), so that an interrupted run leaves the previous
+    report as it was rather than a mix of two; the folder is created if needed. A previous
+    report's files are replaced, and its heat maps of residuals this diagnosis does not have
+    are removed (they would be mistaken for this one's).
 
     Args:
         diagnosis: The diagnosis (:func:`msarm.diagnose.select.diagnose`).
@@ -492,13 +494,15 @@ def write_report(
     _remove_stale_staging(out)
     with tempfile.TemporaryDirectory(dir=out, prefix=_STAGING_PREFIX) as staging:
         staged = _write_report_files(diagnosis, Path(staging), where, extras)
-        for old in out.glob("where-*.png"):  # a previous report's maps of other residuals
-            if old.name not in taken:
-                old.unlink()
         paths: dict[str, Path] = {}
-        for key in sorted(staged, key=lambda k: k == "json"):  # the JSON last
-            paths[key] = out / staged[key].name
-            os.replace(staged[key], paths[key])
+        # all or none: a Ctrl-C or SIGTERM between two moves left a mix of two reports
+        with signals_held():
+            for key in sorted(staged, key=lambda k: k == "json"):  # the JSON last
+                paths[key] = out / staged[key].name
+                os.replace(staged[key], paths[key])
+            for old in out.glob("where-*.png"):  # a previous report's maps of other residuals
+                if old.name not in taken:
+                    old.unlink()
     return paths
 
 
