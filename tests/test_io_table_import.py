@@ -459,6 +459,10 @@ def test_a_sparse_column_is_skipped_or_left_out_when_empty(arm):
         ("t\tq.elbow\n0.0\t1.5\n0.004\t2.5\n", r"separated by something else than commas;"),
         ("0,1\n0.004,2\n", r"the first row \(0, 1, \.\.\.\) holds numbers; expected a header"),
         ("t,q.elbow,\n0,1,\n", r"column 3 of the header has no name \(a trailing comma\?\)"),
+        # a logger's comment lines before the header (the mis-tool data's "%..." lines): the
+        # parser said "Expected 1 columns, got 2"
+        ("%Used left spindle, tool 4\nt,q.elbow\n0,1\n", r"first line starts with '%', a comment"),
+        ("# written by rig 2\nt,q.elbow\n0,1\n", r"starts with '#', a comment .*grep -v '\^#'"),
     ],
 )
 def test_a_header_that_is_not_one_is_named(arm, tmp_path, text, message):

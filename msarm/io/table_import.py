@@ -340,12 +340,17 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
     return log_from_columns(columns, model, source=source, extra=extra, **options)
 
 
+#: First characters of a comment line, which some loggers write before the header.
+_COMMENT_MARKS = ("%", "#")
+
+
 def _header(path: Path, source: str) -> list[str]:
     """The names of a CSV file's first line, as written (``.csv.gz`` decompressed).
 
     Raises:
         InputError: The file cannot be read or decompressed, is a Parquet file (a log
-            already), holds binary data, or its first line is not UTF-8 text or not CSV.
+            already), holds binary data, or its first line is not UTF-8 text, a comment
+            (``%`` or ``#``) or not CSV.
     """
     import csv
 
@@ -369,6 +374,14 @@ def _header(path: Path, source: str) -> list[str]:
             f"{first[exc.start]:#04x} at position {exc.start}); expected a CSV file in UTF-8 "
             "(one saved as Latin-1 or Windows-1252? Save it as UTF-8)"
         ) from None
+    if text.lstrip().startswith(_COMMENT_MARKS):
+        mark = text.lstrip()[0]
+        raise InputError(
+            f"{source}: not a CSV file msarm reads: its first line starts with {mark!r}, a "
+            f"comment ({text[:60]!r}); expected a header row of column names first. Remove "
+            f"the comment lines (grep -v '^{mark}' FILE > FILE.csv) or convert the file with "
+            "a script of your own (examples/real_cable_transmission.py reads such files)"
+        )
     try:
         return next(csv.reader([text]), [])
     except csv.Error as exc:
