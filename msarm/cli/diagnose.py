@@ -307,7 +307,9 @@ def diagnose_command(
         typer.Option(
             metavar="METRES",
             help=r"Radius of the winch drums \[m]: a motor angle theta (drum angle, reel-in "
-            "positive) moves the cable by -r theta. Used for the cable-length residual.",
+            "positive) moves the cable by -r theta. Used for the cable-length residual, and with "
+            "--drive-gain it sets the drive terms' parameters in N m (winch friction, motor "
+            "cogging scale with r).",
         ),
     ] = 0.003,
     drive_gain: Annotated[

@@ -351,8 +351,9 @@ def residuals_from_log(
         source,
         "no drive residual (the winch-friction, motor-cogging and command-delay terms cannot "
         "be fitted) and no commanded tensions for the sheath-stiction term "
-        "(capstan_hysteresis); the joint-torque and cable-length residuals are still "
-        "computed",
+        "(capstan_hysteresis); the joint-torque "
+        + ("and cable-length residuals are" if has_motor else "residual is")
+        + " still computed",
     )
     segments = _segments(log, source, spec.target.window)
     _warn_filter_span(source, spec.target.window, log.metadata.sample_rate_hz)

@@ -545,6 +545,14 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     return out
 
 
+#: Why a residual group a log has can still be left out, by group (see ``_usable``).
+_WHY_NO_GROUP = {
+    "length": "the length's below ResidualSpec.length_resolution, as with rigid cables",
+    "drive": "the drive's zero: the load cells read exactly what was commanded",
+    "joint": "the joint torque's zero",
+}
+
+
 def _not_one_string(value: Any, name: str, what: str) -> None:
     """Refuse a single string or path where a sequence of them is expected (InputError).
 
@@ -934,8 +942,9 @@ def _usable(
                 "training or held-out logs: a warning names each)"
                 if lacking
                 else f"needs the {', '.join(missing)} residual, which is zero or below its "
-                "resolution in these logs (the length's: ResidualSpec.length_resolution, as "
-                "with rigid cables)"
+                "resolution in these logs ("
+                + "; ".join(_WHY_NO_GROUP.get(g, "no gap there") for g in missing)
+                + ")"
             )
         else:
             start = None
