@@ -169,13 +169,14 @@ def read_header(path: Path) -> dict[str, str]:
     """The ``%key=value`` lines of a data file's header (and the sine amplitude).
 
     Args:
-        path: A ``.TXT.gz`` file.
+        path: A ``.TXT`` file, gzipped (``.TXT.gz``) or not.
 
     Returns:
         Keys and values as text; ``amplitude_deg`` parsed from the description line.
     """
     out: dict[str, str] = {}
-    with gzip.open(path, "rt") as handle:
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt") as handle:
         for line in handle:
             if not line.startswith("%"):
                 break
@@ -237,7 +238,7 @@ def read_run(path: Path, pitch_deg: float) -> Run:
     first :data:`SETTLE_S` are dropped and every ``1 kHz / RATE_HZ``-th sample is kept.
 
     Args:
-        path: A ``.TXT.gz`` file.
+        path: A ``.TXT`` file, gzipped (``.TXT.gz``) or not.
         pitch_deg: The folder's wrist pitch [deg].
 
     Raises:
@@ -300,7 +301,10 @@ def data_files(root: Path) -> list[tuple[Path, float]]:
     """Every data file under ``root`` with its pitch [deg], sorted (empty when absent)."""
     out = []
     for folder, pitch in PITCH_DEG.items():
-        out += [(p, pitch) for p in sorted((root / folder).glob("*.TXT.gz"))]
+        # the upstream files are plain .TXT; a gzipped copy is taken where both are there
+        files = {p.name: p for p in (root / folder).glob("*.TXT")}
+        files.update({p.name.removesuffix(".gz"): p for p in (root / folder).glob("*.TXT.gz")})
+        out += [(files[name], pitch) for name in sorted(files)]
     return out
 
 
@@ -995,7 +999,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     """Read the data, analyse them, print the report and write the outputs; the exit status."""
     root = data_folder(args.data)
-    layout = f"{', '.join(PITCH_DEG)} with *.TXT.gz files"
+    layout = f"{', '.join(PITCH_DEG)} with *.TXT or *.TXT.gz files"
     files = data_files(root)
     if not files:
         print(

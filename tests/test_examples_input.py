@@ -153,6 +153,26 @@ def test_read_run_refuses_a_file_shorter_than_settling_and_a_cycle(rct, tmp_path
         rct.read_run(empty, 0.0)
 
 
+def test_plain_txt_files_are_read_as_the_gzipped_ones(rct, tmp_path):
+    """The upstream files are plain .TXT: they were "no data" (only *.TXT.gz was looked for);
+    where both are there the gzipped copy is taken, once."""
+    import gzip
+    import shutil
+
+    gz = _write_data_file(tmp_path / "a" / PITCHES[0] / "000.TXT.gz", 3000)
+    plain = tmp_path / "b" / PITCHES[0] / "000.TXT"
+    plain.parent.mkdir(parents=True)
+    with gzip.open(gz, "rb") as source, open(plain, "wb") as target:
+        shutil.copyfileobj(source, target)
+    assert rct.data_files(tmp_path / "b") == [(plain, rct.PITCH_DEG[PITCHES[0]])]
+    np.testing.assert_array_equal(rct.read_run(plain, 0.0).t, rct.read_run(gz, 0.0).t)
+    assert rct.read_header(plain) == rct.read_header(gz)
+    shutil.copy(gz, plain.parent / "000.TXT.gz")
+    assert rct.data_files(tmp_path / "b") == [
+        (plain.parent / "000.TXT.gz", rct.PITCH_DEG[PITCHES[0]])
+    ]
+
+
 def test_a_family_with_one_level_is_refused_with_exit_2(rct, tmp_path, capsys):
     """One frequency (0.5 Hz) and one file in a pitch: named, nothing done, no --out left."""
     root = tmp_path / "data"

@@ -464,10 +464,15 @@ def other_plant_keys(spec: str, cls: type, other: type) -> str:
     return ("key " if len(keys) == 1 else "keys ") + ", ".join(keys)
 
 
-def console() -> Console:
-    """A rich console; a wide one when output is not a terminal (tables stay readable)."""
+def console(width: int = 120) -> Console:
+    """A rich console; a wide one when output is not a terminal (tables stay readable).
+
+    Args:
+        width: Columns when output is not a terminal (piped, logged): as wide as the widest
+            table the command prints, so that none is cut.
+    """
     out = Console()
-    return out if out.is_terminal else Console(width=120)
+    return out if out.is_terminal else Console(width=width)
 
 
 class RepeatedWarnings:

@@ -28,6 +28,9 @@ DEFAULT_RECIPE = Path("training/compensator.yaml")
 DEFAULT_CHECKPOINT = Path("runs/compensator/compensator.pt")
 #: First seed of the extra held-out random tasks of ``msarm compare --extra``.
 EXTRA_FIRST_SEED = 5000
+#: Columns of ``msarm compare``'s output when it is not a terminal: its table of nine columns
+#: is wider than the 120 of the other commands, and was cut there (no right border).
+COMPARE_WIDTH = 200
 
 
 def train_command(
@@ -329,7 +332,7 @@ def compare_command(
     if json_output:
         typer.echo(json.dumps(result.as_dict(), indent=2))
         return
-    out_console = console()
+    out_console = console(width=COMPARE_WIDTH)
     out_console.print(comparison_table(result, arm.joint_names))
     for group, tasks in (
         ("held-out random tasks", list(result.held_out)),
