@@ -38,10 +38,13 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ARM_MODEL_PATH",
+    "HAND_SITE",
     "HILL_COLUMNS",
     "MODELS_DIR",
     "RobotData",
     "RobotModel",
+    "hand_site_id",
+    "has_hand_site",
     "load_arm",
     "load_robot",
     "mujoco_model_name",
@@ -67,6 +70,10 @@ HILL_COLUMNS = (
     "max_contraction_velocity_lopt_per_s",
     "pennation_at_optimal_rad",
 )
+#: The end-effector site: the tracking metrics' hand position (final error, settle error)
+#: and the diagnosis's hand error of the replay are this site's position. An arm model
+#: (:func:`load_arm`) needs it; a model for the diagnosis alone may leave it out.
+HAND_SITE = "hand_center"
 _SUPPORTED_JOINTS = {mujoco.mjtJoint.mjJNT_HINGE: "hinge", mujoco.mjtJoint.mjJNT_SLIDE: "slide"}
 #: Largest allowed disagreement between the engines' body positions [m] and masses [kg].
 _ENGINE_TOLERANCE = 1e-9
@@ -74,6 +81,33 @@ _ENGINE_TOLERANCE = 1e-9
 #: orientation written to 7 digits (0.7071068), tight against a body the parser reads
 #: otherwise (differences of 1e-3 and more).
 _DYNAMICS_TOLERANCE = 1e-6
+
+
+def has_hand_site(model: RobotModel) -> bool:
+    """Whether the model has the end-effector site :data:`HAND_SITE`."""
+    site = mujoco.mj_name2id(model.mj_model, mujoco.mjtObj.mjOBJ_SITE, HAND_SITE)
+    return bool(site >= 0)
+
+
+def hand_site_id(model: RobotModel) -> int:
+    """MuJoCo id of the end-effector site :data:`HAND_SITE`.
+
+    Args:
+        model: The robot.
+
+    Returns:
+        The site's id in ``model.mj_model``.
+
+    Raises:
+        ModelError: The model has no such site (file and site named).
+    """
+    if not has_hand_site(model):
+        raise ModelError(
+            f"{model.path}: the model has no site '{HAND_SITE}'; the hand position (tracking "
+            f"metrics, the diagnosis's replay) is that site's: add <site name=\"{HAND_SITE}\"/> "
+            "to the end effector's body"
+        )
+    return int(mujoco.mj_name2id(model.mj_model, mujoco.mjtObj.mjOBJ_SITE, HAND_SITE))
 
 
 def mujoco_model_name(mj_model: mujoco.MjModel) -> str:
@@ -213,9 +247,10 @@ def load_arm(path: str | Path | None = None) -> RobotModel:
 
     Raises:
         ModelError: The file cannot be loaded (see :func:`load_robot`), it has no Hill
-            parameters ``hill/<cable>`` in ``<custom>``, or a cable's length at ``qpos0``
-            puts its fibre outside 0.25-2.5 optimal lengths (lengths and Hill parameters in
-            different units, most likely).
+            parameters ``hill/<cable>`` in ``<custom>``, no end-effector site
+            :data:`HAND_SITE` (the tracking metrics' hand position), or a cable's length at
+            ``qpos0`` puts its fibre outside 0.25-2.5 optimal lengths (lengths and Hill
+            parameters in different units, most likely).
     """
     model = load_robot(ARM_MODEL_PATH if path is None else path)
     if model.muscles is None:
@@ -223,6 +258,7 @@ def load_arm(path: str | Path | None = None) -> RobotModel:
             f"{model.path}: an arm model needs Hill parameters 'hill/<cable>' in <custom> "
             f"for every cable ({', '.join(model.cable_names)})"
         )
+    hand_site_id(model)  # the tracking runs' metrics need it: refused now, not after a run
     _check_fibre_lengths(model)
     return model
 
@@ -484,7 +520,7 @@ def _check_engines_agree(
         )
     for b in range(1, mj_model.nbody):  # a body the parser dropped, named before the mass
         name = mj_model.body(b).name
-        if not pin_model.existFrame(name):
+        if not pin_model.existFrame(name, pinocchio.FrameType.BODY):
             raise ModelError(
                 f"{path}: body '{name}' is missing from Pinocchio's model; its MJCF parser "
                 "drops bodies it cannot place (e.g. inside a <frame>, or from an <include>d "
@@ -508,7 +544,8 @@ def _check_engines_agree(
     pinocchio.framesForwardKinematics(pin_model, pin_data, q[pin_q_index])
     for b in range(1, mj_model.nbody):
         name = mj_model.body(b).name
-        pin_pos = pin_data.oMf[pin_model.getFrameId(name)].translation
+        # the body's own frame: a joint (or site) may share its name
+        pin_pos = pin_data.oMf[pin_model.getFrameId(name, pinocchio.FrameType.BODY)].translation
         if np.abs(pin_pos - mj_data.xpos[b]).max() > _ENGINE_TOLERANCE:
             raise ModelError(
                 f"{path}: body '{name}' is at {np.round(mj_data.xpos[b], 6)} in MuJoCo but at "

@@ -338,7 +338,8 @@ def diagnose_command(
             help="The nominal model (MJCF) the logs were recorded with; default msarm's "
             "arm (models/msarm_arm.xml in the repository). Logs of another model are refused "
             "(hashes named). It needs no muscle (Hill) parameters: the diagnosis uses the "
-            "cables' geometry.",
+            "cables' geometry; one joint will do, and without a 'hand_center' site the replay "
+            "reports the joint error alone.",
         ),
     ] = None,
 ) -> None:

@@ -1514,6 +1514,18 @@ class InertiaError(CandidateEffect):
         diagonal = np.abs(np.diag(r_factor))
         rank = int(np.sum(diagonal > 1e-8 * diagonal[0])) if diagonal.size else 0
         self.columns = np.sort(np.asarray(candidates)[pivot[:rank]])
+        #: Why the term has no parameter on this model (``""`` when it has some): the
+        #: diagnosis then leaves it out, with this reason, instead of fitting nothing.
+        self.why_no_parameters = (
+            ""
+            if rank
+            else (
+                "none of the links' masses and first moments changes the joint torques of "
+                "this model (gravity does not act about its joint axes: a vertical hinge, say)"
+                if subset == "mass"
+                else "no inertial parameter of the links changes the joint torques of this model"
+            )
+        )
         self.parameter_names = tuple(
             f"{bodies[c // 10]}.{_INERTIAL_NAMES[c % 10]}" for c in self.columns
         )
@@ -1547,7 +1559,8 @@ class InertiaError(CandidateEffect):
         Y = pinocchio.computeJointTorqueRegressor(
             self.pin_model, self.pin_data, q[self.index], qd[self.index], qdd[self.index]
         )
-        return np.asarray(Y)[self.inverse]
+        # a one-joint model's regressor comes back as a vector (Eigen's 1 x p matrix)
+        return np.asarray(Y).reshape(self.n_joints, -1)[self.inverse]
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)

@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from msarm.diagnose.builder import GROUP_UNITS
 from msarm.diagnose.effects import parameter_index
+from msarm.model import HAND_SITE
 
 if TYPE_CHECKING:
     from msarm.diagnose.where import GapBreakdown
@@ -198,7 +199,8 @@ class Diagnosis:
             and the canonical correlation.
         replay: The gap as motion on the held-out runs (:func:`_replay_gap`): the nominal
             dynamics driven by the logged commands over windows (0.2 s by default), without
-            and with the selected drive and joint terms; None when not computed.
+            and with the selected drive and joint terms; None when not computed. Its hand
+            errors are None for a model without the hand site (the joint RMSE alone).
         search: The selection's settings besides the threshold: ``shortlist`` (None: every
             candidate fitted jointly), ``screen_samples``, ``max_samples`` (training samples
             the fits use), ``max_score_samples`` (held-out samples the scores use), ``n_boot``,
@@ -618,10 +620,18 @@ class Diagnosis:
                 ("hand_error_end", "hand error at window end", "mm", 1e3),
             ):
                 b, a = r[f"{key}_before"], r[f"{key}_after"]
+                if b is None or a is None:  # a model without the hand site
+                    continue
                 share = 100 * (1 - a / b) if b > 0 else 0.0
                 lines.append(
                     f"| {label} | {scale * b:.3g} {unit} | {scale * a:.3g} {unit} | {share:.1f} % |"
                 )
+            if r.get("hand_error_end_before") is None:
+                lines += [
+                    "",
+                    f"No hand error: the model has no `{HAND_SITE}` site (the hand position "
+                    "is that site's); the replay is scored by its joint RMSE alone.",
+                ]
         lines += ["", "## Candidates tried at each step (held-out gain on their groups)", ""]
         if self.shortlisted:
             lines += [

@@ -511,18 +511,21 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     Returns:
         ``source`` (``"command"`` or ``"tension"``), the window [s], and before and after:
         the pooled joint RMSE of ``q_replay - q`` [rad] and the mean hand-position error at
-        the end of each window [m].
+        the end of each window [m] (``None`` for a model without the hand site
+        :data:`~msarm.model.HAND_SITE`: the joint RMSE alone is computed).
     """
+    from msarm.model import has_hand_site
     from msarm.tasks.evaluate import hand_position
 
     spec = data.spec
     hold, model = data.hold, data.model
+    hand = has_hand_site(model)  # a diagnosis-only model may have none: no hand error then
     per_window = max(1, round(spec.replay_window / hold.dt))
     ends = np.zeros(hold.n_samples, dtype=bool)
     for label in np.unique(hold.segment):  # the replay restarts after each time gap
         index = np.flatnonzero(hold.segment == label)
         ends[index[per_window - 1 :: per_window]] = True
-    p_log = hand_position(model, hold.q[ends])
+    p_log = hand_position(model, hold.q[ends]) if hand else None
     use_command = spec.replay_source == "command" and hold.tension_cmd is not None
     source = "command" if use_command else "tension"
     drive = hold.tension_cmd if use_command else hold.tension
@@ -539,9 +542,11 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
                 model, hold.q, hold.qd, tension, hold.segment, hold.dt, extra, spec,
                 period_ending=use_command or spec.target.tension_timing == "period",
             )  # fmt: skip
-        p_replay = hand_position(model, hold.q[ends] + error[ends])
         out[f"joint_rmse_{key}"] = pooled_rmse(error)
-        out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))
+        out[f"hand_error_end_{key}"] = None
+        if p_log is not None:
+            p_replay = hand_position(model, hold.q[ends] + error[ends])
+            out[f"hand_error_end_{key}"] = float(np.mean(np.linalg.norm(p_replay - p_log, axis=1)))
     return out
 
 
@@ -914,14 +919,15 @@ def _usable(
     required: set[str],
     absent: set[str],
 ) -> tuple[list[CandidateEffect], dict[str, str]]:
-    """Drop candidates whose groups or signals the logs lack (an error if the user named them).
+    """Drop candidates the logs or the model cannot support (an error if the user named them).
 
-    The signals are checked on the training logs and on the held-out logs
-    (``held_signals``): a term is fitted on the first and scored on the second; a nonlinear
-    term's starting guess is asked for on the training signals and ``residual`` (stacked,
-    ``layout``'s columns), as the fit asks for it. A warning names
-    those dropped for want of channels (``absent`` groups); those whose group is below its
-    resolution are only listed in the result.
+    A term with no parameter on the model (the mass error about a vertical hinge) is dropped
+    with the term's own reason where it gives one (``why_no_parameters``). The signals are
+    checked on the training logs and on the held-out logs (``held_signals``): a term is
+    fitted on the first and scored on the second; a nonlinear term's starting guess is asked
+    for on the training signals and ``residual`` (stacked, ``layout``'s columns), as the fit
+    asks for it. A warning names those dropped for want of channels (``absent`` groups) or
+    parameters; those whose group is below its resolution are only listed in the result.
     """
     usable, skipped = [], {}
     warn: list[str] = []
@@ -946,6 +952,9 @@ def _usable(
                 + "; ".join(_WHY_NO_GROUP.get(g, "no gap there") for g in missing)
                 + ")"
             )
+        elif term.n_parameters == 0:  # nothing to fit (the mass error about a vertical hinge)
+            why = getattr(term, "why_no_parameters", "")
+            reason = "has no parameter to fit on this model" + (f": {why}" if why else "")
         else:
             start = None
             for which, these in (("training", signals), ("held-out", held_signals)):

@@ -35,7 +35,8 @@ energy, so that its shares sum to 100 %:
     The cells of a grid over two joints (default: the two that move most, i.e. with the
     largest standard deviation of ``q``), ``bins`` equal bins over each joint's range in the
     model (postures outside the range go into the edge bins). Only cells with samples are
-    rows.
+    rows. A model with one joint has a grid of that joint against itself: only its diagonal
+    has samples, and each row is named by the one joint's bin (``jaw [-0.48, -0.16]``).
 
 Each row has the share of the energy [%], the share of time (samples) [%] and the energy
 density: share of energy / share of time. A density above 1 means the gap concentrates there
@@ -268,7 +269,8 @@ class GapBreakdown:
         rms: Root mean square over samples and channels [unit].
         rows: The rows, group by group (:data:`GROUPS` order), each group by share, largest
             first.
-        posture_joints: The two joints of the posture grid.
+        posture_joints: The two joints of the posture grid (the same joint twice for a model
+            with one joint).
         posture_edges: Bin edges of the grid over each of the two joints [rad].
         posture_rms: Residual RMS of each grid cell [unit], shape ``(bins, bins)``; NaN
             where the cell has no samples. Axis 0 is the first joint.
@@ -616,7 +618,8 @@ def break_down(
             ``"replay"``.
         settings: Phase thresholds.
         posture_joints: The two joints of the posture grid; default the two with the largest
-            standard deviation of ``q``.
+            standard deviation of ``q`` (a model with one joint: that joint twice, a grid whose
+            diagonal alone has samples).
         bins: Bins over each joint of the grid.
         model: The robot, for the joint ranges of the grid (without it the grid spans the
             logged range) and, a :class:`~msarm.model.RobotModel`, for the noise floor of the
@@ -801,10 +804,9 @@ def break_down(
     for i in range(bins):
         for k in range(bins):
             if grid_count[i, k]:
-                where = (
-                    f"{a} [{edges[0][i]:.2f}, {edges[0][i + 1]:.2f}] x "
-                    f"{b} [{edges[1][k]:.2f}, {edges[1][k + 1]:.2f}]"
-                )
+                where = f"{a} [{edges[0][i]:.2f}, {edges[0][i + 1]:.2f}]"
+                if pair[1] != pair[0]:  # a one-joint model's grid is its diagonal: one range
+                    where += f" x {b} [{edges[1][k]:.2f}, {edges[1][k + 1]:.2f}]"
                 count = int(grid_count[i, k])
                 add(
                     "posture",
@@ -956,7 +958,9 @@ def plot_heatmap(breakdown: GapBreakdown, path: str | Path) -> Path:
                 )
     ax.set_xlabel(f"{breakdown.posture_joints[1]} [{angle_unit}]")
     ax.set_ylabel(f"{breakdown.posture_joints[0]} [{angle_unit}]")
-    ax.set_title("residual RMS over posture (numbers: samples)")
+    first, second = breakdown.posture_joints
+    over = first if first == second else "posture"  # one joint: the grid's diagonal
+    ax.set_title(f"residual RMS over {over} (numbers: samples)")
 
     for ax, groups, title in (
         (axes[1], ("channel",), "share of residual energy by channel"),

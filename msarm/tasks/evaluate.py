@@ -31,12 +31,13 @@ from numpy.typing import NDArray
 from scipy.integrate import quad
 from scipy.optimize import minimize
 
-from msarm.model import RobotModel
+from msarm.model import HAND_SITE, RobotModel, hand_site_id
 from msarm.muscle.batch_kinematics import cable_kinematics_batch
 from msarm.muscle.geometry import joint_grid
 from msarm.tasks import metrics
 
 __all__ = [
+    "HAND_SITE",
     "TrackingMetrics",
     "cable_travel",
     "encoder_noise_floor",
@@ -51,8 +52,6 @@ SLACK_THRESHOLD = 1.0
 #: Margin beyond the tension bounds before a tension counts as outside them [N] (more than
 #: three standard deviations of the default load-cell noise).
 BOUND_TOLERANCE = 1.0
-#: End-effector site of the arm.
-HAND_SITE = "hand_center"
 #: Time after the reference comes to rest at which the settle error is taken [s].
 SETTLE_DELAY = 0.5
 
@@ -97,10 +96,14 @@ class TrackingMetrics:
 
 
 def hand_position(model: RobotModel, q: FloatArray) -> FloatArray:
-    """Position of the hand site [m] for postures ``q`` of shape ``(n,)`` or ``(T, n)``."""
+    """Position of the hand site [m] for postures ``q`` of shape ``(n,)`` or ``(T, n)``.
+
+    Raises:
+        ModelError: The model has no hand site :data:`~msarm.model.HAND_SITE`.
+    """
+    site = hand_site_id(model)
     q = np.atleast_2d(q)
     data = model.scratch_data().mj
-    site = model.mj_model.site(HAND_SITE).id
     out = np.empty((len(q), 3))
     for k, posture in enumerate(q):
         data.qpos[:] = posture
@@ -110,13 +113,18 @@ def hand_position(model: RobotModel, q: FloatArray) -> FloatArray:
 
 
 def hand_jacobian(model: RobotModel, q: FloatArray) -> FloatArray:
-    """Jacobian ``dp/dq`` of the hand site's position at posture ``q`` (n,) [m/rad], ``(3, n)``."""
+    """Jacobian ``dp/dq`` of the hand site's position at posture ``q`` (n,) [m/rad], ``(3, n)``.
+
+    Raises:
+        ModelError: The model has no hand site :data:`~msarm.model.HAND_SITE`.
+    """
+    site = hand_site_id(model)
     data = model.scratch_data().mj
     data.qpos[:] = q
     mujoco.mj_kinematics(model.mj_model, data)
     mujoco.mj_comPos(model.mj_model, data)
     jacobian = np.zeros((3, model.mj_model.nv))
-    mujoco.mj_jacSite(model.mj_model, data, jacobian, None, model.mj_model.site(HAND_SITE).id)
+    mujoco.mj_jacSite(model.mj_model, data, jacobian, None, site)
     return jacobian
 
 
