@@ -205,8 +205,11 @@ class Diagnosis:
             candidate fitted jointly), ``screen_samples``, ``max_samples`` (training samples
             the fits use), ``max_score_samples`` (held-out samples the scores use), ``n_boot``,
             ``seed`` and ``final_fit`` (``"projection"``: the named effects' final fit and the
-            bootstrap's at their joint optimum; absent from answers made before 2026-11-28)
-            (empty when not recorded).
+            bootstrap's at their joint optimum; ``"blocks"``: that optimum was not kept, and
+            the parameters are the selection's last step-wise fit by blocks, the bootstrap's
+            refits by blocks too, ``final_fit_rejected`` saying why; absent from answers made
+            before 2026-11-28), ``bootstrap_refits_by_blocks`` (draws whose joint optimum was
+            unsound, refitted by blocks) (empty when not recorded).
         log_warnings: What the logs lacked or held that the diagnosis worked around (a
             missing channel, a time gap, a sensor that holds one value), as the
             :class:`~msarm.diagnose.residuals.DiagnosisWarning` messages said it, each once
@@ -552,6 +555,13 @@ class Diagnosis:
                     " (by blocks); the named effects' parameters, and each bootstrap draw's, are "
                     "their joint optimum (variable projection)"
                     if self.search.get("final_fit") == "projection"
+                    else ""
+                )
+                + (
+                    " (by blocks); the named effects' parameters, and each bootstrap draw's, are "
+                    "the last step's fit by blocks: their joint optimum (variable projection) "
+                    f"was not kept ({self.search.get('final_fit_rejected')})"
+                    if self.search.get("final_fit") == "blocks"
                     else ""
                 )
                 + f"; {self.search.get('n_boot')} bootstrap draws (seed {self.search.get('seed')})."
