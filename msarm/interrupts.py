@@ -123,6 +123,8 @@ def signals_held() -> Iterator[None]:
         yield
     finally:
         for number, handler in previous.items():
+            # None: a handler set from C, which Python cannot put back; the default then
             signal.signal(number, signal.SIG_DFL if handler is None else handler)
-        for number in dict.fromkeys(received):
+        # SIGTERM first: its handler raises, and a SIGINT raised after it would never act
+        for number in sorted(set(received), key=lambda n: n != signal.SIGTERM):
             signal.raise_signal(number)

@@ -57,6 +57,7 @@ def test_size_fibres_maps_the_travel_onto_the_span():
         ([0.0, 2.0], (0.8, 1.2), r"pennation_at_optimal\[1\] = 2.0 rad"),
         ([0.0, 0.3], (0.8, 1.0, 1.2), r"span must be two numbers"),
         ([0.0, 0.3], (0.8, np.inf), r"span must satisfy"),
+        ([0.0, 0.3], (0.8, 2.6), r"s_hi <= 2.5 \(the longest fibre"),
     ],
 )
 def test_size_fibres_names_a_bad_pennation_or_span(pennation, span, message):

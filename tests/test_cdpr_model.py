@@ -304,6 +304,28 @@ def test_a_platform_that_can_touch_the_world_is_refused(tmp_path):
         load_cable_robot(path)
 
 
+def test_a_contact_pair_is_refused_and_contacts_switched_off_are_not(tmp_path):
+    """A <contact><pair> collides whatever the masks; <flag contact="disable"/> none at all."""
+    text = IPANEMA_MINI_PATH.read_text()
+    floor = text.replace(
+        '<body name="platform"',
+        '<geom name="floor" type="plane" size="1 1 0.1"/>\n    <body name="platform"',
+        1,
+    )
+    paired = floor.replace(
+        "</worldbody>",
+        '</worldbody>\n  <contact><pair geom1="platform" geom2="floor"/></contact>',
+        1,
+    )
+    (tmp_path / "pair.xml").write_text(paired)
+    with pytest.raises(ModelError, match=r"<contact><pair> of geoms '(platform|floor)' and"):
+        load_cable_robot(tmp_path / "pair.xml")
+    touching = floor.replace('contype="0" conaffinity="0"', 'contype="1" conaffinity="1"', 1)
+    off = touching.replace("<option ", '<option><flag contact="disable"/></option>\n  <option ', 1)
+    (tmp_path / "off.xml").write_text(off)
+    load_cable_robot(tmp_path / "off.xml")
+
+
 def test_missing_model_file(tmp_path):
     with pytest.raises(ModelError, match="not found"):
         load_cable_robot(tmp_path / "none.xml")

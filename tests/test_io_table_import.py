@@ -445,6 +445,16 @@ def test_a_sparse_column_is_skipped_or_left_out_when_empty(arm):
         log_from_columns(columns, arm, skip_columns=["pressure.pumps"])
 
 
+def test_a_header_that_starts_with_a_comment_mark_is_still_a_header(arm, tmp_path):
+    """``rostopic echo -p`` writes ``%time,...``: a header that names the time column."""
+    names = [f"q.{j}" for j in arm.joint_names] + [f"tension_motor.{c}" for c in arm.cable_names]
+    rows = [",".join([f"{0.004 * k:.3f}"] + ["0.1"] * len(names)) for k in range(5)]
+    path = tmp_path / "ros.csv"
+    path.write_text("\n".join([",".join(["%time", *names]), *rows]) + "\n")
+    log = read_csv_log(path, arm, sample_rate_hz=250, time_column="%time")
+    assert len(log) == 5
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [
@@ -461,8 +471,14 @@ def test_a_sparse_column_is_skipped_or_left_out_when_empty(arm):
         ("t,q.elbow,\n0,1,\n", r"column 3 of the header has no name \(a trailing comma\?\)"),
         # a logger's comment lines before the header (the mis-tool data's "%..." lines): the
         # parser said "Expected 1 columns, got 2"
-        ("%Used left spindle, tool 4\nt,q.elbow\n0,1\n", r"first line starts with '%', a comment"),
-        ("# written by rig 2\nt,q.elbow\n0,1\n", r"starts with '#', a comment .*grep -v '\^#'"),
+        (
+            "%Used left spindle, tool 4\nt,q.elbow\n0,1\n",
+            r"first line starts with '%' and names no time column 't', a comment",
+        ),
+        (
+            "# written by rig 2\nt,q.elbow\n0,1\n",
+            r"starts with '#' and names .* a comment .*grep -v '\^#'",
+        ),
     ],
 )
 def test_a_header_that_is_not_one_is_named(arm, tmp_path, text, message):

@@ -66,3 +66,16 @@ def test_fast_path_refuses_arrays_of_another_length(arm):
         fast.parts(lengths[:1], np.zeros(1))
     with pytest.raises(InputError, match=r"mtu_velocity has shape \(11,\); expected \(9,\)"):
         fast.parts(lengths, np.zeros(11))
+
+
+def test_fast_path_refuses_a_fibre_past_the_longest_length_as_the_reference_does(arm):
+    """Lengths in centimetres gave inf or 6.7e6 N of passive force with no error."""
+    fast = FastHill(arm.muscles)
+    lengths = list(np.array(arm.muscles.tendon_slack_length) + 0.1)  # a list is taken too
+    active, _ = fast.parts(lengths, [0.0] * arm.n_cables)
+    assert np.all(np.isfinite(active))
+    lengths[2] *= 100.0
+    with pytest.raises(InputError, match=r"mtu_length\[2\] .* past 2.5 optimal lengths"):
+        fast.parts(lengths, [0.0] * arm.n_cables)
+    with pytest.raises(InputError, match=r"mtu_length\[2\] .* at most 2.5"):
+        arm.muscles.force_capacity(lengths, np.zeros(arm.n_cables))

@@ -346,7 +346,7 @@ def validate_tick(
     Raises:
         InputError: On a wrong shape, a NaN or infinity, or f_min > f_max, naming it.
     """
-    M, b, f_min, f_max, _ = check_tick(spec, M, b, f_min, f_max)
+    M, b, f_min, f_max = check_tick(spec, M, b, f_min, f_max)
     check_bound_order(f_min, f_max)
     return M, b, f_min, f_max
 
@@ -396,8 +396,8 @@ def tension_bounds(
 
 def check_tick(
     spec: AllocationSpec, M: ArrayLike, b: ArrayLike, f_min: ArrayLike, f_max: ArrayLike
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, float]:
-    """The hot path of ``validate_tick``: shapes and finiteness, and ``b @ b``.
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The hot path of ``validate_tick``: shapes and finiteness.
 
     It does not check ``f_min <= f_max``: ``Allocator.solve`` calls ``check_bound_order``
     after it (a solver's answer does not prove the order).
@@ -410,8 +410,8 @@ def check_tick(
         f_max: Upper force bounds [N], shape (n_actuators,) or a scalar.
 
     Returns:
-        ``(M, b, f_min, f_max, b @ b)`` as float64 arrays of those shapes (bounds broadcast
-        to (n_actuators,)) and the squared norm of ``b``.
+        ``(M, b, f_min, f_max)`` as float64 arrays of those shapes (bounds broadcast to
+        (n_actuators,)).
 
     Raises:
         InputError: A wrong shape or a non-finite value, named.
@@ -440,12 +440,11 @@ def check_tick(
     # Three dot products catch every NaN and infinity at once (inf * 0, inf - inf and NaN
     # all end non-finite); an overflow of the sum alone goes to the exact check, which passes.
     flat = M.reshape(-1)
-    bb = float(b @ b)
     with np.errstate(invalid="ignore", over="ignore"):  # 0 * inf: the check's own NaN
-        total = float(flat @ flat) + bb + float(f_min @ f_max)
+        total = float(flat @ flat) + float(b @ b) + float(f_min @ f_max)
     if not math.isfinite(total):
         _diagnose(M, b, f_min, f_max, "")
-    return M, b, f_min, f_max, bb
+    return M, b, f_min, f_max
 
 
 def validate_batch(

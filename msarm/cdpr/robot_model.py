@@ -651,7 +651,17 @@ def _check_no_forces_of_mujoco(mj_model: mujoco.MjModel, body: int, path: Path) 
             f"{path}: cable '{name}' has a length range (limited); MuJoCo would add a limit "
             "force the nominal model lacks: leave range and limited out of the tendons"
         )
+    if mj_model.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_CONTACT):
+        return  # <flag contact="disable"/>: no contact at all
     geoms = np.arange(mj_model.ngeom)
+    for k in range(mj_model.npair):  # <contact><pair>: collides whatever the geoms' masks
+        pair = (int(mj_model.pair_geom1[k]), int(mj_model.pair_geom2[k]))
+        if any(mj_model.geom_bodyid[g] == body for g in pair):
+            raise ModelError(
+                f"{path}: a <contact><pair> of geoms '{mj_model.geom(pair[0]).name}' and "
+                f"'{mj_model.geom(pair[1]).name}' makes the platform collide; contacts are not "
+                "in the nominal model: leave the pair out"
+            )
     contype, conaffinity = mj_model.geom_contype, mj_model.geom_conaffinity
     mine = geoms[mj_model.geom_bodyid == body]
     others = geoms[mj_model.geom_bodyid != body]

@@ -920,7 +920,7 @@ def replay_runs(
     lost: FloatArray | None = None,
     spec: ResidualSpec | None = None,
     *,
-    period_ending: bool = True,
+    period_ending: bool | None = None,
 ) -> FloatArray:
     """Replay residual of concatenated runs, optionally with a fitted torque loss.
 
@@ -943,12 +943,15 @@ def replay_runs(
             at ``t_k`` (msarm's load cells with ``tension_timing="period"``, and commands
             aligned with the tension that answers them): the step from ``t_k`` to
             ``t_k+1`` is then driven by ``tension[k + 1]``; else (tensions read at their
-            instant) by ``tension[k]``.
+            instant) by ``tension[k]``. None: as ``spec.target.tension_timing`` says of
+            load-cell tensions (pass True for aligned commands).
 
     Returns:
         ``q_replay - q`` [rad], ``(T, n)``.
     """
     spec = spec or ResidualSpec()
+    if period_ending is None:
+        period_ending = spec.target.tension_timing == "period"
     work = _Work(model)
     out = np.empty_like(q)
     for label in np.unique(run):

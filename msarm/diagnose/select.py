@@ -663,7 +663,7 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
         if error is None or not nothing:
             error = replay_runs(
                 model, hold.q, hold.qd, tension, hold.segment, hold.dt, extra, spec,
-                period_ending=use_command or spec.target.tension_timing == "period",
+                period_ending=True if use_command else None,  # commands: aligned
             )  # fmt: skip
         out[f"joint_rmse_{key}"] = pooled_rmse(error)
         out[f"hand_error_end_{key}"] = None

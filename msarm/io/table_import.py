@@ -287,9 +287,10 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
     # the header first: a file of another separator fails in the parser with a message
     # that names no separator ("Expected 1 columns, got 37")
     header = _header(path, source)
+    time_column = options.get("time_column", TIME)
+    _refuse_comment_line(header, time_column, source)
     _check_header([name.strip() for name in header], source)
     # the time as text: an epoch time parsed to float64 would lose its steps' digits
-    time_column = options.get("time_column", TIME)
     text = {name: pa.string() for name in header if name.strip() == time_column}
     convert = pacsv.ConvertOptions(column_types=text, strings_can_be_null=True)
     try:
@@ -344,13 +345,36 @@ def read_csv_log(path: str | Path, model: RobotModel, **options: Any) -> RunLog:
 _COMMENT_MARKS = ("%", "#")
 
 
+def _refuse_comment_line(header: list[str], time_column: str, source: str) -> None:
+    """Refuse a first line that is a logger's comment, not the header (``%...``, ``#...``).
+
+    A header may start with such a mark itself (``rostopic echo -p`` writes ``%time,...``):
+    the line is a comment only when the time column is not one of its fields.
+
+    Raises:
+        InputError: The first line starts with ``%`` or ``#`` and does not name the time
+            column (how to strip such lines is said).
+    """
+    text = ",".join(header).lstrip()
+    names = [name.strip() for name in header]
+    if not text.startswith(_COMMENT_MARKS) or time_column in names:
+        return
+    mark = text[0]
+    raise InputError(
+        f"{source}: not a CSV file msarm reads: its first line starts with {mark!r} and names "
+        f"no time column {time_column!r}, a comment ({text[:60]!r}); expected a header row "
+        f"of column names first. Remove the comment lines (grep -v '^{mark}' FILE > "
+        "FILE.csv, if the header does not start with it too) or convert the file with a "
+        "script of your own (examples/real_cable_transmission.py reads such files)"
+    )
+
+
 def _header(path: Path, source: str) -> list[str]:
     """The names of a CSV file's first line, as written (``.csv.gz`` decompressed).
 
     Raises:
         InputError: The file cannot be read or decompressed, is a Parquet file (a log
-            already), holds binary data, or its first line is not UTF-8 text, a comment
-            (``%`` or ``#``) or not CSV.
+            already), holds binary data, or its first line is not UTF-8 text or not CSV.
     """
     import csv
 
@@ -374,14 +398,6 @@ def _header(path: Path, source: str) -> list[str]:
             f"{first[exc.start]:#04x} at position {exc.start}); expected a CSV file in UTF-8 "
             "(one saved as Latin-1 or Windows-1252? Save it as UTF-8)"
         ) from None
-    if text.lstrip().startswith(_COMMENT_MARKS):
-        mark = text.lstrip()[0]
-        raise InputError(
-            f"{source}: not a CSV file msarm reads: its first line starts with {mark!r}, a "
-            f"comment ({text[:60]!r}); expected a header row of column names first. Remove "
-            f"the comment lines (grep -v '^{mark}' FILE > FILE.csv) or convert the file with "
-            "a script of your own (examples/real_cable_transmission.py reads such files)"
-        )
     try:
         return next(csv.reader([text]), [])
     except csv.Error as exc:

@@ -34,7 +34,7 @@ from msarm.muscle.curves import (
     PASSIVE_E0,
     PASSIVE_KPE,
 )
-from msarm.muscle.hill import HillMuscles
+from msarm.muscle.hill import MAX_FIBRE_LENGTH, HillMuscles
 from msarm.numba_cache import drop_stale_kernels
 
 drop_stale_kernels(__file__)  # cached kernels of old imported code: compile again
@@ -60,8 +60,10 @@ def hill_parts(
 ):
     """Write active and passive tendon-force parts [N]; return the first bad index or -1.
 
-    A muscle is bad when its MTU length or speed is not finite or its length is not longer
-    than its tendon slack length. The compiled kernel of :meth:`FastHill.parts`, also for
+    A muscle is bad when its MTU length or speed is not finite, its length is not longer
+    than its tendon slack length, or its fibre would be longer than
+    :data:`~msarm.muscle.hill.MAX_FIBRE_LENGTH` optimal lengths (as :class:`HillMuscles`
+    refuses). The compiled kernel of :meth:`FastHill.parts`, also for
     compiled callers: the muscle arrays between ``velocities`` and ``active`` are
     :attr:`FastHill.parameters`.
     """
@@ -72,6 +74,8 @@ def hill_parts(
             return i
         fiber = math.hypot(along, thickness[i])
         l_norm = fiber / l_opt[i]
+        if l_norm > MAX_FIBRE_LENGTH:
+            return i
         cos_alpha = along / fiber
         v_norm = velocities[i] * cos_alpha / (v_max[i] * l_opt[i])
         if v_norm < -1.0:
@@ -154,10 +158,12 @@ class FastHill:
 
         Raises:
             InputError: An argument is not of shape ``(m,)``, an MTU length or speed is not
-                finite, or a length is not longer than its tendon slack length (argument,
-                muscle and value named).
+                finite, or a length is not longer than its tendon slack length or stretches
+                the fibre past ``MAX_FIBRE_LENGTH`` (argument, muscle and value named).
         """
         m = self.active.shape[0]
+        mtu_length = np.asarray(mtu_length, dtype=np.float64)  # a list: not numba's TypingError
+        mtu_velocity = np.asarray(mtu_velocity, dtype=np.float64)
         for name, value in (("mtu_length", mtu_length), ("mtu_velocity", mtu_velocity)):
             if np.shape(value) != (m,):
                 raise InputError(
@@ -176,6 +182,12 @@ class FastHill:
             return f"mtu_length[{i}] {muscle} must be finite, got {length} m"
         if not math.isfinite(speed):
             return f"mtu_velocity[{i}] {muscle} must be finite, got {speed} m/s"
+        if length > float(self._l_slack[i]):
+            return (
+                f"mtu_length[{i}] {muscle} = {length} m stretches its fibre past "
+                f"{MAX_FIBRE_LENGTH:g} optimal lengths (the longest the Hill model takes): are "
+                "the lengths in metres?"
+            )
         return (
             f"mtu_length[{i}] {muscle} = {length} m is not longer than its tendon slack length "
             f"{float(self._l_slack[i])} m (the fibre length would be <= 0)"

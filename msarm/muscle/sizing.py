@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from msarm.errors import InputError
+from msarm.muscle.hill import MAX_FIBRE_LENGTH
 
 __all__ = ["size_fibres"]
 
@@ -42,9 +43,9 @@ def size_fibres(
 
     Raises:
         InputError: ``cable_lengths`` is not a finite ``(k, m)`` array with ``k >= 2``;
-            ``pennation_at_optimal`` is not of shape ``(m,)``; ``span`` does not satisfy
-            ``sin(a0) < s_lo < s_hi`` for every cable; or a cable does not change length
-            over the postures.
+            ``pennation_at_optimal`` is not of shape ``(m,)`` or not in ``[0, pi/2)``;
+            ``span`` is not two numbers with ``sin(a0) < s_lo < s_hi <= MAX_FIBRE_LENGTH``
+            for every cable; or a cable does not change length over the postures.
     """
     lengths = np.asarray(cable_lengths, dtype=float)
     alpha = np.asarray(pennation_at_optimal, dtype=float)
@@ -68,10 +69,11 @@ def size_fibres(
             f"span must be two numbers (s_lo, s_hi), normalised fibre lengths; got {span!r}"
         ) from exc
     sin2 = np.sin(alpha) ** 2
-    if not 0 < s_lo < s_hi < np.inf or np.any(s_lo**2 <= sin2):
+    if not 0 < s_lo < s_hi <= MAX_FIBRE_LENGTH or np.any(s_lo**2 <= sin2):
         raise InputError(
-            f"span must satisfy sin(pennation) < s_lo < s_hi < inf for every cable (largest "
-            f"sin(pennation) {float(np.sqrt(sin2.max(initial=0.0))):.4g}); got {span!r}"
+            f"span must satisfy sin(pennation) < s_lo < s_hi <= {MAX_FIBRE_LENGTH:g} (the "
+            "longest fibre the Hill model takes) for every cable (largest sin(pennation) "
+            f"{float(np.sqrt(sin2.max(initial=0.0))):.4g}); got {span!r}"
         )
     l_min, l_max = lengths.min(axis=0), lengths.max(axis=0)
     if np.any(l_max - l_min <= 0):

@@ -215,7 +215,7 @@ class Allocator(ABC):
             InputError: On wrong shapes, NaN or infinite values, or f_min > f_max.
         """
         t0 = perf_counter()
-        M, b, f_min, f_max, _ = check_tick(self.spec, M, b, f_min, f_max)
+        M, b, f_min, f_max = check_tick(self.spec, M, b, f_min, f_max)
         # checked on every path: a solver's answer does not prove the order (DAQP returns
         # f = 0 as optimal for b = 0 with f_min > f_max; a closed form can overstep f_max)
         check_bound_order(f_min, f_max)
