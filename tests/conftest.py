@@ -129,3 +129,19 @@ def assert_same_run_bits(python, compiled) -> None:
         np.testing.assert_array_equal(
             python.truth[name].view(np.uint64), compiled.truth[name].view(np.uint64), name
         )
+
+
+def run_msarm(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
+    """Run ``msarm ARGS...`` in this process: ``(exit code, stdout, stderr)``."""
+    import sys
+
+    from msarm.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["msarm", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err

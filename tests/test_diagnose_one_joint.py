@@ -10,12 +10,12 @@ the diagnosis must name that friction.
 from __future__ import annotations
 
 import json
-import sys
 import warnings
 
 import numpy as np
 import pinocchio
 import pytest
+from conftest import run_msarm
 
 from msarm.diagnose.bench_parameters import parameter_errors
 from msarm.diagnose.effects import InertiaError
@@ -139,19 +139,6 @@ def jaw(tmp_path_factory):
     return path, model, _write_logs(model, root / "logs")
 
 
-def _main(monkeypatch, capsys, *args):
-    from msarm.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["msarm", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
 def test_a_joint_named_like_its_body_loads(jaw):
     """Pinocchio has a body frame and a joint frame 'jaw': the engines are compared on the
     body's (a look-up by name alone raised "Several frames match the filter")."""
@@ -183,7 +170,7 @@ def test_diagnose_names_the_jaws_friction_end_to_end(jaw, tmp_path, monkeypatch,
     path, model, logs = jaw
     out = tmp_path / "report"
     train = [str(p) for p in logs[:3]]
-    code, stdout, err = _main(
+    code, stdout, err = run_msarm(
         monkeypatch, capsys, "diagnose", *train, "--holdout", str(logs[3]),
         "--model", str(path), "--boot", "0", "--json", "--out", str(out),
     )  # fmt: skip
@@ -269,7 +256,7 @@ def test_log_import_with_the_one_joint_model(jaw, tmp_path, monkeypatch, capsys)
     csv.write_text(
         ",".join(names) + "\n" + "".join(",".join(repr(float(v)) for v in r) + "\n" for r in rows)
     )
-    code, stdout, err = _main(
+    code, stdout, err = run_msarm(
         monkeypatch, capsys, "log", "import", str(csv), "--model", str(path), "--json"
     )
     assert code == 0, err

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import warnings
 from decimal import Decimal
 
@@ -12,6 +11,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 import pytest
+from conftest import run_msarm
 
 from msarm.errors import InputError, LogError
 from msarm.io.logs import STANDARD_UNITS, LogMetadata, RunLog, read_log, write_log
@@ -248,11 +248,11 @@ def test_msarm_log_import_says_what_is_not_a_csv_file_in_one_line(
     log = write_log(tmp_path / "run" / "log.parquet", _recording(arm))
     out = tmp_path / "out"
     for path, message in [(empty, "no samples"), (log, "a Parquet file")]:
-        code, _, err = _main(monkeypatch, capsys, "log", "import", str(path), "--out", str(out))
+        code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(path), "--out", str(out))
         assert code == 2 and err.startswith(f"msarm: error: {path}: {message}")
         assert err.count("\n") == 1 and not out.exists()
     # without --out its log would replace it: said as a log given, not as a CSV file
-    code, _, err = _main(monkeypatch, capsys, "log", "import", str(log))
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(log))
     assert code == 2 and err.startswith(f"msarm: error: {log}: a Parquet file")
 
 
@@ -264,19 +264,6 @@ def test_the_sample_rate_is_taken_from_jittered_times_to_six_digits(arm):
     assert got.metadata.sample_rate_hz == float(f"{got.metadata.sample_rate_hz:.6g}")
 
 
-def _main(monkeypatch, capsys, *args):
-    from msarm.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["msarm", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
 def test_msarm_log_import_writes_logs_the_diagnosis_reads(arm, tmp_path, monkeypatch, capsys):
     log = _recording(arm)
     robot = tmp_path / "robot"
@@ -286,7 +273,7 @@ def test_msarm_log_import_writes_logs_the_diagnosis_reads(arm, tmp_path, monkeyp
     other = _write_csv(robot / "run2.csv", columns)
     options = ["--unit", "q=deg", "--unit", "motor_angle=deg", "--unit", "tension_motor=kN"]
     options += ["--unit", "tension_cmd=kN", "--time-column", "time_ms", "--time-unit", "ms"]
-    code, out, err = _main(monkeypatch, capsys, "log", "import", str(csv), *options, "--json")
+    code, out, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv), *options, "--json")
     assert code == 0, err
     report = json.loads(out)
     written = report["logs"][0]
@@ -297,12 +284,12 @@ def test_msarm_log_import_writes_logs_the_diagnosis_reads(arm, tmp_path, monkeyp
     assert written["residuals"] == {k: k in everything for k in written["residuals"]}
     assert sorted(read_log(robot / "run1.parquet").columns) == sorted(log.columns)
     # a run without tension commands: the drive residual is said to be unavailable
-    code, out, err = _main(
+    code, out, err = run_msarm(
         monkeypatch, capsys, "log", "import", str(other), "--out", str(tmp_path / "logs")
     )
     assert code == 0, err
     assert "no drive residual" in out and "warning:" in out
-    code, out, err = _main(
+    code, out, err = run_msarm(
         monkeypatch, capsys, "log", "import", str(other), "--out", str(tmp_path / "logs"), "--json"
     )
     support = json.loads(out)["logs"][0]["residuals"]
@@ -325,7 +312,7 @@ def test_msarm_log_import_writes_logs_the_diagnosis_reads(arm, tmp_path, monkeyp
 def test_msarm_log_import_checks_its_options(tmp_path, monkeypatch, capsys, args, message):
     csv = tmp_path / "run.csv"
     csv.write_text("t,q.elbow\n0,1\n0.004,2\n")
-    code, _, err = _main(monkeypatch, capsys, "log", "import", str(csv), *args)
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv), *args)
     assert code == 2 and err.strip() == f"msarm: error: {message}"
 
 
@@ -335,11 +322,11 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(arm, tmp_path, mon
     rows = [",".join(["t", *names])] + [f"{t},{','.join(['1'] * len(names))}" for t in (0, 0.004)]
     good.write_text("\n".join(rows) + "\n")
     bad.write_text("t,q.knee\n0,1\n0.004,2\n")
-    code, _, err = _main(monkeypatch, capsys, "log", "import", str(good), str(bad))
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(good), str(bad))
     assert code == 2 and "bad.csv: column 'q.knee' names no joint" in err
     worse = tmp_path / "worse.csv"
     worse.write_text("t;q.elbow\n0;1\n")
-    code, _, err = _main(monkeypatch, capsys, "log", "import", str(bad), str(good), str(worse))
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(bad), str(good), str(worse))
     assert code == 2 and err.count("\n") == 1  # one line, naming every file refused
     assert "2 of 3 CSV files cannot be imported (nothing written): " in err
     assert "bad.csv: column 'q.knee'" in err and "worse.csv: the header is one column" in err
@@ -348,7 +335,7 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(arm, tmp_path, mon
     (tmp_path / "b").mkdir()
     for folder in "ab":
         (tmp_path / folder / "run.csv").write_text("t,q.elbow\n0,1\n0.004,2\n")
-    code, _, err = _main(
+    code, _, err = run_msarm(
         monkeypatch,
         capsys,
         "log",
@@ -364,7 +351,7 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(arm, tmp_path, mon
     # log is written (before, its log was written and then refused by the check)
     partial = tmp_path / "partial.csv"
     partial.write_text("t,q.elbow\n0,1\n0.004,2\n")
-    code, _, err = _main(monkeypatch, capsys, "log", "import", str(partial), str(good))
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(partial), str(good))
     assert code == 2 and err.count("\n") == 1
     assert "partial.csv: columns 'q.shoulder_abduction', 'q.shoulder_flexion'," in err
     assert "the diagnosis needs q.<joint> for every joint and tension_motor.<cable>" in err
@@ -373,11 +360,11 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(arm, tmp_path, mon
     # a log never replaces a file given, nor is written when another's path is a folder
     own = tmp_path / "own.parquet"
     own.write_text("t,q.elbow\n0,1\n0.004,2\n")
-    code, _, err = _main(monkeypatch, capsys, "log", "import", str(own))
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(own))
     assert code == 2 and "would replace a CSV file given" in err
     assert own.read_text().startswith("t,q.elbow")
     (tmp_path / "b" / "run.parquet").mkdir()
-    code, _, err = _main(
+    code, _, err = run_msarm(
         monkeypatch, capsys, "log", "import", str(good), str(tmp_path / "b" / "run.csv")
     )
     assert code == 2 and "run.parquet is a folder" in err
@@ -682,12 +669,12 @@ def test_tensions_in_kn_imported_as_n_are_warned_with_the_unit_to_give(
     log = _recording(arm)
     columns = {k: (v / 1e3 if k.startswith("tension_") else v) for k, v in log.columns.items()}
     csv = _write_csv(tmp_path / "kn.csv", columns)
-    code, out, err = _main(monkeypatch, capsys, "log", "import", str(csv), "--json")
+    code, out, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv), "--json")
     assert code == 0, err
     (said,) = [w for w in json.loads(out)["logs"][0]["warnings"] if "below 1 N" in w]
     assert f"{tmp_path / 'kn.parquet'}: the tensions tension_motor.* (median " in said
     assert "import it again with --unit tension_motor=kN --unit tension_cmd=kN" in said
     units = ["--unit", "tension_motor=kN", "--unit", "tension_cmd=kN"]
-    code, out, err = _main(monkeypatch, capsys, "log", "import", str(csv), *units, "--json")
+    code, out, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv), *units, "--json")
     assert code == 0, err
     assert not [w for w in json.loads(out)["logs"][0]["warnings"] if "below 1 N" in w]
