@@ -145,3 +145,26 @@ def run_msarm(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
         code = exc.code
     captured = capsys.readouterr()
     return code, captured.out, captured.err
+
+
+def hand_breakdown(rows, settings, samples: int = 1000):
+    """A :class:`~msarm.diagnose.where.GapBreakdown` of the drive residual made of ``rows``
+    by hand (total energy 100, RMS 1, a one-cell posture grid): for hot-spot rules."""
+    import numpy as np
+
+    from msarm.diagnose.where import GapBreakdown
+
+    return GapBreakdown(
+        kind="drive",
+        unit="N",
+        sources=("hand",),
+        samples=samples,
+        total_energy=100.0,
+        rms=1.0,
+        rows=rows,
+        posture_joints=("a", "b"),
+        posture_edges=(np.zeros(2), np.zeros(2)),
+        posture_rms=np.zeros((1, 1)),
+        posture_samples=np.ones((1, 1), dtype=np.int64),
+        settings=settings,
+    )

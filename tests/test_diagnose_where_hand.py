@@ -12,11 +12,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import hand_breakdown
 
 from msarm.diagnose.residuals import Residuals
 from msarm.diagnose.where import (
     BreakdownRow,
-    GapBreakdown,
     PhaseSettings,
     break_down,
     load_phases,
@@ -256,7 +256,7 @@ def test_hot_spots_are_the_densest_non_channel_rows_with_enough_time():
         _row("load", "low_tension", 12.0, 4.0),  # density 3, too little time
     )
     # the rows have one sample each
-    breakdown = _breakdown(rows, PhaseSettings(hot_spot_samples=1))
+    breakdown = hand_breakdown(rows, PhaseSettings(hot_spot_samples=1))
     hot = breakdown.hot_spots(min_time_share=5.0)
     assert [(r.group, r.where) for r in hot] == [("motion", "hold"), ("load", "high_load")]
     assert [r.where for r in breakdown.hot_spots(count=1)] == ["hold"]
@@ -275,23 +275,6 @@ def test_logs_of_different_robots_and_a_grid_without_bins_are_refused():
         break_down(one).group("joints")
 
 
-def _breakdown(rows: tuple[BreakdownRow, ...], settings: PhaseSettings) -> GapBreakdown:
-    return GapBreakdown(
-        kind="drive",
-        unit="N",
-        sources=("hand",),
-        samples=1000,
-        total_energy=100.0,
-        rms=1.0,
-        rows=rows,
-        posture_joints=("a", "b"),
-        posture_edges=(np.zeros(2), np.zeros(2)),
-        posture_rms=np.zeros((1, 1)),
-        posture_samples=np.ones((1, 1), dtype=np.int64),
-        settings=settings,
-    )
-
-
 def test_hot_spots_need_a_margin_above_one_and_enough_samples():
     """Densities that scatter about 1 (a plant with sensor noise alone) are no hot spot."""
     rows = (
@@ -300,15 +283,15 @@ def test_hot_spots_need_a_margin_above_one_and_enough_samples():
         BreakdownRow("posture", "cell", 15.0, 15.0, 10.0, 1.5, 99),
     )
     settings = PhaseSettings()
-    noise = _breakdown(rows, settings)
+    noise = hand_breakdown(rows, settings)
     assert noise.hot_spots() == []
     assert "Hot spots: none, no concentration" in noise.to_markdown()
     assert f"density >= {settings.hot_spot_density:g}" in noise.to_markdown()
     # the margins are the settings' (named, recorded with the breakdown)
-    looser = _breakdown(rows, replace(settings, hot_spot_density=1.1))
+    looser = hand_breakdown(rows, replace(settings, hot_spot_density=1.1))
     assert [r.where for r in looser.hot_spots()] == ["high_load"]
     assert "Hot spots: load high_load (x1.15" in looser.to_markdown()
-    fewer = _breakdown(rows, replace(settings, hot_spot_samples=99))
+    fewer = hand_breakdown(rows, replace(settings, hot_spot_samples=99))
     assert [r.where for r in fewer.hot_spots()] == ["cell"]
     for bad in ({"hot_spot_density": 0.9}, {"hot_spot_samples": 0}):
         with pytest.raises(ValueError, match=next(iter(bad))):

@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import hand_breakdown
 
 import msarm.diagnose.select as select
 from msarm.diagnose.cable_effects import WinchFriction
@@ -41,7 +42,6 @@ from msarm.diagnose.signals import Signals
 from msarm.diagnose.stack import Layout, own_gain
 from msarm.diagnose.where import (
     BreakdownRow,
-    GapBreakdown,
     PhaseSettings,
     break_down,
     motion_phases,
@@ -343,20 +343,7 @@ def test_a_hot_spot_may_have_exactly_the_least_density():
         BreakdownRow("motion", "hold", 24.0, 24.0, 20.0, settings.hot_spot_density, 500),
         BreakdownRow("load", "high_load", 23.9, 23.9, 20.0, 1.195, 500),
     )
-    breakdown = GapBreakdown(
-        kind="joint_torque",
-        unit="N m",
-        sources=("hand",),
-        samples=2500,
-        total_energy=100.0,
-        rms=1.0,
-        rows=rows,
-        posture_joints=("a", "b"),
-        posture_edges=(np.zeros(2), np.zeros(2)),
-        posture_rms=np.zeros((1, 1)),
-        posture_samples=np.ones((1, 1), dtype=np.int64),
-        settings=settings,
-    )
+    breakdown = hand_breakdown(rows, settings, samples=2500)
     assert [r.where for r in breakdown.hot_spots()] == ["hold"]
 
 
