@@ -11,6 +11,7 @@ from test_diagnose_effects import _make_signals
 import msarm.diagnose.stack as stack
 from msarm.diagnose.effects import (
     CableCapstanFriction,
+    CandidateEffect,
     CoulombFriction,
     DahlFriction,
     InertiaError,
@@ -367,3 +368,110 @@ def test_the_joint_optimum_keeps_a_terms_constraints(arm):
     np.testing.assert_allclose(theta.reshape(4, 4)[:, 3], viscous, rtol=1e-3)
     np.testing.assert_allclose(joint.parameters[1], dahl_true, rtol=1e-2)
     assert _train_error(sampled, joint) < 1e-8 * float(np.sum(sampled.residual["train"] ** 2))
+
+
+class _Fixed(CandidateEffect):
+    """A linear term with a given design (its groups' columns), to test the solvers."""
+
+    description = "a given design"
+
+    def __init__(self, name: str, groups: tuple[str, ...], design: np.ndarray) -> None:
+        self.name = name  # type: ignore[misc]
+        self.groups = groups
+        self.values = design
+        self.parameter_names = tuple(f"a{k}" for k in range(design.shape[2]))
+        self.channels = tuple(range(design.shape[1]))
+
+    def design(self, signals):
+        return self.values
+
+
+def test_terms_on_different_groups_are_factored_by_blocks(arm):
+    """The joint least squares of terms on disjoint rows, a block at a time: the same answer
+    as the whole design's (numpy's lstsq, to round-off), with the whole design's cut."""
+    from msarm.diagnose.fitting import BlockSolver, LinearSolver, _solve_linear
+
+    rng = np.random.default_rng(5)
+    signals = _make_signals(arm, seed=4)
+    T, n, m = signals.n_samples, signals.n_joints, signals.n_cables
+    groups = {"joint": rng.normal(size=(T, n)), "drive": rng.normal(size=(T, m))}
+    layout = Layout(groups)
+    stacked = layout.stack(groups)
+    data = DiagnosisData(
+        model=arm,
+        train=signals,
+        hold=signals,
+        layout=layout,
+        r_train=stacked,
+        r_hold=stacked,
+        candidates=(),
+        skipped={},
+        train_runs=("run0",),
+        holdout_runs=("run0",),
+        channel_names={"joint": tuple(arm.joint_names), "drive": tuple(arm.cable_names)},
+    )
+    sampled = Sampled(data, T)
+    a = Embedded(_Fixed("a", ("joint",), rng.normal(size=(T, n, 3))), layout)
+    b = Embedded(_Fixed("b", ("drive",), rng.normal(size=(T, m, 4))), layout)
+    c = Embedded(_Fixed("c", ("joint",), rng.normal(size=(T, n, 2))), layout)
+    terms = [a, b, c]
+    solver = sampled.solver(terms)
+    assert isinstance(solver, BlockSolver) and len(solver.parts) == 2
+    assert sampled.solver(terms) is solver  # the last set is kept
+    whole = sampled.joint_design(terms)
+    r = stacked + rng.normal(size=stacked.shape)
+    np.testing.assert_allclose(solver.solve(r), _solve_linear(whole, r), rtol=1e-9)
+    weights = rng.integers(0, 3, size=T).astype(float)
+    root = np.sqrt(weights)[:, None]
+    np.testing.assert_allclose(
+        sampled.weighted_solver(terms, weights)(r),
+        _solve_linear(whole * root[:, :, None], r * root),
+        rtol=1e-9,
+    )
+    # the blocks are kept: a set that shares the joint block factors only the new one
+    d = Embedded(_Fixed("d", ("drive",), rng.normal(size=(T, m, 2))), layout)
+    again = sampled.solver([a, c, d])
+    assert isinstance(again, BlockSolver) and again.parts[0][1] is solver.parts[0][1]
+    # a singular value above its block's own cut but not above the whole design's (set by
+    # the other block's largest, 30 equal columns): dropped, as the whole design drops it
+    base = rng.normal(size=(T, n, 1))
+    other = rng.normal(size=(T, n, 1))
+    own = LinearSolver(np.concatenate([base, base], axis=2))
+    largest = float(own.singular.max())
+    size = T * layout.width
+    for nudge in np.geomspace(1e-14, 1e-9, 60):
+        pair = np.concatenate([base, base + nudge * other], axis=2)
+        singular = np.linalg.svd(
+            (pair / np.linalg.norm(pair.reshape(-1, 2), axis=0)).reshape(-1, 2), compute_uv=False
+        )
+        if singular[-1] > 3.0 * np.finfo(float).eps * size * largest:
+            break
+    equal = Embedded(_Fixed("e", ("drive",), np.repeat(rng.normal(size=(T, m, 1)), 30, 2)), layout)
+    near = Embedded(_Fixed("f", ("joint",), pair), layout)
+    solver = sampled.solver([near, equal])
+    cut = np.finfo(float).eps * size * float(np.sqrt(30.0))
+    assert LinearSolver(sampled.design(near, "train")).singular.size == 2  # its own cut keeps it
+    assert singular[-1] <= cut  # the whole design's drops it
+    theta = solver.solve(r)
+    np.testing.assert_allclose(theta[:2], theta[0], rtol=1e-9)  # as for two equal columns
+    np.testing.assert_allclose(theta[2:], theta[2], rtol=1e-9)  # the min-norm share
+
+
+def test_the_buffered_solver_gives_casadis_answer_bit_for_bit():
+    import casadi
+
+    from msarm.diagnose.fitting import IPOPT_OPTIONS, BufferedNlpsol
+
+    x, p = casadi.MX.sym("x", 2), casadi.MX.sym("p", 3)
+    problem = {"x": x, "p": p, "f": casadi.sumsqr(casadi.exp(x * p[:2]) - p[2]), "g": x[0] - x[1]}
+    solver = casadi.nlpsol("s", "ipopt", problem, IPOPT_OPTIONS)
+    buffered = BufferedNlpsol(solver)
+    for values in ([0.3, 1.2, 2.0], [1.0, 0.5, 3.0]):
+        arguments = {"x0": [0.1, 0.2], "p": values, "lbx": [-1.0, -1.0], "ubx": 5.0, "lbg": 0.0}
+        expected = np.asarray(solver(**arguments)["x"], dtype=float).reshape(-1)
+        np.testing.assert_array_equal(buffered(**arguments)["x"], expected)
+        assert buffered.stats()["return_status"] == solver.stats()["return_status"]
+    with pytest.raises(InputError, match="input p has 2 values, expected 3"):
+        buffered(x0=[0.1, 0.2], p=[1.0, 2.0])
+    with pytest.raises(InputError, match="unknown input"):
+        buffered(x1=[0.1, 0.2])

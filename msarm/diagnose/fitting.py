@@ -11,6 +11,7 @@ was not fitted on; :func:`bootstrap` gives the parameters' spread by resampling 
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ParamSpec, TypeVar
@@ -28,7 +29,9 @@ from msarm.interrupts import raise_if_terminated
 
 __all__ = [
     "IPOPT_OPTIONS",
+    "BlockSolver",
     "BootstrapResult",
+    "BufferedNlpsol",
     "FitResult",
     "INDEXED_BY",
     "LinearSolver",
@@ -208,17 +211,30 @@ class LinearSolver:
     the 22 stacked channels, and its SVD is that much smaller.
     """
 
-    def __init__(self, design: FloatArray) -> None:
+    def __init__(self, design: FloatArray, cut: float | None = None) -> None:
+        """Factor ``design`` ``(T, n, p)``.
+
+        Args:
+            design: The design.
+            cut: Singular values of the normalised design at or below it are dropped; None:
+                ``eps * max(T n, p)`` times the largest (``lstsq``'s). A :class:`BlockSolver`
+                gives its blocks the whole design's.
+        """
         self.shape = design.shape
         A = design.reshape(-1, design.shape[2])
-        used = np.flatnonzero(np.any(A != 0.0, axis=1))
+        # the rows with a non-zero value (|A| @ 1 > 0 is np.any(A != 0, axis=1) for finite
+        # values, a few times faster on rows of a few columns)
+        used = np.flatnonzero(np.abs(A) @ np.ones(A.shape[1]) > 0.0)
         #: Indices of the rows that take part, or None for all of them.
         self.rows = None if used.size == A.shape[0] else used
         A_used = A if self.rows is None else A[self.rows]
         self.scale = column_scale(A_used)  # zero rows add nothing to the norms
         u, singular, vt = np.linalg.svd(A_used / self.scale, full_matrices=False)
-        cut = np.finfo(float).eps * max(A.shape) * float(singular.max(initial=0.0))
+        if cut is None:
+            cut = np.finfo(float).eps * max(A.shape) * float(singular.max(initial=0.0))
         keep = singular > cut
+        #: The singular values kept (of the column-normalised design), descending.
+        self.singular = singular[keep]
         self.ut = np.ascontiguousarray(u[:, keep].T)
         self.v_over_s = vt[keep].T / singular[keep]
 
@@ -228,6 +244,49 @@ class LinearSolver:
             raise InputError(f"residual: expected shape {self.shape[:2]}, got {residual.shape}")
         b = residual.reshape(-1)
         return (self.v_over_s @ (self.ut @ (b if self.rows is None else b[self.rows]))) / self.scale
+
+
+class BlockSolver:
+    """:class:`LinearSolver` of a design whose parameters fall into blocks on disjoint rows.
+
+    Linear terms that act on different residual groups have their designs on different rows
+    of the stack: the joint least squares is then one least squares per block, and the
+    blocks' SVDs are together the whole design's, at a fraction of its cost (an SVD costs
+    rows times columns squared). Each block keeps the singular values above the whole
+    design's cut (``eps * max(T n, p)`` times the largest of all the blocks), so the solution
+    is the whole design's minimum-norm one, to round-off.
+
+    Args:
+        parts: For each block, the indices of its parameters among the whole design's and its
+            factored :class:`LinearSolver` (built with no ``cut``; a block with a singular
+            value at or below the whole design's cut is factored again with it, by
+            ``refactor(k, cut)``).
+        shape: The whole design's shape ``(T, n, p)``.
+        refactor: ``refactor(k, cut)`` factors block ``k`` again with that cut.
+    """
+
+    def __init__(
+        self,
+        parts: Sequence[tuple[NDArray[np.intp], LinearSolver]],
+        shape: tuple[int, int, int],
+        refactor: Callable[[int, float], LinearSolver],
+    ) -> None:
+        self.shape = shape
+        largest = max((float(s.singular.max(initial=0.0)) for _, s in parts), default=0.0)
+        cut = np.finfo(float).eps * max(shape[0] * shape[1], shape[2]) * largest
+        self.parts = [
+            (index, solver if solver.singular.min(initial=np.inf) > cut else refactor(k, cut))
+            for k, (index, solver) in enumerate(parts)
+        ]
+
+    def solve(self, residual: FloatArray) -> FloatArray:
+        """Parameters ``theta`` of ``residual`` ``(T, n)``, shape ``(p,)``."""
+        if residual.shape != self.shape[:2]:
+            raise InputError(f"residual: expected shape {self.shape[:2]}, got {residual.shape}")
+        theta = np.empty(self.shape[2])
+        for index, solver in self.parts:
+            theta[index] = solver.solve(residual)
+        return theta
 
 
 def _solve_linear(design: FloatArray, residual: FloatArray) -> FloatArray:
@@ -471,6 +530,61 @@ def add_constraints(problem: dict[str, Any], theta: Any, G: FloatArray) -> dict[
     return {"lbg": np.zeros(k), "ubg": np.full(k, np.inf)}
 
 
+class BufferedNlpsol:
+    """A ``casadi.nlpsol`` called on numpy arrays' memory (:meth:`casadi.Function.buffer`).
+
+    Called as the solver is (``solver(x0=..., p=..., lbx=..., ...)``, inputs not given take
+    the solver's defaults) and returning ``{"x": theta}``; :meth:`stats` gives the last
+    solve's status (its timings and call counts add up over the solves). casadi copies a
+    numpy argument into a ``DM`` value by value (about 50 ns a value): a fit's parameter
+    vector (the per-sample weights and the residual, 12,000-110,000 values) took 1-5 ms a
+    solve, a tenth of a typical one, and the outputs (multipliers for each NLP parameter) as
+    much again. Here the inputs are copied into arrays bound once and only ``x`` is asked
+    for: the same function on the same numbers, so the same ``x``, bit for bit. One solve at
+    a time (a lock: the arrays are shared).
+    """
+
+    def __init__(self, solver: casadi.Function) -> None:
+        self.function = solver
+        self._lock = threading.Lock()
+        self._buffer, self._evaluate = solver.buffer()
+        self._index = {name: i for i, name in enumerate(solver.name_in())}
+        self._defaults = [float(solver.default_in(i)) for i in range(solver.n_in())]
+        self._inputs = [np.zeros(solver.nnz_in(i)) for i in range(solver.n_in())]
+        for i, values in enumerate(self._inputs):
+            if values.size:
+                self._buffer.set_arg(i, memoryview(values))
+        self._x = np.zeros(solver.nnz_out(solver.index_out("x")))
+        self._buffer.set_res(solver.index_out("x"), memoryview(self._x))
+
+    def __call__(self, **arguments: Any) -> dict[str, FloatArray]:
+        """Solve; ``arguments`` by the solver's input names (column-major values)."""
+        unknown = set(arguments) - set(self._index)
+        if unknown:
+            raise InputError(f"nlpsol: unknown input(s) {sorted(unknown)}")
+        with self._lock:
+            for name, i in self._index.items():
+                target = self._inputs[i]
+                if name not in arguments:
+                    target.fill(self._defaults[i])
+                    continue
+                value = np.asarray(arguments[name], dtype=float).reshape(-1, order="F")
+                if value.size == 1 and target.size != 1:  # a scalar for every value, as casadi
+                    target.fill(float(value[0]))
+                elif value.size != target.size:
+                    raise InputError(
+                        f"nlpsol: input {name} has {value.size} values, expected {target.size}"
+                    )
+                else:
+                    target[:] = value
+            self._evaluate()
+            return {"x": self._x.copy()}
+
+    def stats(self) -> dict[str, Any]:
+        """The last solve's statistics (IPOPT's status; timings and call counts add up)."""
+        return self._buffer.stats()
+
+
 class _NonlinearProblem:
     """IPOPT problem of a nonlinear candidate on fixed samples, with per-sample weights.
 
@@ -495,7 +609,9 @@ class _NonlinearProblem:
         parameters = casadi.vertcat(weights, casadi.vec(target))
         problem = {"x": theta, "p": parameters, "f": objective}
         self.constraint_bounds = add_constraints(problem, theta, constraint_matrix(effect))
-        self.solver = casadi.nlpsol(f"fit_{effect.name}", "ipopt", problem, IPOPT_OPTIONS)
+        self.solver = BufferedNlpsol(
+            casadi.nlpsol(f"fit_{effect.name}", "ipopt", problem, IPOPT_OPTIONS)
+        )
         self.lower, self.upper = bounds_of(effect)
 
     def solve(

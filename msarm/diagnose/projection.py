@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from msarm.diagnose.effects import CandidateEffect, CasadiOps
 from msarm.diagnose.fitting import (
     IPOPT_OPTIONS,
+    BufferedNlpsol,
     LinearSolver,
     add_constraints,
     bounds_of,
@@ -107,7 +108,9 @@ class ProjectedProblem:
         x = casadi.vertcat(*thetas)
         problem = {"x": x, "p": parameters, "f": objective / reference}
         self.constraint_bounds = add_constraints(problem, x, stacked_constraints(self.nonlinear))
-        self.solver = casadi.nlpsol("fit_projected", "ipopt", problem, IPOPT_OPTIONS)
+        self.solver = BufferedNlpsol(
+            casadi.nlpsol("fit_projected", "ipopt", problem, IPOPT_OPTIONS)
+        )
         bounds = [bounds_of(t) for t in self.nonlinear]
         self.lower = np.concatenate([low for low, _ in bounds])
         self.upper = np.concatenate([high for _, high in bounds])

@@ -14,14 +14,14 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
 from msarm.diagnose.builder import GROUPS
 from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect, NumpyOps, Ops
-from msarm.diagnose.fitting import LinearSolver, _NonlinearProblem
+from msarm.diagnose.fitting import BlockSolver, LinearSolver, _NonlinearProblem
 from msarm.diagnose.projection import ProjectedProblem
 from msarm.diagnose.residuals import ResidualSpec
 from msarm.diagnose.signals import Signals
@@ -76,6 +76,9 @@ _LINEAR_BLOCK = 0
 #: How many variable-projection problems a :class:`Sampled` keeps (the last built; each holds
 #: its set's design on the fitting samples, twice: numpy's and casadi's copy).
 _PROJECTIONS_KEPT = 2
+#: How many factored designs of blocks of several linear terms a :class:`Sampled` keeps (the
+#: last used; see :meth:`Sampled.solver`).
+_BLOCKS_KEPT = 8
 #: Of the fitting samples, every this many enter the confounding test.
 _CONFOUNDING_STRIDE = 8
 
@@ -291,7 +294,9 @@ class Sampled:
         self._problems: dict[int, _NonlinearProblem] = {}
         self._solutions: dict[tuple[int, bytes], tuple[FloatArray, str]] = {}
         self._joint_design: tuple[tuple[int, ...], FloatArray] | None = None
-        self._solvers: dict[tuple[int, ...], LinearSolver] = {}
+        self._solvers: dict[tuple[int, ...], LinearSolver | BlockSolver] = {}
+        self._set: tuple[int, ...] | None = None  # the key of the last set of several terms
+        self._blocks: dict[tuple[int, ...], LinearSolver] = {}
         self._projections: dict[tuple[tuple[int, ...], tuple[int, ...]], ProjectedProblem] = {}
 
     def _key(self, term: CandidateEffect) -> int:
@@ -362,21 +367,76 @@ class Sampled:
             self._joint_design = (key, design)
         return self._joint_design[1]
 
-    def solver(self, terms: Sequence[CandidateEffect]) -> LinearSolver:
+    def solver(self, terms: Sequence[CandidateEffect]) -> LinearSolver | BlockSolver:
         """The least-squares solver of linear terms' joint training design (factored once).
 
-        Kept for each single term (the screening refits each candidate at every step) and for
-        the last set of several terms (a joint fit refits the set at every round).
+        Terms that share no stack column (:func:`_connected`) are factored apart, by blocks
+        (:class:`~msarm.diagnose.fitting.BlockSolver`: the same solution to round-off). Kept
+        for each single term (the screening refits each candidate at every step), for the
+        last :data:`_BLOCKS_KEPT` blocks of several terms (the chosen terms' blocks serve
+        every candidate a step fits with them, and the next steps) and for the last set (a
+        joint fit refits the set at every round).
         """
         key = tuple(self._key(t) for t in terms)
-        if key not in self._solvers:
-            if len(key) == 1:  # its own design: no copy, the joint set's cache kept
-                self._solvers[key] = LinearSolver(self.design(terms[0], "train"))
-            else:
-                for old in [k for k in self._solvers if len(k) > 1]:
-                    del self._solvers[old]
-                self._solvers[key] = LinearSolver(self.joint_design(terms))
-        return self._solvers[key]
+        if key in self._solvers:
+            return self._solvers[key]
+        if len(key) == 1:  # its own design: no copy, the joint set's cache kept
+            self._solvers[key] = LinearSolver(self.design(terms[0], "train"))
+            return self._solvers[key]
+
+        def factor(block: Sequence[int], cut: float | None) -> LinearSolver:
+            members = [terms[k] for k in block]
+            return (
+                self._block(members) if cut is None else LinearSolver(self._stacked(members), cut)
+            )
+
+        solver = self._by_blocks(terms, factor)
+        if self._set is not None:
+            self._solvers.pop(self._set, None)
+        self._set = key
+        self._solvers[key] = solver
+        return solver
+
+    def _by_blocks(
+        self,
+        terms: Sequence[CandidateEffect],
+        factor: Callable[[Sequence[int], float | None], LinearSolver],
+    ) -> LinearSolver | BlockSolver:
+        """The solver of linear terms, a block at a time (:func:`_linear_blocks`).
+
+        ``factor(block, cut)`` factors the design of the terms ``block`` (indices into
+        ``terms``), with that singular-value cut (None: the block's own).
+        """
+        blocks = _linear_blocks(terms)
+        if len(blocks) == 1:
+            return factor(blocks[0], None)
+        start = np.concatenate([[0], np.cumsum([t.n_parameters for t in terms])])
+        parts = [
+            (
+                np.concatenate([np.arange(start[k], start[k + 1]) for k in block]),
+                factor(block, None),
+            )
+            for block in blocks
+        ]
+        shape = (*self.residual["train"].shape, int(start[-1]))
+        return BlockSolver(parts, shape, lambda k, cut: factor(blocks[k], cut))
+
+    def _block(self, terms: Sequence[CandidateEffect]) -> LinearSolver:
+        """The factored design of terms that share stack columns (kept: see :meth:`solver`)."""
+        key = tuple(self._key(t) for t in terms)
+        if len(key) == 1:
+            return cast(LinearSolver, self.solver(terms))
+        if key not in self._blocks:
+            if len(self._blocks) >= _BLOCKS_KEPT:
+                self._blocks.pop(next(iter(self._blocks)))
+            self._blocks[key] = LinearSolver(self._stacked(terms))
+        else:  # the most recently used last: the oldest is dropped first
+            self._blocks[key] = self._blocks.pop(key)
+        return self._blocks[key]
+
+    def _stacked(self, terms: Sequence[CandidateEffect]) -> FloatArray:
+        """Terms' training designs side by side (not kept, unlike :meth:`joint_design`)."""
+        return np.concatenate([self.design(t, "train") for t in terms], axis=2)
 
     def weighted_solver(
         self, terms: Sequence[CandidateEffect], weights: FloatArray | None
@@ -385,13 +445,19 @@ class Sampled:
 
         Returns:
             A function of a training residual ``(T, W)`` giving the terms' stacked parameters:
-            :meth:`solver`'s (kept) without weights; with them, a weighted design factored
-            once for this call's repeated solves (a bootstrap draw).
+            :meth:`solver`'s (kept) without weights; with them, the weighted design factored
+            once for this call's repeated solves (a bootstrap draw), by blocks as in
+            :meth:`solver`.
         """
         if weights is None:
             return self.solver(terms).solve
         root = np.sqrt(np.asarray(weights, dtype=float))[:, None]
-        solver = LinearSolver(self.joint_design(terms) * root[:, :, None])
+
+        def factor(block: Sequence[int], cut: float | None) -> LinearSolver:
+            design = self._stacked([terms[k] for k in block]) * root[:, :, None]
+            return LinearSolver(design, cut)
+
+        solver = self._by_blocks(terms, factor)
         return lambda residual: solver.solve(residual * root)
 
     def projection(
@@ -560,6 +626,19 @@ def _connected(terms: Sequence[Embedded]) -> list[list[Embedded]]:
     order = {id(t): k for k, t in enumerate(terms)}
     ordered = [sorted(members, key=lambda t: order[id(t)]) for _, members in sets]
     return sorted(ordered, key=lambda members: order[id(members[0])])
+
+
+def _linear_blocks(terms: Sequence[CandidateEffect]) -> list[list[int]]:
+    """Indices of linear terms in sets whose designs share rows (:func:`_connected`).
+
+    Terms not :class:`Embedded` (whose rows are not known) make one set.
+    """
+    if not all(isinstance(t, Embedded) for t in terms):
+        return [list(range(len(terms)))]
+    position = {id(t): k for k, t in enumerate(terms)}
+    if len(position) < len(terms):  # a term given twice: one set
+        return [list(range(len(terms)))]
+    return [[position[id(t)] for t in members] for members in _connected(terms)]
 
 
 def _fit_by_blocks(
