@@ -492,33 +492,22 @@ class GapBreakdown:
                 )
             )
         lines.append("")
+        header = ["where", "energy share [%]", "time share [%]", "density", "samples"]
+        if floor:
+            header += ["noise [% of energy]", "excess density"]
         for name in GROUPS:
-            if floor:
-                lines += [
-                    f"### By {name}",
-                    "",
-                    "| where | energy share [%] | time share [%] | density | samples | "
-                    "noise [% of energy] | excess density |",
-                    "|---|---:|---:|---:|---:|---:|---:|",
-                ]
-                lines += [
-                    f"| {r.where} | {r.share:.1f} | {r.time_share:.1f} | {r.density:.2f} | "
-                    f"{r.samples} | {_percent(r.noise_energy, r.energy)} | "
-                    f"{_number(r.excess_density)} |"
-                    for r in self.group(name)
-                ]
-            else:
-                lines += [
-                    f"### By {name}",
-                    "",
-                    "| where | energy share [%] | time share [%] | density | samples |",
-                    "|---|---:|---:|---:|---:|",
-                ]
-                lines += [
-                    f"| {r.where} | {r.share:.1f} | {r.time_share:.1f} | {r.density:.2f} | "
-                    f"{r.samples} |"
-                    for r in self.group(name)
-                ]
+            lines += [
+                f"### By {name}",
+                "",
+                "| " + " | ".join(header) + " |",
+                "|---" + "|---:" * (len(header) - 1) + "|",
+            ]
+            for r in self.group(name):
+                cells = [r.where, f"{r.share:.1f}", f"{r.time_share:.1f}", f"{r.density:.2f}"]
+                cells.append(str(r.samples))
+                if floor:
+                    cells += [_percent(r.noise_energy, r.energy), _number(r.excess_density)]
+                lines.append("| " + " | ".join(cells) + " |")
             lines.append("")
         return "\n".join(lines)
 
