@@ -59,12 +59,15 @@ samples 2.3 times its expected noise energy on a noise-level plant. A phase or p
 is a hot spot only with margins (:class:`PhaseSettings`): an excess density of
 ``hot_spot_density`` (1.2) or more; an excess of ``hot_spot_noise_ratio - 1`` (0.5) times
 the row's expected noise energy or more (the floor's own error: measured over expected noise
-energy was 0.51-1.37 per cell on noise-only logs) and of ``hot_spot_noise_sigmas`` (3)
-standard deviations of that noise energy or more (its scatter over few samples); and
-``hot_spot_samples`` (100) samples or more. On 22 noise-only logs of msarm's arm, alone and
-pooled (300 candidate rows), the largest excess was 0.34 times the expected noise energy and
-2.1 standard deviations of it; on 56 logs of plants whose effects leave the joint torque
-nearly alone (elasticity, winch friction, a command delay; 778 rows), 0.42 and 2.5.
+energy was 0.51-1.37 per cell on noise-only logs; the excess is counted away from the
+filter's edges, the noise energy over all the row's samples, edges included: a stricter
+margin for a row that holds a log's ends, where the noise energy is largest) and of
+``hot_spot_noise_sigmas`` (3) standard deviations of that noise energy or more (its scatter
+over few samples); and ``hot_spot_samples`` (100) samples or more. On 22 noise-only logs of
+msarm's arm, alone and pooled (300 candidate rows), the largest excess was 0.34 times the
+expected noise energy and 2.1 standard deviations of it; on 56 logs of plants whose effects
+leave the joint torque nearly alone (elasticity, winch friction, a command delay; 778 rows),
+0.42 and 2.5.
 Without a noise floor (other kinds, or no model) the noise energy is 0, the excess energy
 and density are the energy and density, and the rule is the one before: on a plant with
 sensor noise alone the drive residual's densities scatter about 1 (1.01 and the like),
@@ -163,7 +166,10 @@ class PhaseSettings:
         hot_spot_samples: Least number of samples of a hot spot.
         hot_spot_noise_ratio: A hot spot's excess energy is at least ``hot_spot_noise_ratio -
             1`` times its expected noise energy [-] (its energy about ``hot_spot_noise_ratio``
-            times it; rows with a noise floor: a margin for the floor's own error).
+            times it; rows with a noise floor: a margin for the floor's own error). The excess
+            is counted away from the filter's edges, the noise energy over all the row's
+            samples: for a row holding a log's ends, whose edges have the largest noise
+            energy, the margin is stricter.
         hot_spot_noise_sigmas: Least excess of a hot spot's energy over its expected noise
             energy, in standard deviations of that noise energy [-] (rows with a noise floor:
             a noise energy over few samples, or over the filter's edges at a log's ends,
