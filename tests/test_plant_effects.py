@@ -189,6 +189,24 @@ def test_without_sheath_friction_the_elastic_cable_is_one_spring():
     assert cable["qfrc"][0] == pytest.approx(-0.02 * insertion, rel=1e-12)
 
 
+@pytest.mark.parametrize("mu", [0.0, 0.12])
+@pytest.mark.parametrize("speed", [-0.03, 0.03])
+def test_a_winch_following_a_moving_path_renders_the_command(mu, speed):
+    """A frictionless winch that reels in (or pays out) as the path moves at a steady speed
+    holds the commanded tension: the implicit winch step sees the node where the path has
+    put it, not where it was a step before (that lag was a drag r^2 k h omega, 0.12 N here)."""
+    from msarm.plant.cable_kernel import step_cables
+
+    cable = _one_cable(mu=mu)
+    cable["params"][-1] = 40.0  # the rope's damping settles the drive's transient
+    for _ in range(4000):
+        cable["velocities"][:] = speed
+        cable["lengths"][:] += speed * 1e-3
+        step_cables(*cable.values())
+    assert cable["omega"][0] == pytest.approx(-speed / 0.003, rel=1e-9)
+    assert cable["tension_motor"][0] == pytest.approx(30.0, abs=1e-9)
+
+
 def test_winch_friction_alone_rigid_cable(arm):
     """Reeling in, the motor-side tension falls short of the command; paying out, exceeds it."""
     plant = moving_plant(arm, only(winch_friction=WinchFrictionConfig(enabled=True)))
@@ -260,6 +278,23 @@ def test_delay_alone_returns_old_readings(arm):
         times.append(plant.sense().t)
         plant.step(4)
     np.testing.assert_allclose(times, [0.0, 0.0, 0.0, 0.004, 0.008])
+
+
+def test_delayed_drives_hold_the_reset_tension_until_the_first_command_arrives(arm):
+    """u_drive(k) = u(k - d): the first command is felt d periods after it is sent, the reset
+    tension before (it went through at once and was held for d + 1 periods)."""
+    config = only(delay=DelayConfig(enabled=True, sensing_periods=0, actuation_periods=3))
+    plant = ArmPlant(arm, config, seed=1)
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 20.0))
+    drives = []
+    for tension in (30.0, 40.0, 50.0, 60.0, 70.0):
+        plant.command(np.full(arm.n_cables, tension))
+        drives.append(float(plant._command[0]))
+        plant.step(4)
+    assert drives == [20.0, 20.0, 20.0, 30.0, 40.0]
+    plant.reset(POSTURE, tensions=np.full(arm.n_cables, 25.0))  # a new run starts afresh
+    plant.command(np.full(arm.n_cables, 30.0))
+    assert float(plant._command[0]) == 25.0
 
 
 def test_user_effect_through_the_documented_interface(arm):

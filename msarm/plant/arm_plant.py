@@ -33,6 +33,7 @@ from msarm.plant.config import PlantConfig
 from msarm.plant.effects import (
     EFFECT_DESCRIPTIONS,
     CableState,
+    Delay,
     Effect,
     SensorReadings,
     build_effects,
@@ -350,6 +351,9 @@ class ArmPlant:
         state.winch_speed[:] = 0.0
         state.tension_motor[:] = tensions
         self._command[:] = tensions
+        for effect in self._actuators:
+            if isinstance(effect, Delay):  # the drives hold this until the first command
+                effect.hold(tensions)
         self.tension_insertion[:] = tensions
         self.motor_torque[:] = tensions * self.drum_radius
 

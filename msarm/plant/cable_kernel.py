@@ -18,7 +18,8 @@ towards the motor (capstan friction with true stiction, a quasi-static Coulomb l
     total stretch) to both while the cable is taut, each tension staying >= 0;
     the node sticks while ``T_i / beta <= T_m <= beta T_i`` with ``beta = exp(mu Theta(q))``
     and otherwise slides until ``T_m = beta T_i`` (cable pulled in) or ``T_m = T_i / beta``
-    (paid out). Without sheath friction (``mu = 0``) the node balances and the cable is one
+    (paid out); the winch's implicit step sees the node where this step's path has put it.
+    Without sheath friction (``mu = 0``) the node balances and the cable is one
     spring of stiffness k. A cable whose total stretch ``e_m + e_i`` is not positive is
     slack: no tension on either side.
 
@@ -163,7 +164,15 @@ def step_cables(
                     k_eff = k2 * (k2 / beta) / (k2 + k2 / beta)
                 else:
                     k_eff = k2 if a - slide[i] > 0.0 else 0.0
-            t_m_now = k2 * max(a - slide[i], 0.0)
+            # the winch feels the motor-side tension with the node already where the path
+            # has put it this step (quasi-static: it sticks, or slides to the capstan bound);
+            # the node of the last step would lag the path by one step, a drag r^2 k h omega
+            x_now = slide[i]
+            if a + bb > 0.0:
+                x_now = min(
+                    max(x_now, (a - beta * bb) / (1.0 + beta)), (beta * a - bb) / (1.0 + beta)
+                )
+            t_m_now = k2 * max(a - x_now, 0.0)
             # the rope's dashpot on the total stretch rate (taut cables), implicit in omega
             c_eff = c_damp if a + bb > 0.0 else 0.0
             lhs = inertia / h + r * r * (k_eff * h + c_eff) - slope

@@ -350,8 +350,10 @@ class SensorNoise(Effect):
 class Delay(Effect):
     """Readings and commands arrive a whole number of control periods late.
 
-    ``y_controller(k) = y(k - d_s)`` and ``u_drive(k) = u_controller(k - d_a)``; before enough
-    history exists the oldest value is repeated.
+    ``y_controller(k) = y(k - d_s)`` and ``u_drive(k) = u_controller(k - d_a)``. Before enough
+    history exists the controller gets the first reading, and the drives hold the tension the
+    plant was reset to (:meth:`hold`) until the first command reaches them, ``d_a`` periods
+    after it was sent.
     """
 
     name = "delay"
@@ -368,6 +370,17 @@ class Delay(Effect):
     def sense(self, readings: SensorReadings, rng: np.random.Generator) -> SensorReadings:  # noqa: D102
         self._readings.append(readings)
         return self._readings[0]
+
+    def hold(self, command: FloatArray) -> None:
+        """Start the command history with the drives' command at reset.
+
+        Args:
+            command: The tension the drives hold at reset [N], shape ``(m,)``: what they
+                get in the first ``d_a`` periods, before the first command arrives.
+        """
+        self._commands.clear()
+        for _ in range(self.config.actuation_periods):
+            self._commands.append(np.array(command, dtype=float))
 
     def actuate(self, command: FloatArray) -> FloatArray:  # noqa: D102
         self._commands.append(np.array(command, dtype=float))

@@ -213,7 +213,8 @@ class PlantArrays(NamedTuple):
     qvel: FloatArray
     command: FloatArray  # the command the drives get (after the delay effect)
     command_delay: int  # the delay effect's actuation delay [control periods] (0 without it)
-    command_history: FloatArray  # the last command_delay + 1 commands, a ring
+    command_history: FloatArray  # the last command_delay + 1 commands, a ring (reset: the
+    # reset tension in every slot)
     theta: FloatArray
     motor_torque: FloatArray
     tension_motor: FloatArray
@@ -419,10 +420,11 @@ def run_ticks(
             for i in range(c.command.shape[0]):
                 if not (np.isfinite(c.command[i]) and c.command[i] >= 0.0):
                     return BAD_STAGE_COMMAND, k
-        # ArmPlant.command: the drives get the command of tick max(k - delay, 0)
+        # ArmPlant.command: the drives get the command of tick k - delay (the ring starts
+        # full of the reset tension, held until the first command arrives)
         size = plant.command_history.shape[0]
         plant.command_history[k % size] = c.command
-        plant.command[:] = plant.command_history[max(k - plant.command_delay, 0) % size]
+        plant.command[:] = plant.command_history[(k + size - plant.command_delay) % size]
         _record(k, reference, sensing, c, ff, plant, log, truth)
         if _step(substeps, timestep, clock, plant):
             return DIVERGED, k
@@ -481,7 +483,7 @@ def _arrays(
     start = p._period_start
     plant_arrays = PlantArrays(
         p._compiled_args, data.qpos, data.qvel, p._command, int(command_delay),
-        np.empty((command_delay + 1, m)), pstate.winch_angle,
+        np.tile(p._command, (command_delay + 1, 1)), pstate.winch_angle,
         p.motor_torque, pstate.tension_motor, p.tension_insertion, data.ten_length,
         p._length_ref, p._stretch_motor0, p._stretch_insertion0, float(p.drum_radius),
         data.wrap_xpos.reshape(-1, 3), data.wrap_obj.reshape(-1), data.ten_wrapadr,
