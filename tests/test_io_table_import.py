@@ -371,6 +371,50 @@ def test_msarm_log_import_writes_nothing_when_one_file_is_bad(arm, tmp_path, mon
     assert not (tmp_path / "good.parquet").exists()
 
 
+def test_msarm_log_import_replaces_only_a_log_it_imported(arm, tmp_path, monkeypatch, capsys):
+    """A log imported before is written again; a file of another kind at a log's path (a
+    simulated run's ``log.parquet``, another tool's Parquet file) is refused, nothing written
+    (before, it was replaced without a word, and a run folder then held two runs' files)."""
+    import pyarrow.parquet as pq
+
+    log = _recording(arm)
+    csv = _write_csv(tmp_path / "log.csv", {k: v for k, v in log.columns.items()})
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv))
+    assert code == 0, err
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv))  # again
+    assert code == 0, err
+    run = tmp_path / "run"
+    run.mkdir()
+    write_log(run / "log.parquet", log)  # as msarm track writes it: no imported_from
+    kept = (run / "log.parquet").read_bytes()
+    code, _, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv), "--out", str(run))
+    assert code == 2 and err.count("\n") == 1
+    assert f"{run / 'log.parquet'}: already there and not a log that msarm log import" in err
+    assert (run / "log.parquet").read_bytes() == kept
+    other = tmp_path / "other"
+    other.mkdir()
+    pq.write_table(pa.table({"raw": [1.0, 2.0]}), other / "log.parquet")
+    (other / "good.parquet").write_bytes(b"not parquet")
+    good = _write_csv(tmp_path / "good.csv", {k: v for k, v in log.columns.items()})
+    code, _, err = run_msarm(
+        monkeypatch, capsys, "log", "import", str(good), str(csv), "--out", str(other)
+    )
+    assert code == 2 and "good.parquet, " in err and "log.parquet: already there" in err
+    assert (other / "good.parquet").read_bytes() == b"not parquet"
+
+
+def test_msarm_log_check_prints_each_warning_on_one_line(arm, tmp_path, monkeypatch, capsys):
+    """Piped (a log file, CI), a warning longer than the table's width stays one line."""
+    log = _recording(arm)
+    columns = {k: v for k, v in log.columns.items() if not k.startswith("tension_cmd.")}
+    csv = _write_csv(tmp_path / "run.csv", columns)
+    code, out, err = run_msarm(monkeypatch, capsys, "log", "import", str(csv))
+    assert code == 0, err
+    line = next(x for x in out.splitlines() if "no drive residual" in x)
+    assert len(line) > 120 and line.startswith("warning: ")
+    assert line.endswith("residuals are still computed")
+
+
 def test_the_time_unit_and_rate_are_checked_against_the_time_column(arm):
     """A time in ms read as seconds (0.25 Hz) or seconds read as us is refused, pointing at
     the time unit; a rate given that the time contradicts is refused too."""

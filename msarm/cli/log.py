@@ -107,8 +107,9 @@ def log_paths(files: list[Path], out: Path | None) -> list[Path]:
 
     Raises:
         InputError: Two files would write one log, a log would replace one of the CSV files
-            (a log given to import, a Parquet file, is named as such), or a log's path is a
-            folder; all before anything is written.
+            (a log given to import, a Parquet file, is named as such), a log's path is a
+            folder, or a file that is not a log imported before (a simulated run's
+            ``log.parquet``, another tool's file); all before anything is written.
     """
     from msarm.io.table_import import check_not_parquet
 
@@ -134,7 +135,31 @@ def log_paths(files: list[Path], out: Path | None) -> list[Path]:
             )
         if target.is_dir():
             raise InputError(f"{path}: its log {target} is a folder; expected a file path")
+    others = [str(target) for target in targets if target.exists() and not _imported_log(target)]
+    if others:
+        raise InputError(
+            f"{', '.join(others)}: already there and not a log that msarm log import wrote (a "
+            "simulated run's log or another file), which a log would replace; move "
+            f"{'them' if len(others) > 1 else 'it'}, or import to another folder (--out)"
+        )
     return targets
+
+
+def _imported_log(path: Path) -> bool:
+    """Whether ``path`` is a log that ``msarm log import`` wrote, which it may replace.
+
+    Such a log's ``msarm.extra`` names the CSV file it was imported from (``imported_from``);
+    a file that cannot be read as Parquet, or a log without it, is not one.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+        extra = json.loads(metadata.get(b"msarm.extra", b"{}"))
+    except (OSError, ValueError, pa.ArrowException):  # not a Parquet file of ours
+        return False
+    return isinstance(extra, dict) and "imported_from" in extra
 
 
 @log_app.command("import")
@@ -346,7 +371,7 @@ def _report_checks(
     else:
         _print_checks(checks, title, sources)
         for text in together:
-            console().print(escape(f"error (the logs together): {text}"))
+            console().print(escape(f"error (the logs together): {text}"), soft_wrap=True)
     where = "the JSON" if json_output else "above"
     bad = [check.path for check in checks if not check.ok]
     if bad:
@@ -399,8 +424,8 @@ def _print_checks(checks: list[LogCheck], title: str, sources: list[Path] | None
     for check in checks:
         for text in check.warnings:
             if repeats.first(text):
-                screen.print(escape(f"warning: {text}"))
+                screen.print(escape(f"warning: {text}"), soft_wrap=True)
         if check.error:
-            screen.print(escape(f"error: {check.error}"))
-    for text in repeats.summary():
-        screen.print(escape(f"warning: {text}"))
+            screen.print(escape(f"error: {check.error}"), soft_wrap=True)
+    for text in repeats.summary():  # each one line, also piped (grep, a CI log)
+        screen.print(escape(f"warning: {text}"), soft_wrap=True)
