@@ -199,6 +199,14 @@ def test_a_channel_in_another_unit_than_its_partner_is_warned(logs, arm, tmp_pat
         r"0\.001\d* times the load cells' .*another unit \(kN logged as N\)",
     ):
         residuals_from_log(arm, kilo, spec=spec)
+    cable = next(k for k in log.columns if k.startswith("tension_motor."))
+    milli = _rewrite(logs[0], tmp_path / "mn.parquet", scaled(cable, 1e3))  # one cable in mN
+    with pytest.warns(
+        DiagnosisWarning,
+        match=rf"mn\.parquet: the commanded tension of cable '{cable.split('.')[1]}' "
+        r"\(0\.001\d*: command .* N, load cell .* N\) is far from what its load cell reads",
+    ):
+        residuals_from_log(arm, milli, spec=spec)
     degrees = _rewrite(logs[0], tmp_path / "deg.parquet", scaled("motor_angle.", 180 / np.pi))
     message = (
         r"the cable lengths the motor encoders give \(drum radius 0\.003 m\) do not follow "

@@ -81,6 +81,12 @@ _QUANTITIES_READ = ("q", "q_ref", "tension_motor", "tension_cmd", "motor_angle")
 #: Range of the commanded tensions' median over the load cells' outside which a log is
 #: warned about (a unit slip: kN logged as N gives 0.001).
 TENSION_RATIO = (0.5, 2.0)
+#: Range of one cable's commanded median over its load cell's outside which a log is warned
+#: about (one cable's unit slip: mN or kN gives 1000 or 0.001, kgf 9.81, lbf 4.45). Over the
+#: 454 logs of the benchmark's two seeds and the compensator's runs (2026-11-29) the cables
+#: ranged 0.58-2.06, the ends on plants with a load-cell bias (a cable near 1 N reads a
+#: bias of 1 N as half or twice its tension).
+CABLE_TENSION_RATIO = (0.25, 4.0)
 #: Median tension [N] of the load cells (or commands) over a log below which it is warned
 #: about: every sample would be slack (tensions in kN read as N; msarm's arm runs at 18 N).
 MIN_MEDIAN_TENSION = 1.0
@@ -531,6 +537,8 @@ def _warn_implausible_scales(
                 DiagnosisWarning,
                 stacklevel=3,
             )
+        else:
+            _warn_cable_tension_scale(source, tension[valid], command[valid], cable_names)
     length = out["cable_length"]
     if length is not None and motor is not None:
         # the encoders' length change against the path's, cable by cable: a slope of 1
@@ -557,6 +565,48 @@ def _warn_implausible_scales(
                 DiagnosisWarning,
                 stacklevel=3,
             )
+
+
+def _warn_cable_tension_scale(
+    source: str, tension: FloatArray, command: FloatArray, cable_names: list[str]
+) -> None:
+    """Warn about cables whose load cell and command disagree in scale (one cable's unit slip).
+
+    The pooled medians of :func:`_warn_scale_mismatch` hide one cable logged in another unit
+    among nine; here each cable's commanded median over its load cell's must lie within
+    :data:`CABLE_TENSION_RATIO`, for cables whose command or load cell reads
+    :data:`MIN_MEDIAN_TENSION` or more in most samples (a cable held slack has no scale).
+
+    Args:
+        source: The log's name, for the message.
+        tension: Load-cell tensions of the valid samples [N], ``(T, m)``.
+        command: Commanded tensions of the same samples [N], ``(T, m)``.
+        cable_names: The cables' names, ``(m,)``.
+    """
+    measured = np.median(np.abs(tension), axis=0)
+    commanded = np.median(np.abs(command), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(measured > 0, commanded / measured, np.inf)  # inf: a dead load cell
+    low, high = CABLE_TENSION_RATIO
+    carries = np.maximum(measured, commanded) >= MIN_MEDIAN_TENSION
+    off = np.flatnonzero(carries & ((ratio < low) | (ratio > high)))
+    if not off.size:
+        return
+    named = ", ".join(
+        f"'{cable_names[k]}' ({float(ratio[k]):.3g}: command {float(commanded[k]):.4g} N, load "
+        f"cell {float(measured[k]):.4g} N)"
+        for k in off[:3]
+    )
+    more = f" and {off.size - 3} more" if off.size > 3 else ""
+    warnings.warn(
+        f"{source}: the commanded tension of cable {named}{more} is far from what its load "
+        f"cell reads (medians; in brackets their ratio, where drives that render their "
+        f"commands give about 1, 0.58-2.06 on msarm's simulated plants): is that "
+        "cable's tension_motor or tension_cmd column in another unit (mN, kN), or its load "
+        "cell dead? Its drive residual F - F_cmd is then mostly this",
+        DiagnosisWarning,
+        stacklevel=4,
+    )
 
 
 def _warn_outside_joint_range(
