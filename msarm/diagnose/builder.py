@@ -256,10 +256,12 @@ def check_distinct_files(paths: Sequence[str | Path]) -> None:
         except OSError:
             continue
         if digest in seen:
+            first = seen[digest]
+            same = Path(first).resolve() == Path(path).resolve()
+            how = "is given twice" if same else f"has the same contents as {first}"
             raise InputError(
-                f"logs: {path} has the same contents as {seen[digest]}: one run under two "
-                "names; expected each run once (a copy held out would score the terms on the "
-                "data they were fitted on)"
+                f"logs: {path} {how}: one run under two names; expected each run once (a "
+                "copy held out would score the terms on the data they were fitted on)"
             )
         seen[digest] = str(path)
 
