@@ -66,6 +66,8 @@ MULTI_VALUE_OPTIONS = {
 #: Of those, the options whose values are names (letters, digits, ``_``): a value that is not
 #: one (a log path) ends the list, so that ``--candidates capstan LOG1 LOG2`` keeps its logs.
 NAME_OPTIONS = ("--candidates", "--effect")
+#: The exit code typer gives a command that a KeyboardInterrupt (Ctrl-C) ended (128 + SIGINT).
+CTRL_C_EXIT = 130
 
 
 def _greedy_option_hint(message: str, args: list[str]) -> str:
@@ -155,7 +157,8 @@ def main() -> None:
     naming the problem, with exit code 2; anything else keeps its traceback (a bug). SIGTERM
     ends the command as an exception would (temporary files removed, see
     :mod:`msarm.io.atomic`, and the output folders it created and left empty), with
-    ``msarm: terminated`` and exit code 143.
+    ``msarm: terminated`` and exit code 143; Ctrl-C likewise, with ``msarm: interrupted``
+    and exit code 130.
     """
     import sys
     import warnings
@@ -224,6 +227,9 @@ def main() -> None:
         raise SystemExit(exc.code) from None
     else:
         if isinstance(code, int) and code != 0:  # typer.Exit(code) of a command
+            remove_empty_created_folders()  # an --out made for a run cut off: not left behind
+            if code == CTRL_C_EXIT:  # typer's answer to a KeyboardInterrupt: no line of its own
+                print("msarm: interrupted", file=sys.stderr)
             raise SystemExit(code)
     finally:
         mujoco.set_mju_user_warning(previous_mujoco_warning)

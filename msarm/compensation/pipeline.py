@@ -240,10 +240,24 @@ def _paths_of(by_seed: dict[int, Path], seeds: tuple[int, ...]) -> list[Path]:
 
 
 def _weights_hash(compensator: Compensator) -> str:
+    """12 hex digits of what a round's network feeds forward, which names its runs.
+
+    The weights, and also the normalisers, the activation and the feature spec: the same
+    weights with other normalisers (a training whose epochs all failed to improve keeps the
+    seeded initial weights, whatever its data) give another ``dtau``, and until 2026-11-29
+    their runs were reused under the weights' name. The training settings (``patience``,
+    ``max_epochs``) are left out: a training that ends in the same network reuses its runs.
+    """
     digest = hashlib.sha256()
     for weight, bias in compensator.layer_weights():
         digest.update(np.ascontiguousarray(weight).tobytes())
         digest.update(np.ascontiguousarray(bias).tobytes())
+    for normalizer in (compensator.input_normalizer, compensator.output_normalizer):
+        digest.update(normalizer.mean.tobytes())
+        digest.update(normalizer.std.tobytes())
+    digest.update(compensator.config.activation.encode())
+    spec = compensator.metadata.get("feature_spec")
+    digest.update(json.dumps(spec, sort_keys=True).encode())
     return digest.hexdigest()[:12]
 
 
