@@ -27,7 +27,7 @@ def _compensator(config=None, out_std=(1.0, 2.0), spec=None) -> Compensator:
 
 def test_a_round_name_tells_networks_that_feed_forward_differently():
     """Same weights, other normaliser, activation or features: another dtau, another name
-    (until 2026-11-30 the name hashed the weights alone, and a round reused runs collected
+    (until 2026-11-29 the name hashed the weights alone, and a round reused runs collected
     with another network: a training that kept its seeded initial weights after a change
     of target or features)."""
     base = _compensator()
