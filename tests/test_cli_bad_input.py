@@ -183,6 +183,12 @@ def test_train_compensator_checks_its_paths_before_collecting(arm, monkeypatch, 
     [
         ("", -5, "key 'data.first_seed' must be an integer >= 0"),
         ("target:\n  window: 1\n  polyorder: -1\n", 1000, "key 'target.polyorder' must be"),
+        (  # refused after collecting every run before
+            "target:\n  window: 5001\n",
+            1000,
+            "key 'target.window' is 5001 samples, more than a run has (5000: a 20 s random "
+            "task at controller.rate_hz 250 Hz)",
+        ),
     ],
 )
 def test_train_refuses_negative_seeds_and_orders(

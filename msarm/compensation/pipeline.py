@@ -34,6 +34,7 @@ from msarm.errors import ConfigError, MsarmWarning
 from msarm.io.config import config_to_dict
 from msarm.model import RobotModel
 from msarm.plant import PlantConfig
+from msarm.tasks.trajectories import RANDOM_TASK_DURATION
 
 __all__ = [
     "RECIPE_NETWORK",
@@ -98,6 +99,14 @@ class CompensatorRecipe:
             raise ValueError(
                 f"key 'data.first_seed' must be an integer >= 0 (run i is the task "
                 f"random-<first_seed + i>, whose seed is >= 0), got {seed!r}"
+            )
+        samples = int(round(RANDOM_TASK_DURATION * self.controller.rate_hz))
+        if self.target.window > samples:  # found after collecting the runs before
+            raise ValueError(
+                f"key 'target.window' is {self.target.window} samples, more than a run has "
+                f"({samples}: a {RANDOM_TASK_DURATION:g} s random task at "
+                f"controller.rate_hz {self.controller.rate_hz:g} Hz); expected an odd window "
+                "of at most that (25 samples, 0.1 s at 250 Hz, by default)"
             )
         order = self.target.polyorder
         if isinstance(order, bool) or not isinstance(order, int) or order < 0:

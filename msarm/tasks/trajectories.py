@@ -266,11 +266,15 @@ class Task:
         return q, qd, qdd
 
 
+#: Length of a ``random-<seed>`` task [s] (paper 003's runs: 20 s).
+RANDOM_TASK_DURATION = 20.0
+
+
 def random_reach_task(
     seed: int,
     lower: ArrayLike,
     upper: ArrayLike,
-    duration: float = 20.0,
+    duration: float = RANDOM_TASK_DURATION,
     n_moves: int = 3,
     margin: float = 0.15,
     home: ArrayLike = HOME_POSTURE,
