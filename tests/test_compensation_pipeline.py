@@ -169,6 +169,10 @@ def test_a_checkpoint_whose_parts_do_not_fit_is_refused_with_its_file(trained, t
 
     cases = {
         "no_recipe": (lambda m: m.pop("recipe"), "records no controller gains"),
+        "two_gains": (
+            lambda m: m["recipe"]["controller"].update(kp=[1.0, 2.0]),
+            r"its recipe.controller kp has 2 gains, the arm has 4 joints",
+        ),
         "bad_mu": (
             lambda m: m["sheath"]["parameters"].update(mu=-1.0),
             "invalid sheath stage: sheath mu must be",

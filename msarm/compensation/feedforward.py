@@ -316,9 +316,9 @@ def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:
 
     Raises:
         CheckpointError: The file is not a compensator for ``model`` (another model, a
-            corrupt file), or what it records does not fit together: no controller gains, a
-            feature spec whose inputs are not the network's, an invalid sheath stage. The
-            message names the file and the reason.
+            corrupt file), or what it records does not fit together: no controller gains or
+            not one per joint, a feature spec whose inputs are not the network's, an invalid
+            sheath stage. The message names the file and the reason.
     """
     source = str(path)
     compensator = Compensator.load(path, expected_model_sha256=model.sha256)
@@ -328,7 +328,14 @@ def load_feedforward(path: str | Path, model: RobotModel) -> LearnedFeedforward:
             f"{source}: its network gives {compensator.output_dim} torques, the arm has "
             f"{model.n_joints} joints"
         )
-    trained_controller(compensator, source)  # the gains it must run with are recorded
+    gains = trained_controller(compensator, source)  # the gains it must run with: recorded
+    for name in ("kp", "ki", "kd"):
+        if len(getattr(gains, name)) != model.n_joints:
+            raise CheckpointError(
+                f"{source}: its recipe.controller {name} has {len(getattr(gains, name))} "
+                f"gains, the arm has {model.n_joints} joints; the file was edited or made for "
+                "another arm"
+            )
     stage = sheath_stage_of(model, compensator, source)
     feedforward = LearnedFeedforward(model, compensator, stage)
     inputs = feedforward.extractor.size  # the extractor the loop will run
