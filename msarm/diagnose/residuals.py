@@ -572,7 +572,7 @@ def _warn_cable_tension_scale(
 ) -> None:
     """Warn about cables whose load cell and command disagree in scale (one cable's unit slip).
 
-    The pooled medians of :func:`_warn_scale_mismatch` hide one cable logged in another unit
+    The pooled medians of :func:`_warn_implausible_scales` hide one cable logged in another unit
     among nine; here each cable's commanded median over its load cell's must lie within
     :data:`CABLE_TENSION_RATIO`, for cables whose command or load cell reads
     :data:`MIN_MEDIAN_TENSION` or more in most samples (a cable held slack has no scale).
