@@ -76,6 +76,7 @@ def test_a_csv_in_other_units_and_order_becomes_the_log_it_records(arm, tmp_path
         "imported_from": "run.csv",
         "time_origin": 0.0,
         "time_origin_unit": "ms",
+        "time_origin_text": "0",
     }
     # written and read back, it is a log like any other
     assert read_log(write_log(tmp_path / "run.parquet", got)) == got
@@ -647,6 +648,7 @@ def test_epoch_seconds_as_text_keep_the_digits_of_their_steps(arm, tmp_path):
     blank.write_text("\n\r\n" + path.read_text())
     np.testing.assert_array_equal(read_csv_log(blank, arm).t, got.t)
     assert got.t[0] == 0.0 and got.metadata.extra["time_origin"] == 1700000123.456
+    assert got.metadata.extra["time_origin_text"] == text[0]  # every digit (ns epochs: 19)
     # text or decimals given to log_from_columns are counted exactly too
     for times in (np.array(text), [Decimal(t) for t in text]):
         same = log_from_columns({"t": times, "q.elbow": np.arange(n) % 7}, arm)

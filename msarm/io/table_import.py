@@ -10,7 +10,8 @@ What it does, and refuses (each error names the file, the column and what was ex
 - the time column (``t`` unless told) becomes ``t`` in seconds from the first sample
   (``time_unit`` ``s``, ``ms``, ``us`` or ``ns``; the first sample's time is kept in the log's
   ``msarm.extra`` as ``time_origin``, in that unit, so that an epoch time keeps its steps'
-  digits: a time given as text, as a CSV file's is read, is subtracted in decimals); it must
+  digits: a time given as text, as a CSV file's is read, is subtracted in decimals, and its
+  first value also kept as that text, ``time_origin_text``, every digit of it); it must
   be strictly increasing and have no missing value;
 - every other column is a channel ``<quantity>.<name>``. Its unit is the one given for the
   quantity (``units``), else msarm's (:data:`~msarm.io.logs.STANDARD_UNITS`); a unit other
@@ -250,6 +251,9 @@ def log_from_columns(
     out = _without_missing(out, drop_missing, source)
     _check_step_kept(out[TIME], rate, source)
     extra = {**dict(extra or {}), "time_origin": origin, "time_origin_unit": time_unit}
+    given = np.asarray(columns[time_column])
+    if given.dtype.kind in "OU":  # the first time as given, every digit (a float keeps 16)
+        extra["time_origin_text"] = str(given[0]).strip()
     metadata = LogMetadata.for_model(model, rate, units=log_units, extra=extra)
     try:
         return RunLog(out, metadata)
