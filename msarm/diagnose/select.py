@@ -748,7 +748,9 @@ _NOT_TRIED = "candidates not tried: "
 #: A named effect whose confidence is below this gets a note that it may fit by chance.
 LOW_CONFIDENCE = 0.5
 #: What a drive-side term named with cable elasticity may stand for (:func:`_notes`), with
-#: what the withheld-effect benchmark's elastic plants (no delay, no winch friction) gave.
+#: what the withheld-effect benchmark's elastic plants (no delay) gave where they name it.
+#: (Until the plant's winch step was corrected on 2026-11-29 they also named winch friction,
+#: from the step's own numerical drag; since then they do not.)
 _ELASTIC_DRIVE_NOTES = {
     "command_delay": (
         "this kernel may be that lag rather than a delay (on the withheld-effect benchmark's "
@@ -756,9 +758,8 @@ _ELASTIC_DRIVE_NOTES = {
         "not the single tap of a whole-sample delay)"
     ),
     "winch_friction": (
-        "its viscous part may be that lag (on the withheld-effect benchmark's elastic plants, "
-        "which have no winch friction, it is named with a Coulomb level near 0.0003 N m and a "
-        "viscous coefficient of 0.0003-0.0005 N m s/rad)"
+        "its viscous part may be that lag rather than friction of the winch (a drag on the "
+        "winch's speed and a lag of the tension behind the command look alike on the drive)"
     ),
 }
 
