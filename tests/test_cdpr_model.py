@@ -381,6 +381,34 @@ def test_forward_kinematics_bad_input(model):
         model.forward_kinematics(lengths, R0=2 * np.eye(3))
     with pytest.raises(InputError, match="max_iter"):
         model.forward_kinematics(lengths, max_iter=0)
+    with pytest.raises(InputError, match="max_residual must be a finite number > 0"):
+        model.forward_kinematics(lengths, max_residual=0.0)
+
+
+def test_forward_kinematics_can_refuse_a_local_minimum():
+    """A user's robot, a rotated pose started at R = I: the steps end 0.09 rad off the pose
+    with a residual of 4e-6 m that looks like noise; max_residual refuses it, and a start
+    near the pose recovers the pose exactly."""
+    a = [
+        [x, y, z]
+        for z in (0.55, 0.0)
+        for x, y in ((-0.6, 0.5), (0.6, 0.5), (0.6, -0.5), (-0.6, -0.5))
+    ]
+    b = [
+        [x, y, z]
+        for z in (0.03, -0.03)
+        for x, y in ((-0.05, 0.04), (0.05, 0.04), (0.05, -0.04), (-0.05, -0.04))
+    ]
+    robot = CableRobot(a, b)
+    r, R = np.array([-0.014, 0.092, 0.263]), rotation_matrix([-0.102, 0.027, 0.041])
+    lengths = robot.cable_lengths(r, R)
+    stuck = forward_kinematics(robot, lengths)
+    assert rotation_angle_between(stuck.R, R) > 0.05 and 1e-7 < stuck.residual < 1e-4
+    with pytest.raises(ForwardKinematicsError, match="more than max_residual 1e-07 m: a local"):
+        forward_kinematics(robot, lengths, max_residual=1e-7)
+    near = forward_kinematics(robot, lengths, r + 0.01, R, max_residual=1e-7)
+    np.testing.assert_allclose(near.r, r, atol=1e-12)
+    assert rotation_angle_between(near.R, R) < 1e-12
 
 
 def test_forward_kinematics_non_convergence_is_an_error(model):

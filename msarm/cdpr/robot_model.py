@@ -281,6 +281,7 @@ class CableRobotModel:
         *,
         tol: float = 1e-10,
         max_iter: int = 50,
+        max_residual: float | None = None,
     ) -> ForwardKinematicsResult:
         """Pose from cable lengths (:func:`msarm.cdpr.forward_kinematics.forward_kinematics`).
 
@@ -290,13 +291,15 @@ class CableRobotModel:
             R0: Start rotation matrix, shape (3, 3); the home rotation if None.
             tol: Step tolerance [m and rad].
             max_iter: Largest number of Newton-Raphson steps.
+            max_residual: Largest length residual [m] a pose is accepted with; None: any.
 
         Returns:
             The pose, the number of steps and the largest length residual [m].
 
         Raises:
             InputError: On invalid input.
-            ForwardKinematicsError: When the iteration does not converge.
+            ForwardKinematicsError: When the iteration does not converge, or ends with a
+                residual above ``max_residual`` (a local minimum).
         """
         r_home, R_home = self.home_pose
         return forward_kinematics(
@@ -306,6 +309,7 @@ class CableRobotModel:
             R_home if R0 is None else R0,
             tol=tol,
             max_iter=max_iter,
+            max_residual=max_residual,
         )
 
     def platform_wrench(

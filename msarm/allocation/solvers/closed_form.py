@@ -1,4 +1,4 @@
-"""Pott's closed-form force distributions (papers 000 and 001).
+"""Pott's closed-form force distributions (paper 001).
 
 Closed form (Pott, Bruckmann, Mikelsons 2009): the unbounded optimum of the allocation
 objective (``f_ref = 0`` gives the unbounded minimum 2-norm forces, which may be negative;
