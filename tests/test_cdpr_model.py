@@ -381,8 +381,9 @@ def test_forward_kinematics_bad_input(model):
         model.forward_kinematics(lengths, R0=2 * np.eye(3))
     with pytest.raises(InputError, match="max_iter"):
         model.forward_kinematics(lengths, max_iter=0)
-    with pytest.raises(InputError, match="max_residual must be a finite number > 0"):
-        model.forward_kinematics(lengths, max_residual=0.0)
+    for bad in (0.0, True, "1e-6", float("nan")):
+        with pytest.raises(InputError, match="max_residual must be a finite number > 0"):
+            model.forward_kinematics(lengths, max_residual=bad)
 
 
 def test_forward_kinematics_can_refuse_a_local_minimum():

@@ -183,7 +183,7 @@ def test_train_compensator_checks_its_paths_before_collecting(arm, monkeypatch, 
     [
         ("", -5, "key 'data.first_seed' must be an integer >= 0"),
         ("target:\n  window: 1\n  polyorder: -1\n", 1000, "key 'target.polyorder' must be"),
-        (  # refused after collecting every run before
+        (  # refused before any run (until 2026-11-29: after collecting them all)
             "target:\n  window: 5001\n",
             1000,
             "key 'target.window' is 5001 samples, more than a run has (5000: a 20 s random "

@@ -159,7 +159,7 @@ def test_logs_the_diagnosis_refuses_together_are_said(arm, logs, tmp_path, monke
     )
     assert check_logs(arm, [logs[0]])[1] == []
     (twice,) = check_logs(arm, [logs[0], logs[0]])[1]
-    assert twice.startswith(f"logs: {logs[0]} is given twice: one run under two names")
+    assert twice.startswith(f"logs: {logs[0]} is given twice; expected each run once")
     # a rate that differs in its ninth digit is the diagnosis's one rate (it was "logs of 2
     # sample rates (250 Hz: ...; 250 Hz: ...)")
     near = write_log(

@@ -1123,3 +1123,19 @@ def test_delay_terms_and_rates_restart_after_a_time_gap(logs, arm, tmp_path):
     carried, restarted = hysteresis.torque(signals, theta), hysteresis.torque(apart, theta)
     np.testing.assert_array_equal(carried[:after], restarted[:after])
     assert not np.allclose(carried[after], restarted[after])
+
+
+def test_the_cable_scale_warning_names_several_cables_in_the_plural():
+    """Two cables' load cells in kN: "tensions of cables ... are far from what their load
+    cells read", not the one cable's singular."""
+    from msarm.diagnose.residuals import _warn_cable_tension_scale
+
+    tension = np.full((10, 3), 20.0)
+    tension[:, :2] /= 1e3
+    with pytest.warns(DiagnosisWarning) as caught:
+        _warn_cable_tension_scale("x.parquet", tension, np.full((10, 3), 20.0), ["a", "b", "c"])
+    (message,) = [str(w.message) for w in caught]
+    assert message.startswith("x.parquet: the commanded tensions of cables 'a' (1e+03: ")
+    assert "'b' (1e+03: " in message and "'c'" not in message
+    assert "are far from what their load cells read" in message
+    assert "is each such cable's tension_motor" in message

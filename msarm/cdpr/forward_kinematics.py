@@ -294,7 +294,11 @@ def forward_kinematics(
         raise InputError(f"tol must be a finite number > 0 [m, rad], got {tol}")
     if int(max_iter) != max_iter or max_iter < 1:
         raise InputError(f"max_iter must be an integer >= 1, got {max_iter}")
-    if max_residual is not None and not (np.isfinite(max_residual) and max_residual > 0.0):
+    if max_residual is not None and (
+        isinstance(max_residual, bool)
+        or not isinstance(max_residual, (int, float, np.floating, np.integer))
+        or not (np.isfinite(max_residual) and max_residual > 0.0)
+    ):
         raise InputError(
             f"max_residual must be a finite number > 0 [m] or None, got {max_residual}"
         )

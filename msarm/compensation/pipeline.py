@@ -101,7 +101,7 @@ class CompensatorRecipe:
                 f"random-<first_seed + i>, whose seed is >= 0), got {seed!r}"
             )
         samples = int(round(RANDOM_TASK_DURATION * self.controller.rate_hz))
-        if self.target.window > samples:  # found after collecting the runs before
+        if self.target.window > samples:  # before any run is collected
             raise ValueError(
                 f"key 'target.window' is {self.target.window} samples, more than a run has "
                 f"({samples}: a {RANDOM_TASK_DURATION:g} s random task at "

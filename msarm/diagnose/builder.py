@@ -258,10 +258,14 @@ def check_distinct_files(paths: Sequence[str | Path]) -> None:
         if digest in seen:
             first = seen[digest]
             same = Path(first).resolve() == Path(path).resolve()
-            how = "is given twice" if same else f"has the same contents as {first}"
+            how = (
+                "is given twice"
+                if same
+                else f"has the same contents as {first}: one run under two names"
+            )
             raise InputError(
-                f"logs: {path} {how}: one run under two names; expected each run once (a "
-                "copy held out would score the terms on the data they were fitted on)"
+                f"logs: {path} {how}; expected each run once (a copy held out would score "
+                "the terms on the data they were fitted on)"
             )
         seen[digest] = str(path)
 

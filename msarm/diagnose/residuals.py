@@ -598,12 +598,16 @@ def _warn_cable_tension_scale(
         for k in off[:3]
     )
     more = f" and {off.size - 3} more" if off.size > 3 else ""
+    one = off.size == 1
+    cables = "tension of cable" if one else "tensions of cables"
+    are, reads = ("is", "its load cell reads") if one else ("are", "their load cells read")
+    each = "that cable's" if one else "each such cable's"
     warnings.warn(
-        f"{source}: the commanded tension of cable {named}{more} is far from what its load "
-        f"cell reads (medians; in brackets their ratio, where drives that render their "
-        f"commands give about 1, 0.58-2.06 on msarm's simulated plants): is that "
-        "cable's tension_motor or tension_cmd column in another unit (mN, kN), or its load "
-        "cell dead? Its drive residual F - F_cmd is then mostly this",
+        f"{source}: the commanded {cables} {named}{more} {are} far from what {reads} "
+        "(medians; in parentheses their ratio, where drives that render their commands give "
+        f"about 1, 0.58-2.06 on msarm's simulated plants): is {each} tension_motor or "
+        "tension_cmd column in another unit (mN, kN), or its load cell dead? Its drive "
+        "residual F - F_cmd is then mostly this",
         DiagnosisWarning,
         stacklevel=4,
     )

@@ -302,7 +302,8 @@ class ArmPlant:
             q: Joint angles [rad], shape ``(n,)``, inside the model's joint range
                 ``[joint_lower, joint_upper]`` (edges included).
             tensions: Motor-side tensions [N], shape ``(m,)``, each >= 0; zero if omitted. The
-                drives are commanded the same until the first :meth:`command`.
+                drives are commanded the same until the first :meth:`command` reaches them
+                (with the delay effect, ``actuation_periods`` control periods after it).
             qdot: Joint velocities [rad/s], shape ``(n,)``; zero if omitted.
 
         Raises:

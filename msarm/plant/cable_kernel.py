@@ -18,7 +18,9 @@ towards the motor (capstan friction with true stiction, a quasi-static Coulomb l
     total stretch) to both while the cable is taut, each tension staying >= 0;
     the node sticks while ``T_i / beta <= T_m <= beta T_i`` with ``beta = exp(mu Theta(q))``
     and otherwise slides until ``T_m = beta T_i`` (cable pulled in) or ``T_m = T_i / beta``
-    (paid out); the winch's implicit step sees the node where this step's path has put it.
+    (paid out); the winch's implicit step sees the node where this step's path has put it
+    (for a taut cable: in the step where the path makes it slack, the winch still feels the
+    last step's motor-side tension, for that one step).
     Without sheath friction (``mu = 0``) the node balances and the cable is one
     spring of stiffness k. A cable whose total stretch ``e_m + e_i`` is not positive is
     slack: no tension on either side.
