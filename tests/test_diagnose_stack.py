@@ -475,3 +475,49 @@ def test_the_buffered_solver_gives_casadis_answer_bit_for_bit():
         buffered(x0=[0.1, 0.2], p=[1.0, 2.0])
     with pytest.raises(InputError, match="unknown input"):
         buffered(x1=[0.1, 0.2])
+
+
+def test_problems_of_one_structure_share_a_solver_with_the_same_answers(arm):
+    """A term on as many samples of other data: one built solver, each problem's own answer."""
+    import casadi
+
+    import msarm.diagnose.nlp as nlp
+    from msarm.diagnose.effects import CasadiOps
+    from msarm.diagnose.fitting import _NonlinearProblem
+
+    s_true = np.tile([0.2, 0.35, 0.3], 4)
+    stribeck = StribeckFriction()
+    problems = []
+    for seed in (4, 6):
+        signals = _make_signals(arm, seed=seed)
+        residual = np.asarray(stribeck.torque(signals, s_true))
+        wobble = 0.01 * np.sin(np.arange(residual.size)).reshape(residual.shape)
+        problems.append((signals, residual + wobble))
+    nlp._SOLVERS.clear()
+    first = _NonlinearProblem(stribeck, *problems[0])
+    second = _NonlinearProblem(stribeck, *problems[1])
+    assert second.solver is first.solver
+    shared = second.solve(None)[0]
+    nlp._SOLVERS.clear()
+    alone = _NonlinearProblem(stribeck, *problems[1])
+    assert alone.solver is not first.solver
+    np.testing.assert_array_equal(shared, alone.solve(None)[0])
+    np.testing.assert_array_equal(
+        first.solve(None)[0], _NonlinearProblem(stribeck, *problems[0]).solve(None)[0]
+    )
+    # another constant of the equation (the smoothing speed) is another structure
+    other = _NonlinearProblem(StribeckFriction(eps=0.02), *problems[0])
+    assert other.solver is not alone.solver
+    # the answer of the problem with its data as constants (as casadi built it before)
+    signals, residual = problems[0]
+    theta = casadi.MX.sym("theta", stribeck.n_parameters)
+    error = residual - stribeck.torque(signals, theta, CasadiOps())
+    problem = {"x": theta, "f": casadi.sumsqr(error) / np.sum(residual**2)}
+    G = stribeck.constraints()
+    problem["g"] = casadi.mtimes(casadi.DM(G), theta)
+    constants = casadi.nlpsol("constants", "ipopt", problem, nlp.IPOPT_OPTIONS)
+    lower, upper = stribeck.bounds()
+    start = np.clip(stribeck.initial_guess(signals, residual), lower, upper)
+    bounds = {"lbx": lower, "ubx": upper, "lbg": 0.0, "ubg": np.inf}
+    expected = np.clip(np.asarray(constants(x0=start, **bounds)["x"]).ravel(), lower, upper)
+    np.testing.assert_allclose(first.solve(None)[0], expected, rtol=1e-9, atol=1e-12)

@@ -495,3 +495,27 @@ def test_diagnose_where_checks_its_arguments_before_reading_a_log(arm, tmp_path)
             diagnose_where(arm, missing, **kwargs)
     with pytest.raises(InputError, match=r"logs: expected a list of one or more log files"):
         diagnose_where(arm, [])
+
+
+def test_replays_of_one_motion_at_once_are_each_replayed_alone(arm, logs):
+    """Several tensions and losses over one motion, replayed together: each one's bits."""
+    from msarm.diagnose.residuals import ResidualSpec, replay_runs
+
+    log = read_log(logs["joint_friction"])
+    q = log.matrix("q", arm.joint_names)[:330]
+    tension = log.matrix("tension_motor", arm.cable_names)[: len(q)]
+    qd = np.gradient(q, axis=0) * 250.0
+    run = np.repeat([0, 1], [230, 100])  # two stretches: a short last window in each
+    lost = np.random.default_rng(1).normal(0.0, 0.2, size=q.shape)
+    spec = ResidualSpec()
+    alone = [
+        replay_runs(arm, q, qd, tension, run, 1 / 250, None, spec),
+        replay_runs(arm, q, qd, 1.01 * tension, run, 1 / 250, lost, spec),
+    ]
+    together = replay_runs(
+        arm, q, qd, np.stack([tension, 1.01 * tension]), run, 1 / 250,
+        np.stack([np.zeros_like(lost), lost]), spec,
+    )  # fmt: skip
+    assert together.shape == (2, *q.shape)
+    for k in range(2):
+        np.testing.assert_array_equal(together[k], alone[k])

@@ -1355,21 +1355,26 @@ class SensorBiasScale(CandidateEffect):
         self._check_joints(signals, self.n_joints)
         self._check_cables(signals, self.n_cables)
         JT = -np.transpose(signals.jacobian, (0, 2, 1))  # (T, n, m)
-        eye = np.broadcast_to(np.eye(self.n_cables), (signals.n_samples,) + JT.shape[2:] * 2)
-        blocks = []
+        F = signals.tension
+        joint = []
         if self.bias:
-            blocks.append((JT, eye))
+            joint.append(JT)
         if self.scale:
-            blocks.append((JT * signals.tension[:, None, :], eye * signals.tension[:, None, :]))
+            joint.append(JT * F[:, None, :])
         if self.shared:
-            blocks = [
-                (j.sum(axis=2, keepdims=True), d.sum(axis=2, keepdims=True)) for j, d in blocks
-            ]
-        joint = np.concatenate([j for j, _ in blocks], axis=2)
+            joint = [j.sum(axis=2, keepdims=True) for j in joint]
+        joint_part = np.concatenate(joint, axis=2)
         if "drive" not in self.groups:
-            return joint
-        drive = np.concatenate([d for _, d in blocks], axis=2)
-        return np.concatenate([joint, drive], axis=1)
+            return joint_part
+        # cable c's reading: 1 (bias) and F_c (scale) on drive column c; shared, their sums
+        # over the cables' diagonal matrices, which are those values
+        eye = np.broadcast_to(np.eye(self.n_cables), (signals.n_samples,) + JT.shape[2:] * 2)
+        drive = []
+        if self.bias:
+            drive.append(np.ones_like(F)[:, :, None] if self.shared else eye)
+        if self.scale:
+            drive.append(F[:, :, None] if self.shared else eye * F[:, None, :])
+        return np.concatenate([joint_part, np.concatenate(drive, axis=2)], axis=1)
 
 
 @register
@@ -1564,8 +1569,15 @@ class InertiaError(CandidateEffect):
 
     def design(self, signals: Signals) -> FloatArray:  # noqa: D102
         self._check_joints(signals, self.n_joints)
-        out = np.empty((signals.n_samples, self.n_joints, len(self.columns)))
         qdd = signals.qdd if signals.qdd_ref is None else signals.qdd_ref
+        # in Pinocchio's joint order, every column, sample by sample (the regressor's own
+        # copy), then the joints' order and the kept columns taken for all samples at once
+        q, qd, qdd = (
+            np.ascontiguousarray(x[:, self.index], dtype=float)
+            for x in (signals.q, signals.qd, qdd)
+        )
+        full = np.empty((signals.n_samples, self.n_joints, 10 * (self.pin_model.njoints - 1)))
+        regressor = pinocchio.computeJointTorqueRegressor
         for k in range(signals.n_samples):
-            out[k] = self._regressor(signals.q[k], signals.qd[k], qdd[k])[:, self.columns]
-        return out
+            full[k] = regressor(self.pin_model, self.pin_data, q[k], qd[k], qdd[k])
+        return full[:, self.inverse][:, :, self.columns]

@@ -11,10 +11,9 @@ was not fitted on; :func:`bootstrap` gives the parameters' spread by resampling 
 from __future__ import annotations
 
 import functools
-import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, ParamSpec, TypeVar
+from typing import ParamSpec, TypeVar
 
 import casadi
 import numpy as np
@@ -22,7 +21,8 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from msarm.diagnose.builder import GROUPS
-from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect, CasadiOps
+from msarm.diagnose.effects import NUMPY_OPS, CandidateEffect
+from msarm.diagnose.nlp import IPOPT_OPTIONS, BufferedNlpsol, DataOps, shared_solver
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 from msarm.interrupts import raise_if_terminated
@@ -35,7 +35,6 @@ __all__ = [
     "FitResult",
     "INDEXED_BY",
     "LinearSolver",
-    "add_constraints",
     "bootstrap",
     "bounds_of",
     "check_interface",
@@ -306,25 +305,6 @@ def column_scale(A: FloatArray) -> FloatArray:
     return np.where(scale > 0, scale, 1.0)
 
 
-#: IPOPT's settings for the fits (``casadi.nlpsol`` options), on objectives normalised by the
-#: residual's weighted energy.
-IPOPT_OPTIONS: dict[str, object] = {
-    "ipopt.print_level": 0,
-    "ipopt.sb": "yes",
-    "print_time": False,
-    # 1e-10 on the normalised objective: parameters within 1e-6 relative of the optimum
-    # (1e-14 took a third more iterations for the same answer to 1e-9)
-    "ipopt.tol": 1e-10,
-    "ipopt.max_iter": 500,
-    # Start near the guess: the residual objective may be far below the default barrier
-    # parameter (0.1), which would push the iterate away from a good start.
-    "ipopt.mu_init": 1e-8,
-    "ipopt.warm_start_init_point": "yes",
-    "ipopt.bound_push": 1e-10,
-    "ipopt.bound_frac": 1e-10,
-}
-
-
 def constraint_matrix(effect: CandidateEffect) -> FloatArray:
     """A term's :meth:`~CandidateEffect.constraints`, checked: ``G`` of shape ``(k, p)``.
 
@@ -516,81 +496,14 @@ def stacked_constraints(effects: Sequence[CandidateEffect]) -> FloatArray:
     return G
 
 
-def add_constraints(problem: dict[str, Any], theta: Any, G: FloatArray) -> dict[str, FloatArray]:
-    """Put the linear inequalities ``G @ theta >= 0`` (``(k, p)``) in a casadi NLP ``problem``.
-
-    Returns:
-        The solver's arguments that bound them, ``{"lbg": 0, "ubg": inf}`` (each ``(k,)``),
-        to pass with every solve; empty (and nothing added) for ``k = 0``.
-    """
-    k = int(G.shape[0])
-    if not k:
-        return {}
-    problem["g"] = casadi.mtimes(casadi.DM(G), theta)
-    return {"lbg": np.zeros(k), "ubg": np.full(k, np.inf)}
-
-
-class BufferedNlpsol:
-    """A ``casadi.nlpsol`` called on numpy arrays' memory (:meth:`casadi.Function.buffer`).
-
-    Called as the solver is (``solver(x0=..., p=..., lbx=..., ...)``, inputs not given take
-    the solver's defaults) and returning ``{"x": theta}``; :meth:`stats` gives the last
-    solve's status (its timings and call counts add up over the solves). casadi copies a
-    numpy argument into a ``DM`` value by value (about 50 ns a value): a fit's parameter
-    vector (the per-sample weights and the residual, 12,000-110,000 values) took 1-5 ms a
-    solve, a tenth of a typical one, and the outputs (multipliers for each NLP parameter) as
-    much again. Here the inputs are copied into arrays bound once and only ``x`` is asked
-    for: the same function on the same numbers, so the same ``x``, bit for bit. One solve at
-    a time (a lock: the arrays are shared).
-    """
-
-    def __init__(self, solver: casadi.Function) -> None:
-        self.function = solver
-        self._lock = threading.Lock()
-        self._buffer, self._evaluate = solver.buffer()
-        self._index = {name: i for i, name in enumerate(solver.name_in())}
-        self._defaults = [float(solver.default_in(i)) for i in range(solver.n_in())]
-        self._inputs = [np.zeros(solver.nnz_in(i)) for i in range(solver.n_in())]
-        for i, values in enumerate(self._inputs):
-            if values.size:
-                self._buffer.set_arg(i, memoryview(values))
-        self._x = np.zeros(solver.nnz_out(solver.index_out("x")))
-        self._buffer.set_res(solver.index_out("x"), memoryview(self._x))
-
-    def __call__(self, **arguments: Any) -> dict[str, FloatArray]:
-        """Solve; ``arguments`` by the solver's input names (column-major values)."""
-        unknown = set(arguments) - set(self._index)
-        if unknown:
-            raise InputError(f"nlpsol: unknown input(s) {sorted(unknown)}")
-        with self._lock:
-            for name, i in self._index.items():
-                target = self._inputs[i]
-                if name not in arguments:
-                    target.fill(self._defaults[i])
-                    continue
-                value = np.asarray(arguments[name], dtype=float).reshape(-1, order="F")
-                if value.size == 1 and target.size != 1:  # a scalar for every value, as casadi
-                    target.fill(float(value[0]))
-                elif value.size != target.size:
-                    raise InputError(
-                        f"nlpsol: input {name} has {value.size} values, expected {target.size}"
-                    )
-                else:
-                    target[:] = value
-            self._evaluate()
-            return {"x": self._x.copy()}
-
-    def stats(self) -> dict[str, Any]:
-        """The last solve's statistics (IPOPT's status; timings and call counts add up)."""
-        return self._buffer.stats()
-
-
 class _NonlinearProblem:
     """IPOPT problem of a nonlinear candidate on fixed samples, with per-sample weights.
 
     Minimises ``sum_t w_t |r_t - torque_t(theta)|^2 / sum_t w_t |r_t|^2``. The weights and the
     residual are NLP parameters, so that a bootstrap, or a selection that fits the same term
-    to several residuals, builds (and differentiates) the problem once per set of samples.
+    to several residuals, builds (and differentiates) the problem once per set of samples;
+    the samples' data are NLP parameters too, and the solver is shared with every problem of
+    the same term on as many samples (:func:`~msarm.diagnose.nlp.shared_solver`).
     """
 
     def __init__(self, effect: CandidateEffect, signals: Signals, residual: FloatArray) -> None:
@@ -600,18 +513,17 @@ class _NonlinearProblem:
         theta = casadi.MX.sym("theta", p)
         weights = casadi.MX.sym("w", T)
         target = casadi.MX.sym("r", T, width)
-        error = target - effect.torque(signals, theta, CasadiOps())
+        data = DataOps()
+        error = target - effect.torque(signals, theta, data)
         squared = casadi.sum2(error * error)
         reference = casadi.sum2(target * target)
         objective = casadi.dot(weights, squared) / casadi.fmax(
             casadi.dot(weights, reference), 1e-300
         )
-        parameters = casadi.vertcat(weights, casadi.vec(target))
-        problem = {"x": theta, "p": parameters, "f": objective}
-        self.constraint_bounds = add_constraints(problem, theta, constraint_matrix(effect))
-        self.solver = BufferedNlpsol(
-            casadi.nlpsol(f"fit_{effect.name}", "ipopt", problem, IPOPT_OPTIONS)
-        )
+        self.solver, self.data, self.constraint_bounds = shared_solver(
+            f"fit_{effect.name}", theta, [weights, target], objective, data,
+            constraint_matrix(effect),
+        )  # fmt: skip
         self.lower, self.upper = bounds_of(effect)
 
     def solve(
@@ -635,7 +547,7 @@ class _NonlinearProblem:
             )
         x0 = np.clip(x0, self.lower, self.upper)
         w = np.ones(T) if weights is None else weights
-        values = np.concatenate([w, r.reshape(-1, order="F")])
+        values = np.concatenate([w, r.reshape(-1, order="F"), self.data])
         solution = self.solver(
             x0=x0, p=values, lbx=self.lower, ubx=self.upper, **self.constraint_bounds
         )

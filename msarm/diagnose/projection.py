@@ -28,16 +28,9 @@ import casadi
 import numpy as np
 from numpy.typing import NDArray
 
-from msarm.diagnose.effects import CandidateEffect, CasadiOps
-from msarm.diagnose.fitting import (
-    IPOPT_OPTIONS,
-    BufferedNlpsol,
-    LinearSolver,
-    add_constraints,
-    bounds_of,
-    column_scale,
-    stacked_constraints,
-)
+from msarm.diagnose.effects import CandidateEffect
+from msarm.diagnose.fitting import LinearSolver, bounds_of, column_scale, stacked_constraints
+from msarm.diagnose.nlp import DataOps, shared_solver
 from msarm.diagnose.signals import Signals
 from msarm.errors import InputError
 from msarm.interrupts import raise_if_terminated
@@ -85,7 +78,7 @@ class ProjectedProblem:
         position = {int(c): k for k, c in enumerate(self.columns)}
         #: Where each nonlinear term's columns sit among ``columns``.
         self._own = [np.array([position[int(c)] for c in own], dtype=np.intp) for own in columns_of]
-        ops = CasadiOps()
+        ops = DataOps()
         thetas = [casadi.MX.sym(f"theta{k}", n) for k, n in enumerate(self.sizes)]
         parts: list[list[Any]] = [[] for _ in range(C)]
         for term, own, theta in zip(self.nonlinear, columns_of, thetas, strict=True):
@@ -97,20 +90,13 @@ class ProjectedProblem:
         target = casadi.MX.sym("r", T, C)
         weights = casadi.MX.sym("w", T)
         inverse = casadi.MX.sym("g", p, p)
-        error = casadi.vec(target - predicted)  # column by column: the design's row order
-        w = casadi.repmat(weights, C, 1)
-        objective = casadi.dot(w, error * error)
-        if p:
-            b = casadi.mtimes(casadi.DM(self.flat).T, w * error)
-            objective = objective - casadi.dot(b, casadi.mtimes(inverse, b))
-        reference = casadi.fmax(casadi.dot(w, casadi.vec(target) ** 2), 1e-300)
-        parameters = casadi.vertcat(weights, casadi.vec(target), casadi.vec(inverse))
         x = casadi.vertcat(*thetas)
-        problem = {"x": x, "p": parameters, "f": objective / reference}
-        self.constraint_bounds = add_constraints(problem, x, stacked_constraints(self.nonlinear))
-        self.solver = BufferedNlpsol(
-            casadi.nlpsol("fit_projected", "ipopt", problem, IPOPT_OPTIONS)
-        )
+        flat = ops.const(self.flat) if p else None
+        self.solver, self.data, self.constraint_bounds = shared_solver(
+            "fit_projected", x, [weights, target, inverse],
+            _objective(predicted, target, weights, inverse, flat), ops,
+            stacked_constraints(self.nonlinear),
+        )  # fmt: skip
         bounds = [bounds_of(t) for t in self.nonlinear]
         self.lower = np.concatenate([low for low, _ in bounds])
         self.upper = np.concatenate([high for _, high in bounds])
@@ -163,7 +149,7 @@ class ProjectedProblem:
         start = np.concatenate([np.asarray(x, dtype=float) for x in initial])
         x0 = np.clip(start, self.lower, self.upper)
         values = np.concatenate(
-            [w, residual.reshape(-1, order="F"), inverse.reshape(-1, order="F")]
+            [w, residual.reshape(-1, order="F"), inverse.reshape(-1, order="F"), self.data]
         )
         solution = self.solver(
             x0=x0, p=values, lbx=self.lower, ubx=self.upper, **self.constraint_bounds
@@ -180,3 +166,33 @@ class ProjectedProblem:
             b = left.reshape(-1, 1, order="F")
             linear = solver.solve(b if root is None else b * root[:, None]) / self.scale
         return thetas, linear, status
+
+
+def _objective(
+    predicted: casadi.MX,
+    target: casadi.MX,
+    weights: casadi.MX,
+    inverse: casadi.MX,
+    flat: casadi.MX | None,
+) -> casadi.MX:
+    """The projected objective ``J / sum w r^2`` of the module's docstring.
+
+    Args:
+        predicted: The nonlinear terms' prediction ``f(x)``, ``(T, C)``.
+        target: The residual ``r``, ``(T, C)``.
+        weights: The per-sample weights, ``(T, 1)``.
+        inverse: ``G^+``, ``(p, p)``.
+        flat: The normalised design ``A`` column after column, ``(C T, p)``; None without.
+    """
+    error = casadi.vec(target - predicted)  # column by column: the design's row order
+    w = casadi.repmat(weights, target.size2(), 1)
+    objective = casadi.dot(w, error * error)
+    if flat is not None:
+        b = casadi.mtimes(flat.T, w * error)
+        objective = objective - casadi.dot(b, casadi.mtimes(inverse, b))
+    return objective / _reference(target, w)
+
+
+def _reference(target: casadi.MX, w: casadi.MX) -> casadi.MX:
+    """The objective's scale: the residual's weighted energy (at least 1e-300)."""
+    return casadi.fmax(casadi.dot(w, casadi.vec(target) ** 2), 1e-300)

@@ -39,6 +39,7 @@ window are dropped (their samples are marked invalid, with a warning naming the 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -911,6 +912,7 @@ def _replay(
     spec: ResidualSpec,
     period_ending: bool,
     lost: FloatArray | None = None,
+    stretches: Sequence[slice] | None = None,
 ) -> FloatArray:
     """Replay residual of one segment [rad], shape ``(T, n)``.
 
@@ -926,17 +928,20 @@ def _replay(
     independent, so they are integrated side by side, sample by sample (each window's numbers
     are those of integrating it alone). An error beyond pi rad (a diverging replay) is
     clipped to +-pi and the window starts again from the logged state of the next sample.
+
+    ``stretches``: the rows of several segments set end to end (each cut into windows from
+    its first row; all of them integrated side by side), or None: the whole arrays, one
+    segment.
     """
-    n_samples = len(q_log)
     per_window = max(1, round(spec.replay_window / dt))
     h = dt / spec.replay_substeps
     out = np.empty_like(q_log)
-    starts = np.arange(0, n_samples, per_window)
+    starts, stops = _windows([slice(0, len(q_log))] if stretches is None else stretches, per_window)
     q = q_start[starts].copy()
     v = qd_start[starts].copy()
     with np.errstate(over="ignore", invalid="ignore"):
         for j in range(per_window):
-            live = starts + j < n_samples  # the last window may be shorter
+            live = starts + j < stops  # a segment's last window may be shorter
             rows = starts[live] + j
             error = q[live] - q_log[rows]
             bad = ~np.all(np.abs(error) < _REPLAY_LIMIT, axis=1)  # diverged (or NaN)
@@ -946,8 +951,9 @@ def _replay(
             out[rows] = error
             if j + 1 == per_window:
                 break
-            go = np.flatnonzero(live)[~bad & (rows + 1 < n_samples)]
-            restart = np.flatnonzero(live)[bad & (rows + 1 < n_samples)]
+            more = rows + 1 < stops[live]
+            go = np.flatnonzero(live)[~bad & more]
+            restart = np.flatnonzero(live)[bad & more]
             q[restart] = q_start[starts[restart] + j + 1]
             v[restart] = qd_start[starts[restart] + j + 1]
             if go.size:
@@ -962,6 +968,15 @@ def _replay(
                     qs, vs = qs + h * v_mid, vs + h * a_mid
                 q[go], v[go] = qs, vs
     return out
+
+
+def _windows(
+    stretches: Sequence[slice], per_window: int
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """First rows of the replay windows and the end of each one's segment (exclusive)."""
+    starts = [np.arange(part.start, part.stop, per_window) for part in stretches]
+    stops = [np.full(len(first), part.stop) for first, part in zip(starts, stretches, strict=True)]
+    return np.concatenate(starts), np.concatenate(stops)
 
 
 def replay_runs(
@@ -980,18 +995,21 @@ def replay_runs(
 
     The nominal dynamics driven by the logged tensions over short windows (see the module
     docstring), less ``lost`` when given: how far the nominal model, or the nominal model with
-    fitted effects, drifts from the logged motion.
+    fitted effects, drifts from the logged motion. Several replays of the same motion
+    (``tension`` of shape ``(V, T, m)``, ``lost`` ``(V, T, n)``) are integrated side by side:
+    the bits of each replayed alone, in a fraction of the time.
 
     Args:
         model: The nominal robot model.
         q: Logged joint angles [rad], ``(T, n)``.
         qd: Filtered joint velocities [rad/s], ``(T, n)`` (the windows' start states).
-        tension: Load-cell tensions [N], ``(T, m)``.
+        tension: Load-cell tensions [N], ``(T, m)``, or ``(V, T, m)`` for ``V`` replays.
         run: Label of each sample's stretch without a time gap (:attr:`Signals.segment`),
             ``(T,)``; each contiguous.
         dt: Sample period [s].
         lost: Torque lost between the cables and the joints [N m], ``(T, n)`` (the fitted
-            joint-torque residual), or None for the nominal model.
+            joint-torque residual), or ``(V, T, n)`` with ``V`` tensions, or None for the
+            nominal model.
         spec: Window and substeps.
         period_ending: Whether ``tension[k]`` is the tension over the sample period ending
             at ``t_k`` (msarm's load cells with ``tension_timing="period"``, and commands
@@ -1001,25 +1019,26 @@ def replay_runs(
             load-cell tensions (pass True for aligned commands).
 
     Returns:
-        ``q_replay - q`` [rad], ``(T, n)``.
+        ``q_replay - q`` [rad], ``(T, n)``, or ``(V, T, n)`` for ``V`` tensions.
     """
     spec = spec or ResidualSpec()
     if period_ending is None:
         period_ending = spec.target.tension_timing == "period"
-    work = _Work(model)
-    out = np.empty_like(q)
+    tensions = np.asarray(tension, dtype=float)
+    single = tensions.ndim == 2
+    if single:
+        tensions = tensions[None]
+    V, T = len(tensions), len(q)
+    losses = None if lost is None else np.asarray(lost, dtype=float).reshape(V * T, -1)
+    parts = []
     for label in np.unique(run):
         index = np.flatnonzero(run == label)
-        part = slice(int(index[0]), int(index[-1]) + 1)
-        out[part] = _replay(
-            work,
-            q[part],
-            q[part],
-            qd[part],
-            tension[part],
-            dt,
-            spec,
-            period_ending,
-            None if lost is None else lost[part],
-        )
-    return out
+        parts.append((int(index[0]), int(index[-1]) + 1))
+    # the replays end to end, each cut into its runs: one integration of all their windows
+    stretches = [slice(a + k * T, b + k * T) for k in range(V) for a, b in parts]
+    q_all, qd_all = np.tile(q, (V, 1)), np.tile(qd, (V, 1))
+    out = _replay(
+        _Work(model), q_all, q_all, qd_all, tensions.reshape(V * T, -1), dt, spec,
+        period_ending, losses, stretches,
+    ).reshape(V, T, -1)  # fmt: skip
+    return out[0] if single else out

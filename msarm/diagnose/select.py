@@ -419,10 +419,17 @@ def _resolved_by_runs(term: Embedded, left: FloatArray, sampled: Sampled) -> NDA
 
 
 def _training_error(
-    model: FittedModel, sampled: Sampled, weights: FloatArray | None = None
+    model: FittedModel,
+    sampled: Sampled,
+    weights: FloatArray | None = None,
+    left: FloatArray | None = None,
 ) -> float:
-    """The (weighted) sum of squares the fits minimise: training residual less ``model``."""
-    left = sampled.residual["train"] - model.predict(sampled, "train")
+    """The (weighted) sum of squares the fits minimise: training residual less ``model``.
+
+    ``left``: that residual, if already known (``model`` is then not evaluated).
+    """
+    if left is None:
+        left = sampled.residual["train"] - model.predict(sampled, "train")
     w = np.ones(left.shape[0]) if weights is None else np.asarray(weights, dtype=float)
     return float(np.sum(w[:, None] * left**2))
 
@@ -432,6 +439,7 @@ def _unsound_fit(
     start: FittedModel,
     sampled: Sampled,
     weights: FloatArray | None = None,
+    start_left: FloatArray | None = None,
 ) -> str | None:
     """Why a joint fit that started from ``start`` is not the optimum it claims, or None.
 
@@ -442,6 +450,9 @@ def _unsound_fit(
     of a Stribeck term beside a Coulomb term, whose levels trade along a direction the
     objective cannot see, ran off along it to levels of 1e7 N m on noise-free logs, where the
     objective, a difference of two such energies, had lost every digit.)
+
+    ``start_left``: the training residual less ``start``, if already known (a bootstrap
+    starts every draw there).
 
     Returns:
         Every reason that applies, joined by ``"; "``, or None for a sound fit.
@@ -463,7 +474,7 @@ def _unsound_fit(
         why.append(f"IPOPT: {', '.join(statuses)}")
     with np.errstate(all="ignore"):
         error = _training_error(fitted, sampled, weights)
-        before = _training_error(start, sampled, weights)
+        before = _training_error(start, sampled, weights, start_left)
         if not error <= before * (1.0 + TRAINING_ROUNDOFF):
             why.append(f"a training error {error / before:.3g} times its start's")
     return "; ".join(why) or None
@@ -658,13 +669,16 @@ def _replay_gap(data: DiagnosisData, cumulative: dict[str, FloatArray]) -> dict[
     )
     out: dict[str, Any] = {"source": source, "window_s": spec.replay_window}
     nothing = not any(np.any(v) for v in cumulative.values())  # the same replay twice
-    error = None
-    for key, tension, extra in (("before", drive, None), ("after", delivered, lost)):
-        if error is None or not nothing:
-            error = replay_runs(
-                model, hold.q, hold.qd, tension, hold.segment, hold.dt, extra, spec,
-                period_ending=True if use_command else None,  # commands: aligned
-            )  # fmt: skip
+    tension, extra = drive, None
+    if not nothing:  # both replays at once (each one's bits)
+        tension = np.stack([drive, delivered])
+        extra = None if lost is None else np.stack([np.zeros_like(lost), lost])
+    errors = replay_runs(
+        model, hold.q, hold.qd, tension, hold.segment, hold.dt, extra, spec,
+        period_ending=True if use_command else None,  # commands: aligned
+    )  # fmt: skip
+    for k, key in enumerate(("before", "after")):
+        error = errors if nothing else errors[k]
         out[f"joint_rmse_{key}"] = pooled_rmse(error)
         out[f"hand_error_end_{key}"] = None
         if p_log is not None:
@@ -1171,6 +1185,7 @@ def _bootstrap(
     # a draw of the same runs as an earlier one (with 4 runs, about 1 draw in 4) gets the
     # same weights, so the same (deterministic) refit and scores: they are computed once
     seen: dict[tuple[int, ...], tuple[list[FloatArray], FloatArray, bool]] = {}
+    start_left = sampled.residual["train"] - model.predict(sampled, "train")
     for b in range(n_boot):
         draw = tuple(sorted(int(k) for k in rng.integers(0, labels.size, size=labels.size)))
         if draw not in seen:
@@ -1179,7 +1194,7 @@ def _bootstrap(
                 weights[members[k]] += 1.0
             fitted = fit_together(terms, sampled, weights, model.parameters, method=method)
             astray = method == "projection" and (
-                _unsound_fit(fitted, model, sampled, weights) is not None
+                _unsound_fit(fitted, model, sampled, weights, start_left) is not None
             )
             if astray:
                 fitted = fit_together(terms, sampled, weights, model.parameters, method="blocks")

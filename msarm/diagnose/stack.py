@@ -131,12 +131,16 @@ class Embedded(CandidateEffect):
     def check(self, signals: Signals) -> None:  # noqa: D102
         self.term.check(signals)
 
-    def own_parts(self, inner: Any) -> dict[str, Any]:
-        """The term's own output ``(T, W_term, ...)`` split by group, in stack units."""
+    def own_parts(self, inner: Any, ops: Ops = NUMPY_OPS) -> dict[str, Any]:
+        """The term's own output ``(T, W_term, ...)`` split by group, in stack units.
+
+        The groups' spreads enter as ``ops`` data (a solver built with
+        :class:`~msarm.diagnose.nlp.DataOps` then serves data of any spreads).
+        """
         parts, start = {}, 0
         for g in self.term.groups:
             size = self.layout.size(g)
-            parts[g] = inner[:, start : start + size] / self.layout.spread[g]
+            parts[g] = inner[:, start : start + size] / ops.const(np.array(self.layout.spread[g]))
             start += size
         return parts
 
@@ -151,7 +155,7 @@ class Embedded(CandidateEffect):
     def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
         if self.linear and isinstance(ops, NumpyOps):
             return np.einsum("tnp,p->tn", self.design(signals), np.asarray(theta, dtype=float))
-        parts = self.own_parts(self.term.torque(signals, theta, ops))
+        parts = self.own_parts(self.term.torque(signals, theta, ops), ops)
         zeros = {
             g: ops.const(np.zeros((signals.n_samples, self.layout.size(g))))
             for g in self.layout.groups
@@ -201,7 +205,7 @@ class OwnColumns(CandidateEffect):
 
     def torque(self, signals: Signals, theta: Any, ops: Ops = NUMPY_OPS) -> Any:  # noqa: D102
         inner = self.embedded.term.torque(signals, theta, ops)
-        return ops.hcat(list(self.embedded.own_parts(inner).values()))
+        return ops.hcat(list(self.embedded.own_parts(inner, ops).values()))
 
     def initial_guess(  # noqa: D102
         self, signals: Signals, residual: FloatArray | None = None
@@ -298,6 +302,7 @@ class Sampled:
         self._set: tuple[int, ...] | None = None  # the key of the last set of several terms
         self._blocks: dict[tuple[int, ...], LinearSolver] = {}
         self._projections: dict[tuple[tuple[int, ...], tuple[int, ...]], ProjectedProblem] = {}
+        self._own_designs: dict[tuple[int, str], tuple[NDArray[np.intp], FloatArray]] = {}
 
     def _key(self, term: CandidateEffect) -> int:
         """The term's id as a cache key, the term held for as long as this object lives."""
@@ -484,10 +489,27 @@ class Sampled:
         return self._projections[key]
 
     def predict(self, term: CandidateEffect, theta: FloatArray, split: str) -> FloatArray:
-        """A term's prediction on the ``"train"`` or ``"hold"`` samples, ``(T, W)``."""
-        if term.linear:
+        """A term's prediction on the ``"train"`` or ``"hold"`` samples, ``(T, W)``.
+
+        A linear term's on its own columns only (its design is zero in the others).
+        """
+        if not term.linear:
+            return np.asarray(term.torque(self.signals[split], theta, NUMPY_OPS), dtype=float)
+        if not isinstance(term, Embedded):
             return np.einsum("tnp,p->tn", self.design(term, split), theta)
-        return np.asarray(term.torque(self.signals[split], theta, NUMPY_OPS), dtype=float)
+        columns, design = self._own_design(term, split)
+        out = np.zeros(self.residual[split].shape)
+        out[:, columns] = np.einsum("tnp,p->tn", design, theta)
+        return out
+
+    def _own_design(self, term: Embedded, split: str) -> tuple[NDArray[np.intp], FloatArray]:
+        """A linear term's stack columns and its design on them alone (computed once)."""
+        key = (self._key(term), split)
+        if key not in self._own_designs:
+            columns = term.own_columns()
+            design = np.ascontiguousarray(self.design(term, split)[:, columns, :])
+            self._own_designs[key] = (columns, design)
+        return self._own_designs[key]
 
 
 def _even_rows(n: int, limit: int) -> NDArray[np.intp]:
@@ -729,6 +751,7 @@ class Confounding:
     def __init__(self, sampled: Sampled) -> None:
         self.sampled = sampled
         self.cache: dict[int, FloatArray] = {}
+        self._span: tuple[tuple[int, ...], FloatArray] | None = None
 
     def basis(self, term: CandidateEffect) -> FloatArray:
         """An orthonormal basis of a linear term's (thinned) training regressor."""
@@ -741,6 +764,15 @@ class Confounding:
             self.cache[id(term)] = u[:, keep]
         return self.cache[id(term)]
 
+    def span(self, terms: Sequence[CandidateEffect]) -> FloatArray:
+        """An orthonormal basis of linear terms' regressors together (the last set's kept)."""
+        key = tuple(id(t) for t in terms)
+        if self._span is None or self._span[0] != key:
+            together = np.concatenate([self.basis(t) for t in terms], axis=1)
+            span, singular, _ = np.linalg.svd(together, full_matrices=False)
+            self._span = (key, span[:, singular > 1e-8 * singular.max(initial=1.0)])
+        return self._span[1]
+
     def confounder(
         self, candidate: CandidateEffect, chosen: Sequence[CandidateEffect]
     ) -> str | None:
@@ -751,9 +783,7 @@ class Confounding:
         own = self.basis(candidate)
         if own.shape[1] == 0:
             return None
-        together = np.concatenate([self.basis(t) for t in linear], axis=1)
-        span, singular, _ = np.linalg.svd(together, full_matrices=False)
-        span = span[:, singular > 1e-8 * singular.max(initial=1.0)]
+        span = self.span(linear)
         correlation = float(np.linalg.svd(own.T @ span, compute_uv=False).max(initial=0.0))
         if correlation <= CONFOUNDING_LIMIT:
             return None
