@@ -207,6 +207,21 @@ def test_a_winch_following_a_moving_path_renders_the_command(mu, speed):
     assert cable["tension_motor"][0] == pytest.approx(30.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("mu", [0.0, 0.12])
+def test_a_winch_whose_cable_goes_slack_in_a_step_feels_no_tension(mu):
+    """The path takes 2 mm in one step from a cable stretched 1.5 mm: the cable is slack at
+    the step's end, and the winch turns under the drive's torque alone (0.09 N m over 3e-5
+    kg m^2 for 1 ms: 3 rad/s); it was held back by the last step's 30 N (omega 0)."""
+    from msarm.plant.cable_kernel import step_cables
+
+    cable = _one_cable(mu=mu)
+    cable["velocities"][:] = -2.0
+    cable["lengths"][:] -= 0.002
+    step_cables(*cable.values())
+    assert cable["tension_motor"][0] == 0.0 and cable["tension_insertion"][0] == 0.0
+    assert cable["omega"][0] == pytest.approx(3.0, rel=1e-9)
+
+
 def test_winch_friction_alone_rigid_cable(arm):
     """Reeling in, the motor-side tension falls short of the command; paying out, exceeds it."""
     plant = moving_plant(arm, only(winch_friction=WinchFrictionConfig(enabled=True)))

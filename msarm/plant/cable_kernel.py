@@ -19,8 +19,7 @@ towards the motor (capstan friction with true stiction, a quasi-static Coulomb l
     the node sticks while ``T_i / beta <= T_m <= beta T_i`` with ``beta = exp(mu Theta(q))``
     and otherwise slides until ``T_m = beta T_i`` (cable pulled in) or ``T_m = T_i / beta``
     (paid out); the winch's implicit step sees the node where this step's path has put it
-    (for a taut cable: in the step where the path makes it slack, the winch still feels the
-    last step's motor-side tension, for that one step).
+    (in its stick band; a cable the path has made slack, no tension).
     Without sheath friction (``mu = 0``) the node balances and the cable is one
     spring of stiffness k. A cable whose total stretch ``e_m + e_i`` is not positive is
     slack: no tension on either side.
@@ -174,6 +173,8 @@ def step_cables(
                 x_now = min(
                     max(x_now, (a - beta * bb) / (1.0 + beta)), (beta * a - bb) / (1.0 + beta)
                 )
+            else:  # slack: the node within [a, -bb], no tension on either side
+                x_now = min(max(x_now, a), -bb)
             t_m_now = k2 * max(a - x_now, 0.0)
             # the rope's dashpot on the total stretch rate (taut cables), implicit in omega
             c_eff = c_damp if a + bb > 0.0 else 0.0
