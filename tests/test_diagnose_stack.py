@@ -521,3 +521,22 @@ def test_problems_of_one_structure_share_a_solver_with_the_same_answers(arm):
     bounds = {"lbx": lower, "ubx": upper, "lbg": 0.0, "ubg": np.inf}
     expected = np.clip(np.asarray(constants(x0=start, **bounds)["x"]).ravel(), lower, upper)
     np.testing.assert_allclose(first.solve(None)[0], expected, rtol=1e-9, atol=1e-12)
+
+
+def test_sparse_parameters_of_other_patterns_get_their_own_solver():
+    """Given symbols of one shape and count of nonzeros but other patterns: two solvers."""
+    import casadi
+
+    import msarm.diagnose.nlp as nlp
+
+    x = casadi.MX.sym("x", 2)
+    answers = []
+    for rows, columns in (([0, 1], [0, 0]), ([0, 1], [0, 1])):  # first column, diagonal
+        A = casadi.MX.sym("A", casadi.Sparsity.triplet(2, 2, rows, columns))
+        data = nlp.DataOps()
+        objective = casadi.bilin(A, x, x) + casadi.sumsqr(x - data.const(np.array([1.0, 2.0])))
+        solver, values, _ = nlp.shared_solver("sparse", x, [A], objective, data, np.zeros((0, 2)))
+        answers.append(solver(x0=[0.0, 0.0], p=np.concatenate([[1.0, 1.0], values]))["x"])
+    # min x0^2 + x1 x0 + |x - (1, 2)|^2 is at (0, 2); min x0^2 + x1^2 + |x - (1, 2)|^2 at (0.5, 1)
+    np.testing.assert_allclose(answers[0], [0.0, 2.0], atol=1e-8)
+    np.testing.assert_allclose(answers[1], [0.5, 1.0], atol=1e-8)

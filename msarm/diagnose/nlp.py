@@ -287,9 +287,18 @@ def _build(
     return solver, _BufferedFunction(casadi.Function(f"{name}_data", data.symbols, values))
 
 
-#: Operations whose printed line does not tell the shape of their result (the key adds it).
+#: Operations whose printed line does not tell the shape or the sparsity of their result (the
+#: key adds them). An input's shape and count of nonzeros are printed, not where its nonzeros
+#: are: a sparse symbol of ``given`` (``(2, 2)`` with 2 nonzeros on the diagonal or in the
+#: first column) would otherwise share the solver of another pattern.
 _SHAPE_NOT_PRINTED = frozenset(
-    [casadi.OP_CONST, casadi.OP_RESHAPE, casadi.OP_GETNONZEROS, casadi.OP_HORZREPSUM]
+    [
+        casadi.OP_CONST,
+        casadi.OP_INPUT,
+        casadi.OP_RESHAPE,
+        casadi.OP_GETNONZEROS,
+        casadi.OP_HORZREPSUM,
+    ]
 )
 
 
@@ -299,14 +308,16 @@ def _structure(
     """A digest of a problem: equal for problems one solver serves, or None (not shared).
 
     The objective's printed algorithm (every operation, its operands and any indices; the
-    inputs' shapes), the shapes of results it does not print and the constants' exact
-    values, and ``G``: data values, held as NLP parameters, do not enter. None when an
-    operation is not one of :data:`_PRINTED_IN_FULL`.
+    inputs' shapes), the shapes and sparsity patterns of results it does not print (the
+    inputs' patterns among them) and the constants' exact values, and ``G``: data values,
+    held as NLP parameters, do not enter. None when an operation is not one of
+    :data:`_PRINTED_IN_FULL`.
     """
     function = casadi.Function(name, list(inputs), [objective])
     digest = hashlib.sha256(name.encode())
     digest.update(function.str(True).encode())
-    digest.update(np.asarray(G.shape, dtype=np.int64).tobytes() + np.asarray(G).tobytes())
+    digest.update(np.asarray(G.shape, dtype=np.int64).tobytes())
+    digest.update(np.asarray(G, dtype=float).tobytes())
     for k in range(function.n_instructions()):
         op = function.instruction_id(k)
         if op not in _PRINTED_IN_FULL:
