@@ -89,7 +89,8 @@ TENSION_RATIO = (0.5, 2.0)
 #: bias of 1 N as half or twice its tension).
 CABLE_TENSION_RATIO = (0.25, 4.0)
 #: Median tension [N] of the load cells (or commands) over a log below which it is warned
-#: about: every sample would be slack (tensions in kN read as N; msarm's arm runs at 18 N).
+#: about: every sample would be slack (tensions in kN read as N; msarm's arm runs at medians of
+#: 7-19 N, 12 N on most of 280 logs).
 MIN_MEDIAN_TENSION = 1.0
 #: Range of the slope of the encoder cable lengths over the path lengths (least squares,
 #: cable by cable) outside which a log is warned about: degrees read as radians give 57, a
