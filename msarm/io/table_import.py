@@ -221,7 +221,8 @@ def log_from_columns(
     check_increasing_time(raw_time, source, _ROWS, name=time_column, unit=time_unit)
     # from the first sample: an epoch time (1.7e9 s) scaled whole loses its steps' digits
     origin = float(raw_time[0])
-    time = _from_origin(columns[time_column], raw_time) * TIME_UNITS[time_unit]
+    since, origin_text = _from_origin(columns[time_column], raw_time)
+    time = since * TIME_UNITS[time_unit]
     check_increasing_time(time, source, _ROWS)
     by_quantity: dict[str, dict[str, FloatArray]] = {}
     for name, values in arrays.items():
@@ -251,9 +252,8 @@ def log_from_columns(
     out = _without_missing(out, drop_missing, source)
     _check_step_kept(out[TIME], rate, source)
     extra = {**dict(extra or {}), "time_origin": origin, "time_origin_unit": time_unit}
-    given = np.asarray(columns[time_column])
-    if given.dtype.kind in "OU":  # the first time as given, every digit (a float keeps 16)
-        extra["time_origin_text"] = str(given[0]).strip()
+    if origin_text is not None:  # the first time as given, every digit (a float keeps 16)
+        extra["time_origin_text"] = origin_text
     metadata = LogMetadata.for_model(model, rate, units=log_units, extra=extra)
     try:
         return RunLog(out, metadata)
@@ -515,19 +515,23 @@ def _first_not_utf8(values: list[bytes | None]) -> tuple[int, bytes | None]:
     return 0, values[0]
 
 
-def _from_origin(values: ArrayLike, parsed: FloatArray) -> FloatArray:
+def _from_origin(values: ArrayLike, parsed: FloatArray) -> tuple[FloatArray, str | None]:
     """Sample times less the first, in their own unit; exact when given as text.
 
     ``parsed`` ``(T,)`` are ``values`` as float64, whose 16 digits keep an epoch time's
     steps only to about 2e-7 s (1.7e9 s): a time given as text (``"1700000123.456"``, as
     :func:`read_csv_log` reads it) or as :class:`~decimal.Decimal` is subtracted exactly,
     then turned into floats. Every value is a finite number here.
+
+    Returns:
+        ``(times, origin)``: the times from the first, ``(T,)``; and the first time as it
+        was given, every digit, when given as text or decimals (else None).
     """
     given = np.asarray(values)
     if given.dtype.kind not in "OU":
-        return parsed - parsed[0]
+        return parsed - parsed[0], None
     exact = [Decimal(str(value).strip()) for value in given]
-    return np.array([float(value - exact[0]) for value in exact])
+    return np.array([float(value - exact[0]) for value in exact]), str(given[0]).strip()
 
 
 def _warn_some_angles_in_degrees(
