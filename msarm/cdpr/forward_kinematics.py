@@ -30,6 +30,8 @@ point r [N m], both in K_0.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -296,8 +298,8 @@ def forward_kinematics(
         raise InputError(f"max_iter must be an integer >= 1, got {max_iter}")
     if max_residual is not None and (
         isinstance(max_residual, bool)
-        or not isinstance(max_residual, (int, float, np.floating, np.integer))
-        or not (np.isfinite(max_residual) and max_residual > 0.0)
+        or not isinstance(max_residual, numbers.Real)  # as io.config.check_numbers
+        or not (math.isfinite(max_residual) and max_residual > 0.0)
     ):
         raise InputError(
             f"max_residual must be a finite number > 0 [m] or None, got {max_residual}"
